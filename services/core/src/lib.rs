@@ -1,0 +1,18 @@
+//! vint's domain vocabulary: the dataset spec and its validation, stages, the task state machine,
+//! seed derivation, sample identities and the planner that turns a spec into tasks.
+//!
+//! Everything here is pure: no I/O, no clocks, no randomness. The store, the coordinator and the
+//! workers build on these types; none of them redefines what lives here.
+
+pub mod catalog;
+pub mod plan;
+pub mod sample;
+pub mod seed;
+pub mod spec;
+pub mod stage;
+pub mod state;
+
+pub use sample::SampleId;
+pub use spec::{DatasetSpec, SpecError, SpecErrors};
+pub use stage::Stage;
+pub use state::{JobState, TaskState};

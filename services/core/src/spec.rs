@@ -1,0 +1,642 @@
+//! The dataset spec: its TOML schema, defaults and validation.
+//!
+//! Parsing walks the TOML tree by hand instead of deriving `Deserialize`, so that one pass reports
+//! *every* problem — wrong types, unknown keys, out-of-range values — each with its field path, the
+//! value found and the rule it breaks, e.g. `render.resolution[0]: must be 16..=8192, got 0`.
+//! A spec that parses is valid; nothing downstream re-checks it.
+
+use std::fmt;
+
+use serde::Serialize;
+use toml::{Table, Value};
+
+use crate::catalog;
+
+/// A validated dataset spec.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct DatasetSpec {
+    pub dataset: DatasetSection,
+    pub hands: Vec<String>,
+    pub objects: Vec<String>,
+    pub grasp: GraspSettings,
+    pub render: RenderSettings,
+    pub noise: NoiseSettings,
+    pub outputs: Outputs,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct DatasetSection {
+    pub name: String,
+    /// Root of every random stream (see `seed`).
+    pub seed: u64,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct GraspSettings {
+    /// Grasp trials per (object, hand) pair; only accepted ones become samples.
+    pub trials_per_pair: u32,
+    /// Trials per grasp-sim task (and so per packaging shard).
+    pub chunk_size: u32,
+    pub timestep_s: f64,
+    pub lift_height_m: f64,
+    pub hold_s: f64,
+    /// A grasp holds when the object moves less than this relative to the palm while lifted.
+    pub max_drop_m: f64,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct RenderSettings {
+    /// [width, height] in pixels.
+    pub resolution: [u32; 2],
+    /// Cycles samples per pixel.
+    pub samples: u32,
+    pub views_per_grasp: u32,
+    /// Bundled HDRI names; view `v` uses `environments[v % len]`.
+    pub environments: Vec<String>,
+    /// Horizontal field of view.
+    pub fov_deg: f64,
+    /// Camera distance range from the object.
+    pub radius_m: [f64; 2],
+    /// Camera elevation range above the horizontal plane.
+    pub elevation_deg: [f64; 2],
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct NoiseSettings {
+    pub sigma_base_m: f64,
+    pub sigma_per_m: f64,
+    pub min_range_m: f64,
+    pub max_range_m: f64,
+    pub edge_hole_jump_m: f64,
+    pub dropout: f64,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Outputs {
+    pub modalities: Vec<String>,
+}
+
+impl Outputs {
+    pub fn wants(&self, modality: &str) -> bool {
+        self.modalities.iter().any(|m| m == modality)
+    }
+}
+
+/// One problem with a spec.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SpecError {
+    /// Field path, e.g. `render.resolution[0]`; empty for a document-level problem.
+    pub path: String,
+    /// The value found, as TOML, or `nothing` when absent.
+    pub value: String,
+    /// The rule the value breaks.
+    pub rule: String,
+}
+
+impl fmt::Display for SpecError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.path.is_empty() {
+            write!(f, "{}", self.rule)
+        } else {
+            write!(f, "{}: {}, got {}", self.path, self.rule, self.value)
+        }
+    }
+}
+
+/// Every problem found in a spec, in document order.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub struct SpecErrors(pub Vec<SpecError>);
+
+impl fmt::Display for SpecErrors {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        for (i, e) in self.0.iter().enumerate() {
+            if i > 0 {
+                writeln!(f)?;
+            }
+            write!(f, "{e}")?;
+        }
+        Ok(())
+    }
+}
+
+/// Largest spec accepted, so a hostile or mistaken file cannot exhaust memory.
+pub const MAX_SPEC_BYTES: usize = 1 << 20;
+
+impl DatasetSpec {
+    /// Parses and validates a spec, reporting every problem at once.
+    pub fn parse(text: &str) -> Result<DatasetSpec, SpecErrors> {
+        if text.len() > MAX_SPEC_BYTES {
+            return Err(SpecErrors(vec![SpecError {
+                path: String::new(),
+                value: format!("{} bytes", text.len()),
+                rule: format!("spec is larger than {MAX_SPEC_BYTES} bytes"),
+            }]));
+        }
+        let mut root: Table = text.parse().map_err(|e: toml::de::Error| {
+            SpecErrors(vec![SpecError {
+                path: String::new(),
+                value: String::new(),
+                rule: format!("not valid TOML: {}", e.to_string().trim()),
+            }])
+        })?;
+        let mut r = Reader::default();
+        let spec = read_spec(&mut r, &mut root);
+        if r.errors.is_empty() {
+            Ok(spec)
+        } else {
+            Err(SpecErrors(r.errors))
+        }
+    }
+
+    /// Number of grasp-sim tasks (chunks) per (object, hand) pair.
+    pub fn chunks_per_pair(&self) -> u32 {
+        self.grasp.trials_per_pair.div_ceil(self.grasp.chunk_size)
+    }
+
+    /// Upper bound on the number of samples, if every trial were accepted.
+    pub fn max_samples(&self) -> u64 {
+        (self.hands.len() * self.objects.len()) as u64
+            * u64::from(self.grasp.trials_per_pair)
+            * u64::from(self.render.views_per_grasp)
+    }
+}
+
+fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
+    let mut ds = r.section(root, "dataset");
+    let dataset = DatasetSection {
+        name: r.name(&mut ds, "dataset", "name", None),
+        seed: r.int(&mut ds, "dataset.seed", "seed", 0..=i64::MAX, None) as u64,
+    };
+    r.finish(ds, "dataset", &["name", "seed"]);
+
+    let hands = r.name_list(
+        root,
+        "",
+        "hands",
+        &["trx3"],
+        |n| catalog::hand(n).is_some(),
+        "a hand in `vintctl hands`",
+    );
+    let objects = r.name_list(
+        root,
+        "",
+        "objects",
+        &[],
+        |n| catalog::object(n).is_some(),
+        "an object in the built-in catalog",
+    );
+
+    let mut g = r.section(root, "grasp");
+    let grasp = GraspSettings {
+        trials_per_pair: r.int(
+            &mut g,
+            "grasp.trials_per_pair",
+            "trials_per_pair",
+            1..=1_000_000,
+            Some(8),
+        ) as u32,
+        chunk_size: r.int(&mut g, "grasp.chunk_size", "chunk_size", 1..=1024, Some(8)) as u32,
+        timestep_s: r.float(
+            &mut g,
+            "grasp.timestep_s",
+            "timestep_s",
+            (0.0001, 0.01),
+            Some(0.002),
+        ),
+        lift_height_m: r.float(
+            &mut g,
+            "grasp.lift_height_m",
+            "lift_height_m",
+            (0.0, 1.0),
+            Some(0.10),
+        ),
+        hold_s: r.float(&mut g, "grasp.hold_s", "hold_s", (0.0, 60.0), Some(1.0)),
+        max_drop_m: r.float(
+            &mut g,
+            "grasp.max_drop_m",
+            "max_drop_m",
+            (0.001, 0.5),
+            Some(0.02),
+        ),
+    };
+    r.finish(
+        g,
+        "grasp",
+        &[
+            "trials_per_pair",
+            "chunk_size",
+            "timestep_s",
+            "lift_height_m",
+            "hold_s",
+            "max_drop_m",
+        ],
+    );
+
+    let mut rd = r.section(root, "render");
+    let resolution = r.int_pair(&mut rd, "render", "resolution", 16..=8192, [128, 128]);
+    let render = RenderSettings {
+        resolution: [resolution[0] as u32, resolution[1] as u32],
+        samples: r.int(&mut rd, "render.samples", "samples", 1..=65_536, Some(16)) as u32,
+        views_per_grasp: r.int(&mut rd, "render.views_per_grasp", "views_per_grasp", 1..=256, Some(2)) as u32,
+        environments: r.name_list(
+            &mut rd,
+            "render",
+            "environments",
+            &["studio"],
+            |n| catalog::ENVIRONMENTS.contains(&n),
+            "one of Blender's bundled HDRIs (city, courtyard, forest, interior, night, studio, sunrise, sunset)",
+        ),
+        fov_deg: r.float(&mut rd, "render.fov_deg", "fov_deg", (5.0, 170.0), Some(60.0)),
+        radius_m: r.float_range(&mut rd, "render", "radius_m", (0.05, 10.0), [0.35, 0.5]),
+        elevation_deg: r.float_range(&mut rd, "render", "elevation_deg", (-90.0, 90.0), [15.0, 75.0]),
+    };
+    r.finish(
+        rd,
+        "render",
+        &[
+            "resolution",
+            "samples",
+            "views_per_grasp",
+            "environments",
+            "fov_deg",
+            "radius_m",
+            "elevation_deg",
+        ],
+    );
+
+    let mut n = r.section(root, "noise");
+    let noise = NoiseSettings {
+        sigma_base_m: r.float(
+            &mut n,
+            "noise.sigma_base_m",
+            "sigma_base_m",
+            (0.0, 0.1),
+            Some(0.0005),
+        ),
+        sigma_per_m: r.float(
+            &mut n,
+            "noise.sigma_per_m",
+            "sigma_per_m",
+            (0.0, 0.1),
+            Some(0.001),
+        ),
+        min_range_m: r.float(
+            &mut n,
+            "noise.min_range_m",
+            "min_range_m",
+            (0.0, 20.0),
+            Some(0.25),
+        ),
+        max_range_m: r.float(
+            &mut n,
+            "noise.max_range_m",
+            "max_range_m",
+            (0.0, 20.0),
+            Some(3.86),
+        ),
+        edge_hole_jump_m: r.float(
+            &mut n,
+            "noise.edge_hole_jump_m",
+            "edge_hole_jump_m",
+            (0.001, 10.0),
+            Some(0.05),
+        ),
+        dropout: r.float(&mut n, "noise.dropout", "dropout", (0.0, 1.0), Some(0.01)),
+    };
+    if noise.min_range_m >= noise.max_range_m {
+        r.error(
+            "noise.max_range_m",
+            Value::Float(noise.max_range_m),
+            format!(
+                "must be greater than noise.min_range_m ({})",
+                noise.min_range_m
+            ),
+        );
+    }
+    r.finish(
+        n,
+        "noise",
+        &[
+            "sigma_base_m",
+            "sigma_per_m",
+            "min_range_m",
+            "max_range_m",
+            "edge_hole_jump_m",
+            "dropout",
+        ],
+    );
+
+    let mut o = r.section(root, "outputs");
+    let outputs = Outputs {
+        modalities: r.name_list(
+            &mut o,
+            "outputs",
+            "modalities",
+            catalog::MODALITIES,
+            |m| catalog::MODALITIES.contains(&m),
+            "one of rgb, depth, depth_noisy, mask, pose",
+        ),
+    };
+    r.finish(o, "outputs", &["modalities"]);
+
+    r.finish(
+        std::mem::take(root),
+        "",
+        &[
+            "dataset", "hands", "objects", "grasp", "render", "noise", "outputs",
+        ],
+    );
+    DatasetSpec {
+        dataset,
+        hands,
+        objects,
+        grasp,
+        render,
+        noise,
+        outputs,
+    }
+}
+
+/// Collects errors while taking values out of TOML tables; what is left in a table at `finish` is
+/// an unknown key.
+#[derive(Default)]
+struct Reader {
+    errors: Vec<SpecError>,
+}
+
+fn join(parent: &str, key: &str) -> String {
+    if parent.is_empty() {
+        key.to_string()
+    } else {
+        format!("{parent}.{key}")
+    }
+}
+
+fn shown(v: &Value) -> String {
+    match v {
+        Value::String(s) => format!("{s:?}"),
+        Value::Table(_) => "a table".to_string(),
+        other => other.to_string(),
+    }
+}
+
+impl Reader {
+    fn error(&mut self, path: &str, value: Value, rule: impl Into<String>) {
+        self.errors.push(SpecError {
+            path: path.to_string(),
+            value: shown(&value),
+            rule: rule.into(),
+        });
+    }
+
+    fn missing(&mut self, path: &str) {
+        self.errors.push(SpecError {
+            path: path.to_string(),
+            value: "nothing".into(),
+            rule: "is required".into(),
+        });
+    }
+
+    /// Removes and returns a sub-table; a missing one is empty (all defaults).
+    fn section(&mut self, root: &mut Table, key: &str) -> Table {
+        match root.remove(key) {
+            None => Table::new(),
+            Some(Value::Table(t)) => t,
+            Some(v) => {
+                self.error(key, v, "must be a table");
+                Table::new()
+            }
+        }
+    }
+
+    fn finish(&mut self, rest: Table, parent: &str, known: &[&str]) {
+        for (k, v) in rest {
+            if known.contains(&k.as_str()) {
+                continue; // already reported (e.g. wrong type) when taken
+            }
+            self.error(
+                &join(parent, &k),
+                v,
+                format!("unknown key (known keys: {})", known.join(", ")),
+            );
+        }
+    }
+
+    fn int(
+        &mut self,
+        t: &mut Table,
+        path: &str,
+        key: &str,
+        range: std::ops::RangeInclusive<i64>,
+        default: Option<i64>,
+    ) -> i64 {
+        let fallback = default.unwrap_or(*range.start());
+        match t.remove(key) {
+            None => {
+                if default.is_none() {
+                    self.missing(path);
+                }
+                fallback
+            }
+            Some(Value::Integer(i)) if range.contains(&i) => i,
+            Some(v @ Value::Integer(_)) => {
+                self.error(
+                    path,
+                    v,
+                    format!("must be {}..={}", range.start(), range.end()),
+                );
+                fallback
+            }
+            Some(v) => {
+                self.error(path, v, "must be an integer");
+                fallback
+            }
+        }
+    }
+
+    fn float_value(&mut self, path: &str, v: Value, (lo, hi): (f64, f64)) -> Option<f64> {
+        let x = match v {
+            Value::Float(x) => x,
+            Value::Integer(i) => i as f64,
+            other => {
+                self.error(path, other, "must be a number");
+                return None;
+            }
+        };
+        if !x.is_finite() {
+            self.error(path, Value::Float(x), "must be a finite number");
+            None
+        } else if !(lo..=hi).contains(&x) {
+            self.error(path, Value::Float(x), format!("must be in [{lo}, {hi}]"));
+            None
+        } else {
+            Some(x)
+        }
+    }
+
+    fn float(
+        &mut self,
+        t: &mut Table,
+        path: &str,
+        key: &str,
+        bounds: (f64, f64),
+        default: Option<f64>,
+    ) -> f64 {
+        let fallback = default.unwrap_or(bounds.0);
+        match t.remove(key) {
+            None => {
+                if default.is_none() {
+                    self.missing(path);
+                }
+                fallback
+            }
+            Some(v) => self.float_value(path, v, bounds).unwrap_or(fallback),
+        }
+    }
+
+    /// A two-element array `[lo, hi]` with `lo <= hi`, both within `bounds`.
+    fn float_range(
+        &mut self,
+        t: &mut Table,
+        parent: &str,
+        key: &str,
+        bounds: (f64, f64),
+        default: [f64; 2],
+    ) -> [f64; 2] {
+        let path = join(parent, key);
+        let Some(items) = self.pair(t, &path, key) else {
+            return default;
+        };
+        let mut out = default;
+        for (i, v) in items.into_iter().enumerate() {
+            if let Some(x) = self.float_value(&format!("{path}[{i}]"), v, bounds) {
+                out[i] = x;
+            }
+        }
+        if out[0] > out[1] {
+            self.error(
+                &path,
+                Value::Array(vec![Value::Float(out[0]), Value::Float(out[1])]),
+                "must be [low, high] with low <= high",
+            );
+        }
+        out
+    }
+
+    fn int_pair(
+        &mut self,
+        t: &mut Table,
+        parent: &str,
+        key: &str,
+        range: std::ops::RangeInclusive<i64>,
+        default: [i64; 2],
+    ) -> [i64; 2] {
+        let path = join(parent, key);
+        let Some(items) = self.pair(t, &path, key) else {
+            return default;
+        };
+        let mut out = default;
+        for (i, v) in items.into_iter().enumerate() {
+            let p = format!("{path}[{i}]");
+            match v {
+                Value::Integer(x) if range.contains(&x) => out[i] = x,
+                v @ Value::Integer(_) => self.error(
+                    &p,
+                    v,
+                    format!("must be {}..={}", range.start(), range.end()),
+                ),
+                v => self.error(&p, v, "must be an integer"),
+            }
+        }
+        out
+    }
+
+    fn pair(&mut self, t: &mut Table, path: &str, key: &str) -> Option<Vec<Value>> {
+        match t.remove(key)? {
+            Value::Array(a) if a.len() == 2 => Some(a),
+            v => {
+                self.error(path, v, "must be an array of two numbers");
+                None
+            }
+        }
+    }
+
+    /// A lowercase identifier: `[a-z0-9_]`, 1 to 64 characters (it becomes part of paths and ids).
+    fn check_name(&mut self, path: &str, v: Value) -> Option<String> {
+        match v {
+            Value::String(s)
+                if !s.is_empty()
+                    && s.len() <= 64
+                    && s.bytes()
+                        .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_') =>
+            {
+                Some(s)
+            }
+            v @ Value::String(_) => {
+                self.error(path, v, "must be 1 to 64 characters of a-z, 0-9 and _");
+                None
+            }
+            v => {
+                self.error(path, v, "must be a string");
+                None
+            }
+        }
+    }
+
+    fn name(&mut self, t: &mut Table, parent: &str, key: &str, default: Option<&str>) -> String {
+        let path = join(parent, key);
+        match t.remove(key) {
+            None => {
+                if default.is_none() {
+                    self.missing(&path);
+                }
+                default.unwrap_or_default().to_string()
+            }
+            Some(v) => self.check_name(&path, v).unwrap_or_default(),
+        }
+    }
+
+    /// A non-empty list of distinct names, each accepted by `known`.
+    fn name_list(
+        &mut self,
+        t: &mut Table,
+        parent: &str,
+        key: &str,
+        default: &[&str],
+        known: impl Fn(&str) -> bool,
+        rule: &str,
+    ) -> Vec<String> {
+        let path = join(parent, key);
+        let items = match t.remove(key) {
+            None if default.is_empty() => {
+                self.missing(&path);
+                return Vec::new();
+            }
+            None => return default.iter().map(|s| s.to_string()).collect(),
+            Some(Value::Array(a)) if a.is_empty() => {
+                self.error(&path, Value::Array(a), "must name at least one");
+                return Vec::new();
+            }
+            Some(Value::Array(a)) => a,
+            Some(v) => {
+                self.error(&path, v, "must be an array of strings");
+                return Vec::new();
+            }
+        };
+        let mut out: Vec<String> = Vec::new();
+        for (i, v) in items.into_iter().enumerate() {
+            let p = format!("{path}[{i}]");
+            let Some(name) = self.check_name(&p, v) else {
+                continue;
+            };
+            if !known(&name) {
+                self.error(&p, Value::String(name), format!("must be {rule}"));
+            } else if out.contains(&name) {
+                self.error(&p, Value::String(name), "must not repeat an earlier entry");
+            } else {
+                out.push(name);
+            }
+        }
+        out
+    }
+}

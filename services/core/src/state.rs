@@ -1,0 +1,193 @@
+//! The task and job state machines: every state and every legal transition, in one place.
+//!
+//! ```text
+//!            deps succeeded              lease                  complete (fenced)
+//!  waiting ───────────────► queued ───────────────► running ───────────────────► succeeded
+//!     │                      ▲  │                      │
+//!     │                      │  │ cancel               │ fail(retryable) or lease expired,
+//!     │                      │  ▼                      │ attempts left: back to queued with
+//!     │ cancel               │ cancelled ◄─────────────┤ backoff (not_before)
+//!     │ upstream failed      └─────────────────────────┤
+//!     ▼                                                │ fail(permanent) or attempts exhausted
+//!  failed / cancelled ◄────────────────────────────────┘
+//! ```
+//!
+//! The store implements these transitions in SQL; `TaskState::can_transition` is the reference its
+//! tests check against.
+
+use std::fmt;
+use std::str::FromStr;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum TaskState {
+    /// Some dependency has not succeeded yet.
+    Waiting,
+    /// Ready to lease once `not_before` has passed.
+    Queued,
+    /// Leased by a worker until its lease deadline.
+    Running,
+    Succeeded,
+    /// Failed permanently; the last error is kept.
+    Failed,
+    Cancelled,
+}
+
+impl TaskState {
+    pub const ALL: [TaskState; 6] = [
+        TaskState::Waiting,
+        TaskState::Queued,
+        TaskState::Running,
+        TaskState::Succeeded,
+        TaskState::Failed,
+        TaskState::Cancelled,
+    ];
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            TaskState::Waiting => "waiting",
+            TaskState::Queued => "queued",
+            TaskState::Running => "running",
+            TaskState::Succeeded => "succeeded",
+            TaskState::Failed => "failed",
+            TaskState::Cancelled => "cancelled",
+        }
+    }
+
+    pub fn is_terminal(self) -> bool {
+        matches!(
+            self,
+            TaskState::Succeeded | TaskState::Failed | TaskState::Cancelled
+        )
+    }
+
+    /// The legal transitions. Anything else is a bug in the store.
+    pub fn can_transition(self, to: TaskState) -> bool {
+        use TaskState::*;
+        matches!(
+            (self, to),
+            (Waiting, Queued)
+                | (Waiting, Failed)
+                | (Waiting, Cancelled)
+                | (Queued, Running)
+                | (Queued, Cancelled)
+                | (Running, Succeeded)
+                | (Running, Queued)
+                | (Running, Failed)
+                | (Running, Cancelled)
+        )
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum JobState {
+    /// Tasks remain to be run.
+    Running,
+    /// Every task succeeded.
+    Succeeded,
+    /// Every task is final and at least one failed permanently: the samples that could be made are
+    /// packaged, the others are missing.
+    Failed,
+    Cancelled,
+}
+
+impl JobState {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            JobState::Running => "running",
+            JobState::Succeeded => "succeeded",
+            JobState::Failed => "failed",
+            JobState::Cancelled => "cancelled",
+        }
+    }
+
+    pub fn is_terminal(self) -> bool {
+        !matches!(self, JobState::Running)
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+#[error("unknown state {0:?}")]
+pub struct UnknownState(pub String);
+
+macro_rules! impl_state_text {
+    ($ty:ty, $($variant:expr),+) => {
+        impl FromStr for $ty {
+            type Err = UnknownState;
+            fn from_str(s: &str) -> Result<Self, Self::Err> {
+                [$($variant),+].into_iter().find(|v| v.as_str() == s).ok_or_else(|| UnknownState(s.to_string()))
+            }
+        }
+        impl fmt::Display for $ty {
+            fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                f.write_str(self.as_str())
+            }
+        }
+    };
+}
+
+impl_state_text!(
+    TaskState,
+    TaskState::Waiting,
+    TaskState::Queued,
+    TaskState::Running,
+    TaskState::Succeeded,
+    TaskState::Failed,
+    TaskState::Cancelled
+);
+impl_state_text!(
+    JobState,
+    JobState::Running,
+    JobState::Succeeded,
+    JobState::Failed,
+    JobState::Cancelled
+);
+
+/// Delay before the next attempt after `attempts` failed ones: `base · 2^(attempts−1)`, capped.
+pub fn retry_backoff_ms(attempts: u32, base_ms: i64, cap_ms: i64) -> i64 {
+    let exp = attempts.saturating_sub(1).min(30);
+    base_ms.saturating_mul(1_i64 << exp).min(cap_ms)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn terminal_states_have_no_way_out() {
+        for from in TaskState::ALL.into_iter().filter(|s| s.is_terminal()) {
+            for to in TaskState::ALL {
+                assert!(!from.can_transition(to), "{from} -> {to} must be illegal");
+            }
+        }
+    }
+
+    #[test]
+    fn only_a_lease_starts_running() {
+        for from in TaskState::ALL {
+            assert_eq!(
+                from.can_transition(TaskState::Running),
+                from == TaskState::Queued
+            );
+        }
+    }
+
+    #[test]
+    fn states_round_trip_through_text() {
+        for s in TaskState::ALL {
+            assert_eq!(s.as_str().parse::<TaskState>().unwrap(), s);
+        }
+        assert_eq!(
+            "cancelled".parse::<JobState>().unwrap(),
+            JobState::Cancelled
+        );
+        assert!("done".parse::<TaskState>().is_err());
+    }
+
+    #[test]
+    fn backoff_doubles_and_caps() {
+        assert_eq!(retry_backoff_ms(1, 100, 10_000), 100);
+        assert_eq!(retry_backoff_ms(2, 100, 10_000), 200);
+        assert_eq!(retry_backoff_ms(4, 100, 10_000), 800);
+        assert_eq!(retry_backoff_ms(40, 100, 10_000), 10_000);
+    }
+}

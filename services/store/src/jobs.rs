@@ -1,0 +1,294 @@
+//! Jobs: submit (idempotent), read, progress, cancel, finalize; and inserting planned tasks.
+
+use sqlx::any::AnyRow;
+use sqlx::{Any, Row, Transaction};
+use vint_core::plan::NewTask;
+use vint_core::{JobState, TaskState};
+
+use crate::{
+    JobRecord, NewJob, Progress, Result, Store, StoreError, TaskRecord, parse, to_u32, trusted,
+};
+
+const JOB_COLUMNS: &str = "id, name, seed, spec_toml, state, created_ms, finished_ms";
+pub(crate) const TASK_COLUMNS: &str = "id, job_id, key, stage, state, params_json, attempt, max_attempts, \
+     not_before_ms, lease_owner, lease_deadline_ms, last_error, engine_json, result_json";
+
+fn job_from_row(row: &AnyRow) -> Result<JobRecord> {
+    Ok(JobRecord {
+        id: row.try_get("id")?,
+        name: row.try_get("name")?,
+        seed: row.try_get::<i64, _>("seed")? as u64,
+        spec_toml: row.try_get("spec_toml")?,
+        state: parse("job state", &row.try_get::<String, _>("state")?)?,
+        created_ms: row.try_get("created_ms")?,
+        finished_ms: row.try_get("finished_ms")?,
+    })
+}
+
+pub(crate) fn task_from_row(row: &AnyRow) -> Result<TaskRecord> {
+    Ok(TaskRecord {
+        id: row.try_get("id")?,
+        job_id: row.try_get("job_id")?,
+        key: row.try_get("key")?,
+        stage: parse("stage", &row.try_get::<String, _>("stage")?)?,
+        state: parse("task state", &row.try_get::<String, _>("state")?)?,
+        params_json: row.try_get("params_json")?,
+        attempt: to_u32("attempt", row.try_get("attempt")?)?,
+        max_attempts: to_u32("max_attempts", row.try_get("max_attempts")?)?,
+        not_before_ms: row.try_get("not_before_ms")?,
+        lease_owner: row.try_get("lease_owner")?,
+        lease_deadline_ms: row.try_get("lease_deadline_ms")?,
+        last_error: row.try_get("last_error")?,
+        engine_json: row.try_get("engine_json")?,
+        result_json: row.try_get("result_json")?,
+    })
+}
+
+/// The id of task `key` in job `job_id`: unique, stable, readable.
+pub fn task_id(job_id: &str, key: &str) -> String {
+    format!("{job_id}/{key}")
+}
+
+impl Store {
+    /// Creates a job and its initial tasks in one transaction. A job with the same idempotency key
+    /// is returned instead, with `false`.
+    pub async fn submit_job(
+        &self,
+        job: &NewJob,
+        tasks: &[NewTask],
+        now_ms: i64,
+    ) -> Result<(JobRecord, bool)> {
+        if let Some(existing) = self.job_by_idempotency_key(&job.idempotency_key).await? {
+            return Ok((existing, false));
+        }
+        let mut tx = self.pool.begin().await?;
+        let inserted = sqlx::query(
+            "INSERT INTO jobs (id, name, seed, spec_toml, idempotency_key, state, created_ms) \
+             VALUES ($1, $2, $3, $4, $5, $6, $7) ON CONFLICT (idempotency_key) DO NOTHING",
+        )
+        .bind(&job.id)
+        .bind(&job.name)
+        .bind(job.seed as i64)
+        .bind(&job.spec_toml)
+        .bind(&job.idempotency_key)
+        .bind(JobState::Running.as_str())
+        .bind(now_ms)
+        .execute(&mut *tx)
+        .await?
+        .rows_affected();
+        if inserted == 0 {
+            // A concurrent submit with the same key won the race.
+            tx.rollback().await?;
+            let existing = self.job_by_idempotency_key(&job.idempotency_key).await?;
+            return existing
+                .map(|j| (j, false))
+                .ok_or_else(|| StoreError::NotFound("job after conflict".into()));
+        }
+        self.insert_tasks(&mut tx, &job.id, tasks, now_ms).await?;
+        tx.commit().await?;
+        let created = self
+            .job(&job.id)
+            .await?
+            .ok_or_else(|| StoreError::NotFound(format!("job {}", job.id)))?;
+        Ok((created, true))
+    }
+
+    async fn job_by_idempotency_key(&self, key: &str) -> Result<Option<JobRecord>> {
+        let sql = format!("SELECT {JOB_COLUMNS} FROM jobs WHERE idempotency_key = $1");
+        let row = sqlx::query(trusted(sql))
+            .bind(key)
+            .fetch_optional(&self.pool)
+            .await?;
+        row.as_ref().map(job_from_row).transpose()
+    }
+
+    pub async fn job(&self, job_id: &str) -> Result<Option<JobRecord>> {
+        let sql = format!("SELECT {JOB_COLUMNS} FROM jobs WHERE id = $1");
+        let row = sqlx::query(trusted(sql))
+            .bind(job_id)
+            .fetch_optional(&self.pool)
+            .await?;
+        row.as_ref().map(job_from_row).transpose()
+    }
+
+    /// Most recent jobs first.
+    pub async fn list_jobs(&self, limit: u32) -> Result<Vec<JobRecord>> {
+        let sql = format!("SELECT {JOB_COLUMNS} FROM jobs ORDER BY created_ms DESC, id LIMIT $1");
+        let rows = sqlx::query(trusted(sql))
+            .bind(i64::from(limit))
+            .fetch_all(&self.pool)
+            .await?;
+        rows.iter().map(job_from_row).collect()
+    }
+
+    pub async fn progress(&self, job_id: &str) -> Result<Progress> {
+        let rows = sqlx::query(
+            "SELECT stage, state, COUNT(*) AS n FROM tasks WHERE job_id = $1 GROUP BY stage, state",
+        )
+        .bind(job_id)
+        .fetch_all(&self.pool)
+        .await?;
+        let mut p = Progress::default();
+        for row in rows {
+            let stage: String = row.try_get("stage")?;
+            let state: String = row.try_get("state")?;
+            let n: i64 = row.try_get("n")?;
+            p.by_stage.entry(stage).or_default().insert(state, n as u64);
+        }
+        let samples: i64 = sqlx::query("SELECT COUNT(*) AS n FROM samples WHERE job_id = $1")
+            .bind(job_id)
+            .fetch_one(&self.pool)
+            .await?
+            .try_get("n")?;
+        p.samples = samples as u64;
+        Ok(p)
+    }
+
+    /// Cancels a running job: no task of it is leased again, and running attempts lose their
+    /// lease (their completion is refused). Returns the job as it is afterwards.
+    pub async fn cancel_job(&self, job_id: &str, now_ms: i64) -> Result<JobRecord> {
+        let mut tx = self.pool.begin().await?;
+        let changed = sqlx::query(
+            "UPDATE jobs SET state = $1, finished_ms = $2 WHERE id = $3 AND state = $4",
+        )
+        .bind(JobState::Cancelled.as_str())
+        .bind(now_ms)
+        .bind(job_id)
+        .bind(JobState::Running.as_str())
+        .execute(&mut *tx)
+        .await?
+        .rows_affected();
+        if changed == 1 {
+            sqlx::query(
+                "UPDATE attempts SET ended_ms = $1, outcome = 'cancelled' WHERE ended_ms IS NULL AND task_id IN \
+                 (SELECT id FROM tasks WHERE job_id = $2 AND state = 'running')",
+            )
+            .bind(now_ms)
+            .bind(job_id)
+            .execute(&mut *tx)
+            .await?;
+            sqlx::query(
+                "UPDATE tasks SET state = 'cancelled', lease_owner = NULL, lease_deadline_ms = NULL, updated_ms = $1 \
+                 WHERE job_id = $2 AND state IN ('waiting', 'queued', 'running')",
+            )
+            .bind(now_ms)
+            .bind(job_id)
+            .execute(&mut *tx)
+            .await?;
+        }
+        tx.commit().await?;
+        self.job(job_id)
+            .await?
+            .ok_or_else(|| StoreError::NotFound(format!("job {job_id}")))
+    }
+
+    /// Marks running jobs whose tasks are all final as succeeded or failed. Returns their ids.
+    ///
+    /// Called after every completion and periodically: two completions committing at once can
+    /// each see the other's task still running, so the periodic call is what guarantees it.
+    pub async fn finalize_jobs(&self, now_ms: i64) -> Result<Vec<String>> {
+        let rows = sqlx::query(
+            "SELECT j.id, \
+               (SELECT COUNT(*) FROM tasks t WHERE t.job_id = j.id AND t.state = 'failed') AS failed \
+             FROM jobs j WHERE j.state = 'running' AND NOT EXISTS \
+               (SELECT 1 FROM tasks t WHERE t.job_id = j.id AND t.state IN ('waiting', 'queued', 'running'))",
+        )
+        .fetch_all(&self.pool)
+        .await?;
+        let mut done = Vec::new();
+        for row in rows {
+            let id: String = row.try_get("id")?;
+            let failed: i64 = row.try_get("failed")?;
+            let state = if failed > 0 {
+                JobState::Failed
+            } else {
+                JobState::Succeeded
+            };
+            let n = sqlx::query(
+                "UPDATE jobs SET state = $1, finished_ms = $2 WHERE id = $3 AND state = 'running'",
+            )
+            .bind(state.as_str())
+            .bind(now_ms)
+            .bind(&id)
+            .execute(&self.pool)
+            .await?
+            .rows_affected();
+            if n == 1 {
+                done.push(id);
+            }
+        }
+        Ok(done)
+    }
+
+    pub async fn task(&self, task_id: &str) -> Result<Option<TaskRecord>> {
+        let sql = format!("SELECT {TASK_COLUMNS} FROM tasks WHERE id = $1");
+        let row = sqlx::query(trusted(sql))
+            .bind(task_id)
+            .fetch_optional(&self.pool)
+            .await?;
+        row.as_ref().map(task_from_row).transpose()
+    }
+
+    pub async fn tasks_of_job(&self, job_id: &str) -> Result<Vec<TaskRecord>> {
+        let sql = format!("SELECT {TASK_COLUMNS} FROM tasks WHERE job_id = $1 ORDER BY key");
+        let rows = sqlx::query(trusted(sql))
+            .bind(job_id)
+            .fetch_all(&self.pool)
+            .await?;
+        rows.iter().map(task_from_row).collect()
+    }
+
+    /// Inserts planned tasks with their dependency edges. A task whose dependencies have all
+    /// succeeded starts queued; otherwise it waits. Keys already present are skipped, so
+    /// re-planning is harmless.
+    pub(crate) async fn insert_tasks(
+        &self,
+        tx: &mut Transaction<'static, Any>,
+        job_id: &str,
+        tasks: &[NewTask],
+        now_ms: i64,
+    ) -> Result<()> {
+        for t in tasks {
+            let id = task_id(job_id, &t.key);
+            let inserted = sqlx::query(
+                "INSERT INTO tasks (id, job_id, key, stage, priority, params_json, state, deps_pending, \
+                 max_attempts, created_ms, updated_ms) VALUES ($1, $2, $3, $4, $5, $6, $7, 0, $8, $9, $9) \
+                 ON CONFLICT (id) DO NOTHING",
+            )
+            .bind(&id)
+            .bind(job_id)
+            .bind(&t.key)
+            .bind(t.stage.as_str())
+            .bind(t.stage.lease_priority())
+            .bind(t.params.to_string())
+            .bind(TaskState::Waiting.as_str())
+            .bind(i64::from(self.retry.max_attempts))
+            .bind(now_ms)
+            .execute(&mut **tx)
+            .await?
+            .rows_affected();
+            if inserted == 0 {
+                continue;
+            }
+            for dep in &t.deps {
+                sqlx::query("INSERT INTO task_deps (task_id, depends_on) VALUES ($1, $2)")
+                    .bind(&id)
+                    .bind(task_id(job_id, dep))
+                    .execute(&mut **tx)
+                    .await?;
+            }
+            sqlx::query(
+                "UPDATE tasks SET deps_pending = (SELECT COUNT(*) FROM task_deps d JOIN tasks p ON p.id = d.depends_on \
+                 WHERE d.task_id = $1 AND p.state <> 'succeeded') WHERE id = $1",
+            )
+            .bind(&id)
+            .execute(&mut **tx)
+            .await?;
+            sqlx::query("UPDATE tasks SET state = 'queued' WHERE id = $1 AND deps_pending = 0")
+                .bind(&id)
+                .execute(&mut **tx)
+                .await?;
+        }
+        Ok(())
+    }
+}

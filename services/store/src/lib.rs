@@ -1,0 +1,193 @@
+//! The lineage store: jobs, tasks, dependencies, attempts, artifacts, lineage edges and samples.
+//!
+//! This crate is the only place in vint that speaks SQL. One `Store` type serves both backends
+//! through sqlx's `Any` driver: **Postgres** for clusters (many coordinators and workers, leasing
+//! with `FOR UPDATE SKIP LOCKED`) and **SQLite** for the embedded default (one process, one
+//! connection, so every transaction is serialized). The SQL is shared; where the dialects differ
+//! (`Backend::skip_locked`) the difference is one clause. Both run the same test suite.
+//!
+//! Every transition follows `vint_core::state`; completion and failure are fenced on the lease
+//! holder and attempt, so a worker whose lease expired can change nothing. Times are passed in
+//! (`now_ms`) rather than read from a clock, which keeps the queue logic testable.
+
+mod jobs;
+mod lineage;
+mod queue;
+mod records;
+
+use std::str::FromStr;
+use std::time::Duration;
+
+use sqlx::any::{AnyPoolOptions, install_default_drivers};
+use sqlx::{AnyPool, Executor};
+
+pub use records::*;
+
+/// Which database a `Store` talks to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Backend {
+    Postgres,
+    Sqlite,
+}
+
+impl Backend {
+    /// The row-locking clause of the dequeue query. SQLite has a single writer and needs none.
+    fn skip_locked(self) -> &'static str {
+        match self {
+            Backend::Postgres => "FOR UPDATE SKIP LOCKED",
+            Backend::Sqlite => "",
+        }
+    }
+
+    /// The clause that locks a row read before it is updated in the same transaction.
+    fn lock_row(self) -> &'static str {
+        match self {
+            Backend::Postgres => "FOR UPDATE",
+            Backend::Sqlite => "",
+        }
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    #[error("database error: {0}")]
+    Database(#[from] sqlx::Error),
+    #[error("migration failed: {0}")]
+    Migrate(#[from] sqlx::migrate::MigrateError),
+    #[error("unsupported database URL {0:?}: expected postgres://… or sqlite://…")]
+    UnsupportedUrl(String),
+    #[error(
+        "task {task_id} attempt {attempt}: lease not held by worker {worker_id} (expired, cancelled or taken over)"
+    )]
+    LeaseLost {
+        task_id: String,
+        attempt: u32,
+        worker_id: String,
+    },
+    #[error("{0} not found")]
+    NotFound(String),
+    #[error("corrupt row: {0}")]
+    Corrupt(String),
+}
+
+pub type Result<T, E = StoreError> = std::result::Result<T, E>;
+
+/// Retry policy applied when a task fails retryably or its lease expires.
+#[derive(Clone, Copy, Debug)]
+pub struct RetryPolicy {
+    pub max_attempts: u32,
+    pub backoff_base_ms: i64,
+    pub backoff_cap_ms: i64,
+}
+
+impl Default for RetryPolicy {
+    fn default() -> Self {
+        RetryPolicy {
+            max_attempts: 4,
+            backoff_base_ms: 1_000,
+            backoff_cap_ms: 60_000,
+        }
+    }
+}
+
+#[derive(Clone, Debug)]
+pub struct Store {
+    pool: AnyPool,
+    backend: Backend,
+    retry: RetryPolicy,
+}
+
+impl Store {
+    /// Connects to `postgres://…` or `sqlite://…` (created if missing) and applies migrations.
+    pub async fn open(url: &str, retry: RetryPolicy) -> Result<Store> {
+        install_default_drivers();
+        let backend = if url.starts_with("postgres://") || url.starts_with("postgresql://") {
+            Backend::Postgres
+        } else if url.starts_with("sqlite:") {
+            Backend::Sqlite
+        } else {
+            return Err(StoreError::UnsupportedUrl(url.to_string()));
+        };
+        let pool = match backend {
+            Backend::Postgres => {
+                AnyPoolOptions::new()
+                    .max_connections(16)
+                    .connect(url)
+                    .await?
+            }
+            Backend::Sqlite => {
+                let url = if url.contains('?') {
+                    url.to_string()
+                } else {
+                    format!("{url}?mode=rwc")
+                };
+                // One connection: SQLite serializes writers anyway, and one connection means no
+                // SQLITE_BUSY between our own transactions.
+                AnyPoolOptions::new()
+                    .max_connections(1)
+                    .acquire_timeout(Duration::from_secs(60))
+                    .after_connect(|conn, _| {
+                        Box::pin(async move {
+                            conn.execute("PRAGMA journal_mode = WAL").await?;
+                            conn.execute("PRAGMA synchronous = NORMAL").await?;
+                            conn.execute("PRAGMA foreign_keys = ON").await?;
+                            conn.execute("PRAGMA busy_timeout = 10000").await?;
+                            Ok(())
+                        })
+                    })
+                    .connect(&url)
+                    .await?
+            }
+        };
+        let store = Store {
+            pool,
+            backend,
+            retry,
+        };
+        store.migrate().await?;
+        Ok(store)
+    }
+
+    pub fn backend(&self) -> Backend {
+        self.backend
+    }
+
+    pub fn retry_policy(&self) -> RetryPolicy {
+        self.retry
+    }
+
+    async fn migrate(&self) -> Result<()> {
+        match self.backend {
+            Backend::Postgres => {
+                sqlx::migrate!("../../migrations/postgres")
+                    .run(&self.pool)
+                    .await?
+            }
+            Backend::Sqlite => {
+                sqlx::migrate!("../../migrations/sqlite")
+                    .run(&self.pool)
+                    .await?
+            }
+        }
+        Ok(())
+    }
+
+    pub async fn close(&self) {
+        self.pool.close().await;
+    }
+}
+
+/// SQL assembled from constants of this crate (column lists, dialect clauses, `Stage` names),
+/// never from caller text; values always travel as bind parameters.
+fn trusted(sql: String) -> sqlx::AssertSqlSafe<String> {
+    sqlx::AssertSqlSafe(sql)
+}
+
+fn parse<T: FromStr>(what: &str, s: &str) -> Result<T> {
+    s.parse()
+        .map_err(|_| StoreError::Corrupt(format!("{what} {s:?}")))
+}
+
+fn to_u32(what: &str, v: i64) -> Result<u32> {
+    u32::try_from(v).map_err(|_| StoreError::Corrupt(format!("{what} {v}")))
+}

@@ -1,0 +1,156 @@
+//! Lineage: from a sample or an artifact back through every task, parameter set, engine version
+//! and input hash that made it; and the packaged samples of a job.
+
+use std::collections::{BTreeMap, BTreeSet};
+
+use sqlx::Row;
+use sqlx::any::AnyRow;
+
+use crate::{ArtifactRecord, LineageEntry, Result, Store, StoreError, to_u32, trusted};
+
+pub(crate) fn artifact_from_row(row: &AnyRow) -> Result<ArtifactRecord> {
+    Ok(ArtifactRecord {
+        task_id: row.try_get("task_id")?,
+        task_key: row.try_get("key")?,
+        name: row.try_get("name")?,
+        sha256: row.try_get("sha256")?,
+        size: row.try_get::<i64, _>("size")? as u64,
+        media_type: row.try_get("media_type")?,
+        object_key: row.try_get("object_key")?,
+    })
+}
+
+const ARTIFACT_SELECT: &str = "SELECT a.task_id, t.key, a.name, a.sha256, a.size, a.media_type, a.object_key FROM artifacts a JOIN tasks t ON t.id = a.task_id";
+
+impl Store {
+    /// The task and, recursively, every task it depends on: producer first, then inputs'
+    /// producers breadth-first.
+    pub async fn lineage(&self, task_id: &str) -> Result<Vec<LineageEntry>> {
+        let mut seen = BTreeSet::new();
+        let mut queue = std::collections::VecDeque::from([task_id.to_string()]);
+        let mut chain = Vec::new();
+        while let Some(id) = queue.pop_front() {
+            if !seen.insert(id.clone()) {
+                continue;
+            }
+            let task = self
+                .task(&id)
+                .await?
+                .ok_or_else(|| StoreError::NotFound(format!("task {id}")))?;
+            let depends_on: Vec<String> = sqlx::query(
+                "SELECT depends_on FROM task_deps WHERE task_id = $1 ORDER BY depends_on",
+            )
+            .bind(&id)
+            .fetch_all(&self.pool)
+            .await?
+            .iter()
+            .map(|r| r.try_get("depends_on"))
+            .collect::<Result<_, _>>()?;
+            let inputs = sqlx::query(
+                "SELECT a.task_id, t.key, a.name, a.sha256, a.size, a.media_type, a.object_key FROM lineage_edges e \
+                 JOIN artifacts a ON a.task_id = e.input_task_id AND a.name = e.input_name \
+                 JOIN tasks t ON t.id = a.task_id WHERE e.task_id = $1 ORDER BY t.key, a.name",
+            )
+            .bind(&id)
+            .fetch_all(&self.pool)
+            .await?
+            .iter()
+            .map(artifact_from_row)
+            .collect::<Result<Vec<_>>>()?;
+            let outputs = self.artifacts_of_task(&id).await?;
+            queue.extend(depends_on.iter().cloned());
+            chain.push(LineageEntry {
+                task,
+                depends_on,
+                inputs,
+                outputs,
+            });
+        }
+        Ok(chain)
+    }
+
+    pub async fn artifacts_of_task(&self, task_id: &str) -> Result<Vec<ArtifactRecord>> {
+        let sql = format!("{ARTIFACT_SELECT} WHERE a.task_id = $1 ORDER BY a.name");
+        sqlx::query(trusted(sql))
+            .bind(task_id)
+            .fetch_all(&self.pool)
+            .await?
+            .iter()
+            .map(artifact_from_row)
+            .collect()
+    }
+
+    /// Tasks that produced content with this hash (content can be produced by several tasks,
+    /// e.g. a rendered image and its packaged copy), optionally within one job.
+    pub async fn producers_of(
+        &self,
+        sha256: &str,
+        job_id: Option<&str>,
+    ) -> Result<Vec<ArtifactRecord>> {
+        let sql = format!(
+            "{ARTIFACT_SELECT} WHERE a.sha256 = $1 AND ($2 = '' OR t.job_id = $2) ORDER BY t.stage, a.task_id, a.name"
+        );
+        sqlx::query(trusted(sql))
+            .bind(sha256)
+            .bind(job_id.unwrap_or(""))
+            .fetch_all(&self.pool)
+            .await?
+            .iter()
+            .map(artifact_from_row)
+            .collect()
+    }
+
+    /// Packaged samples of a job and their files (names relative to the sample's directory).
+    pub async fn samples(&self, job_id: &str) -> Result<BTreeMap<String, Vec<ArtifactRecord>>> {
+        let rows = sqlx::query(
+            "SELECT s.sample_id, a.task_id, t.key, a.name, a.sha256, a.size, a.media_type, a.object_key \
+             FROM samples s JOIN artifacts a ON a.task_id = s.package_task_id JOIN tasks t ON t.id = a.task_id \
+             WHERE s.job_id = $1 ORDER BY s.sample_id, a.name",
+        )
+        .bind(job_id)
+        .fetch_all(&self.pool)
+        .await?;
+        let mut out: BTreeMap<String, Vec<ArtifactRecord>> = BTreeMap::new();
+        for row in rows {
+            let sample: String = row.try_get("sample_id")?;
+            let mut a = artifact_from_row(&row)?;
+            let Some(file) = a
+                .name
+                .strip_prefix(&format!("{sample}/"))
+                .map(str::to_string)
+            else {
+                continue;
+            };
+            a.name = file;
+            out.entry(sample).or_default().push(a);
+        }
+        Ok(out)
+    }
+
+    /// The package task that made `sample_id` in `job_id`, if it is packaged.
+    pub async fn sample_package_task(
+        &self,
+        job_id: &str,
+        sample_id: &str,
+    ) -> Result<Option<String>> {
+        let row =
+            sqlx::query("SELECT package_task_id FROM samples WHERE job_id = $1 AND sample_id = $2")
+                .bind(job_id)
+                .bind(sample_id)
+                .fetch_optional(&self.pool)
+                .await?;
+        row.map(|r| r.try_get("package_task_id"))
+            .transpose()
+            .map_err(Into::into)
+    }
+
+    /// Number of attempts recorded for a task (for lineage displays).
+    pub async fn attempt_count(&self, task_id: &str) -> Result<u32> {
+        let n: i64 = sqlx::query("SELECT COUNT(*) AS n FROM attempts WHERE task_id = $1")
+            .bind(task_id)
+            .fetch_one(&self.pool)
+            .await?
+            .try_get("n")?;
+        to_u32("attempt count", n)
+    }
+}

@@ -1,0 +1,108 @@
+"""Test set-up: import `vint_engines` from this checkout and drive real engine processes."""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+ENGINES_DIR = Path(__file__).resolve().parents[1]
+if str(ENGINES_DIR) not in sys.path:
+    sys.path.insert(0, str(ENGINES_DIR))
+
+
+class EngineProcess:
+    """A worker's view of an engine: a child process spoken to in frames (written independently of
+    `vint_engines.protocol`, so the tests check the wire format rather than trust it)."""
+
+    def __init__(self, stage: str, cwd: Path) -> None:
+        env = {**os.environ, "PYTHONPATH": str(ENGINES_DIR)}
+        # stderr goes to a file: a chatty engine (Blender) must never block on a full pipe.
+        self.log_path = cwd / f"{stage}-{id(self)}.stderr"
+        with self.log_path.open("wb") as log:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "vint_engines", "serve", "--stage", stage],
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                stderr=log,
+                cwd=cwd,
+                env=env,
+            )
+
+    def send(self, message: dict[str, Any]) -> None:
+        assert self.proc.stdin is not None
+        payload = json.dumps(message).encode()
+        self.proc.stdin.write(struct.pack(">I", len(payload)) + payload)
+        self.proc.stdin.flush()
+
+    def receive(self) -> dict[str, Any] | None:
+        """The next frame, or None on EOF."""
+        assert self.proc.stdout is not None
+        header = self.proc.stdout.read(4)
+        if not header:
+            return None
+        assert len(header) == 4, f"torn frame header: {header!r}"
+        (length,) = struct.unpack(">I", header)
+        payload = self.proc.stdout.read(length)
+        assert len(payload) == length, "torn frame payload"
+        message = json.loads(payload)
+        assert isinstance(message, dict)
+        return message
+
+    def task(self, task_id: str, params: dict[str, Any], out_dir: Path, inputs: list[Path] = ()) -> dict:
+        self.send(
+            {
+                "type": "task",
+                "task_id": task_id,
+                "params": params,
+                "inputs": [{"name": p.name, "task_key": "test/" + p.name, "path": str(p)} for p in inputs],
+                "out_dir": str(out_dir),
+            }
+        )
+        reply = self.receive()
+        assert reply is not None, f"engine died: {self.stderr_tail()}"
+        assert reply["type"] == "result" and reply["task_id"] == task_id
+        return reply
+
+    def shutdown(self, timeout: float = 30.0) -> int:
+        self.send({"type": "shutdown"})
+        return self.proc.wait(timeout)
+
+    def stderr_tail(self) -> str:
+        return self.log_path.read_text(errors="replace")[-4000:]
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self.proc.wait()
+        for stream in (self.proc.stdin, self.proc.stdout):
+            if stream is not None:
+                stream.close()
+
+
+@pytest.fixture
+def spawn_engine(tmp_path: Path) -> Iterator[Any]:
+    """Start engines as the worker does; they are killed at the end of the test."""
+    started: list[EngineProcess] = []
+
+    def spawn(stage: str) -> EngineProcess:
+        engine = EngineProcess(stage, tmp_path)
+        started.append(engine)
+        return engine
+
+    yield spawn
+    for engine in started:
+        engine.kill()
+
+
+def new_dir(root: Path, name: str) -> Path:
+    path = root / name
+    path.mkdir(parents=True)
+    return path

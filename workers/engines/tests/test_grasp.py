@@ -1,0 +1,123 @@
+"""Grasp trials of the trx3 hand on a soup-can-sized cylinder, through the grasp engine."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import pytest
+from conftest import new_dir
+
+from vint_engines.grasp.engine import GraspEngine
+from vint_engines.grasp.hand import TRX3
+from vint_engines.grasp.scene import ObjectSpec, build_scene
+from vint_engines.grasp.trial import Physics, Rollout, TrialRejected
+from vint_engines.protocol import BadInput, TaskRequest
+
+CAN = {"name": "tomato_soup_can", "shape": "cylinder", "radius": 0.0338, "height": 0.1019, "mass": 0.349}
+PHYSICS = {"timestep": 0.002, "lift_height": 0.10, "hold_s": 1.0, "max_drop_m": 0.02}
+SEEDS = [1234567890123 + 7919 * i for i in range(8)]
+
+
+def grasp_params(seeds: list[int], **physics: float) -> dict[str, Any]:
+    return {
+        "object": {**CAN, "material": "metal"},
+        "hand": {"name": "trx3"},
+        "trials": [{"grasp_index": i, "seed": seed} for i, seed in enumerate(seeds)],
+        "physics": {**PHYSICS, **physics},
+    }
+
+
+def run_grasp(engine: GraspEngine, params: dict[str, Any], out_dir: Path) -> tuple[str, dict[str, Any]]:
+    result = engine.run(TaskRequest("t", params, (), out_dir))
+    assert [o.name for o in result.outputs] == ["grasps.json"]
+    text = result.outputs[0].path.read_text()
+    return text, json.loads(text)
+
+
+@pytest.fixture(scope="module")
+def engine() -> GraspEngine:
+    return GraspEngine()
+
+
+@pytest.fixture(scope="module")
+def eight_trials(engine: GraspEngine, tmp_path_factory: pytest.TempPathFactory) -> tuple[str, dict[str, Any]]:
+    return run_grasp(engine, grasp_params(SEEDS), tmp_path_factory.mktemp("grasp"))
+
+
+def test_most_trials_on_the_can_are_accepted(eight_trials: tuple[str, dict[str, Any]]) -> None:
+    trials = eight_trials[1]["trials"]
+    assert len(trials) == 8
+    assert sum(t["accepted"] for t in trials) >= 4, [t["reason"] for t in trials]
+
+
+def test_accepted_trials_hold_the_object_with_finger_contacts(
+    eight_trials: tuple[str, dict[str, Any]],
+) -> None:
+    doc = eight_trials[1]
+    links = {link["name"] for link in doc["hand"]["links"]}
+    for trial in (t for t in doc["trials"] if t["accepted"]):
+        assert trial["reason"] is None
+        assert trial["hold"]["drop_m"] < PHYSICS["max_drop_m"]
+        assert trial["object_pose"]["p"][2] > CAN["height"] / 2 + 0.5 * PHYSICS["lift_height"]  # lifted
+        assert {c["link"] for c in trial["contacts"]} & (links - {"palm"})
+        assert set(trial["link_poses"]) == links
+        assert len(trial["joints"]) == doc["hand"]["dof"] == 9
+        for contact in trial["contacts"]:
+            assert contact["force"] >= 0 and math.isclose(math.hypot(*contact["normal"]), 1.0, rel_tol=1e-6)
+
+
+def test_poses_are_finite_unit_quaternion_poses(eight_trials: tuple[str, dict[str, Any]]) -> None:
+    for trial in (t for t in eight_trials[1]["trials"] if t["accepted"]):
+        for pose in [trial["object_pose"], trial["hand_pose"], *trial["link_poses"].values()]:
+            assert len(pose["p"]) == 3 and all(math.isfinite(v) for v in pose["p"])
+            assert math.isclose(math.hypot(*pose["q"]), 1.0, rel_tol=1e-6)
+
+
+def test_hand_geometry_is_reported_in_mujoco_convention(eight_trials: tuple[str, dict[str, Any]]) -> None:
+    sizes = {"box": 3, "sphere": 1, "capsule": 2, "cylinder": 2}
+    hand = eight_trials[1]["hand"]
+    assert hand["name"] == "trx3" and hand["links"][0]["name"] == "palm"
+    for link in hand["links"]:
+        assert link["geoms"]
+        for geom in link["geoms"]:
+            assert len(geom["size"]) == sizes[geom["type"]] and len(geom["p"]) == 3 and len(geom["q"]) == 4
+
+
+def test_same_seed_gives_identical_output(
+    engine: GraspEngine, eight_trials: tuple[str, dict[str, Any]], tmp_path: Path
+) -> None:
+    again, _ = run_grasp(engine, grasp_params(SEEDS), new_dir(tmp_path, "again"))
+    fresh, _ = run_grasp(GraspEngine(), grasp_params(SEEDS), new_dir(tmp_path, "fresh"))
+    assert again == eight_trials[0]
+    assert fresh == eight_trials[0]
+
+
+def test_rejected_trials_carry_a_reason(engine: GraspEngine, tmp_path: Path) -> None:
+    _, doc = run_grasp(engine, grasp_params(SEEDS[:2], max_drop_m=1e-7), tmp_path)
+    assert [t["reason"] for t in doc["trials"]] == ["dropped", "dropped"]
+    assert not any(t["accepted"] for t in doc["trials"])
+
+
+def test_impossible_parameters_are_bad_input(engine: GraspEngine, tmp_path: Path) -> None:
+    for change in ({"hand": {"name": "octopus"}}, {"object": {**CAN, "shape": "torus"}}, {"trials": []}):
+        with pytest.raises(BadInput):
+            engine.run(TaskRequest("t", {**grasp_params(SEEDS[:1]), **change}, (), tmp_path))
+
+
+def test_divergence_and_nan_states_reject_the_trial() -> None:
+    """Autoreset hides divergence, so a rollout must read MuJoCo's warning counters and the state."""
+    scene = build_scene(TRX3, ObjectSpec.parse(CAN))
+    data = mujoco.MjData(scene.model)
+    rollout = Rollout(scene, data, Physics.parse(PHYSICS))
+    rollout.check()  # a fresh state is fine
+    data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number = 1
+    with pytest.raises(TrialRejected, match="diverged: mjWARN_BADQACC"):
+        rollout.check()
+    mujoco.mj_resetData(scene.model, data)
+    data.qvel[0] = float("nan")
+    with pytest.raises(TrialRejected, match="nan_state"):
+        rollout.check()

@@ -1,0 +1,139 @@
+"""The engine side of PROTOCOL.md, driven through real engine processes (the noise stage: it is the
+cheapest to start) plus the frame codec on its own."""
+
+from __future__ import annotations
+
+import errno
+import io
+import os
+import struct
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import ENGINES_DIR, new_dir
+
+from vint_engines.protocol import MAX_FRAME_BYTES, ProtocolError, read_frame, write_frame
+
+NOISE_PARAMS = {"noise": {"dropout": 0.0}, "views": [{"view_index": 0, "seed": 24680}]}
+
+
+def write_depth(directory: Path) -> Path:
+    path = directory / "v00_depth.npy"
+    np.save(path, np.full((8, 8), 0.6, np.float32))
+    return path
+
+
+def test_frames_round_trip_through_the_codec() -> None:
+    stream = io.BytesIO()
+    messages = [{"type": "hello", "n": 1}, {"type": "task", "text": "ünïcode", "list": [1.5, None]}]
+    for message in messages:
+        write_frame(stream, message)
+    stream.seek(0)
+    assert [read_frame(stream), read_frame(stream)] == messages
+    assert read_frame(stream) is None
+
+
+def test_codec_rejects_oversized_and_torn_frames() -> None:
+    with pytest.raises(ProtocolError, match="exceeds"):
+        read_frame(io.BytesIO(struct.pack(">I", MAX_FRAME_BYTES + 1)))
+    with pytest.raises(ProtocolError, match="EOF after"):
+        read_frame(io.BytesIO(struct.pack(">I", 10) + b"{}"))
+    with pytest.raises(ProtocolError, match="not an object"):
+        read_frame(io.BytesIO(struct.pack(">I", 2) + b"[]"))
+
+
+def test_engine_says_hello_runs_a_task_and_exits_zero_on_shutdown(spawn_engine, tmp_path: Path) -> None:
+    engine = spawn_engine("noise")
+    hello = engine.receive()
+    assert hello is not None, engine.stderr_tail()
+    assert hello["type"] == "hello" and hello["stage"] == "noise"
+    assert hello["engine"]["name"] == "vint-noise" and hello["engine"]["version"]
+    assert {"python", "numpy", "opencv"} <= set(hello["engine"]["libs"])
+
+    out_dir = new_dir(tmp_path, "out")
+    reply = engine.task("t-1", NOISE_PARAMS, out_dir, [write_depth(new_dir(tmp_path, "in"))])
+    assert reply["ok"] is True, reply
+    assert [o["name"] for o in reply["outputs"]] == ["v00_depth_noisy.npy"]
+    assert Path(reply["outputs"][0]["path"]).parent == out_dir
+    assert reply["metrics"]["engine_ms"] > 0
+    assert engine.shutdown() == 0
+
+
+def test_engine_exits_zero_on_eof(spawn_engine) -> None:
+    engine = spawn_engine("noise")
+    assert engine.receive() is not None
+    engine.proc.stdin.close()
+    assert engine.proc.wait(30) == 0
+
+
+def test_impossible_task_fails_without_retry_and_engine_keeps_serving(spawn_engine, tmp_path: Path) -> None:
+    engine = spawn_engine("noise")
+    assert engine.receive() is not None
+    bad = engine.task("t-bad", {"views": []}, new_dir(tmp_path, "bad"))
+    assert bad["ok"] is False and bad["retryable"] is False and "views" in bad["error"]
+    missing = engine.task("t-missing", NOISE_PARAMS, new_dir(tmp_path, "missing"))
+    assert missing["ok"] is False and missing["retryable"] is False and "v00_depth.npy" in missing["error"]
+    good = engine.task(
+        "t-good", NOISE_PARAMS, new_dir(tmp_path, "good"), [write_depth(new_dir(tmp_path, "in"))]
+    )
+    assert good["ok"] is True
+    assert engine.shutdown() == 0
+
+
+def test_crash_mid_task_gives_eof_and_no_result(spawn_engine, tmp_path: Path) -> None:
+    engine = spawn_engine("noise")
+    assert engine.receive() is not None
+    fifo = new_dir(tmp_path, "in") / "v00_depth.npy"
+    os.mkfifo(fifo)
+    engine.send(
+        {
+            "type": "task",
+            "task_id": "t-crash",
+            "params": NOISE_PARAMS,
+            "inputs": [{"name": fifo.name, "task_key": "render/x", "path": str(fifo)}],
+            "out_dir": str(new_dir(tmp_path, "out")),
+        }
+    )
+    writer = open_fifo_writer_once_engine_reads(fifo)  # the engine is now blocked inside the task
+    try:
+        engine.proc.kill()
+        assert engine.receive() is None
+        assert engine.proc.wait(10) != 0
+    finally:
+        os.close(writer)
+
+
+def test_oversized_frame_is_a_crash_not_a_result(spawn_engine) -> None:
+    engine = spawn_engine("noise")
+    assert engine.receive() is not None
+    engine.proc.stdin.write(struct.pack(">I", MAX_FRAME_BYTES + 1))
+    engine.proc.stdin.flush()
+    assert engine.receive() is None
+    assert engine.proc.wait(10) != 0
+
+
+def test_unknown_stage_exits_2() -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", "vint_engines", "serve", "--stage", "paint"],
+        env={**os.environ, "PYTHONPATH": str(ENGINES_DIR)},
+        capture_output=True,
+        timeout=30,
+    )
+    assert done.returncode == 2
+    assert b"invalid choice" in done.stderr
+
+
+def open_fifo_writer_once_engine_reads(fifo: Path, timeout: float = 20.0) -> int:
+    """Open the FIFO for writing; this succeeds only once the engine has it open for reading."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            return os.open(fifo, os.O_WRONLY | os.O_NONBLOCK)
+        except OSError as exc:
+            if exc.errno != errno.ENXIO or time.monotonic() > deadline:
+                raise
+            time.sleep(0.02)

@@ -1,0 +1,164 @@
+"""The render engine, served through a real process (so Blender's C-level prints must not reach the
+protocol stream), on a grasp produced by the real grasp engine."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+from conftest import EngineProcess, new_dir
+
+from vint_engines.grasp.engine import GraspEngine
+from vint_engines.protocol import TaskRequest
+
+CAN = {
+    "name": "tomato_soup_can",
+    "shape": "cylinder",
+    "radius": 0.0338,
+    "height": 0.1019,
+    "mass": 0.349,
+    "material": "metal",
+}
+RENDER = {
+    "width": 64,
+    "height": 64,
+    "samples": 8,
+    "fov_deg": 60.0,
+    "environment": "studio",
+    "radius_m": [0.2, 0.25],
+    "elevation_deg": [15.0, 75.0],
+}
+SEED = 987654321
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return tmp_path_factory.mktemp("render")
+
+
+@pytest.fixture(scope="module")
+def grasps(workdir: Path) -> tuple[Path, int]:
+    """grasps.json from the grasp engine and the index of an accepted trial in it."""
+    out = new_dir(workdir, "grasp")
+    params = {
+        "object": CAN,
+        "hand": {"name": "trx3"},
+        "trials": [{"grasp_index": i, "seed": 42 + i} for i in range(3)],
+    }
+    GraspEngine().run(TaskRequest("grasp", params, (), out))
+    doc = json.loads((out / "grasps.json").read_text())
+    return out / "grasps.json", next(t["grasp_index"] for t in doc["trials"] if t["accepted"])
+
+
+@pytest.fixture(scope="module")
+def engine(workdir: Path) -> Iterator[EngineProcess]:
+    process = EngineProcess("render", workdir)
+    hello = process.receive()
+    assert hello is not None, process.stderr_tail()
+    assert hello["stage"] == "render" and hello["engine"]["libs"]["bpy"].startswith("5.2")
+    yield process
+    assert process.shutdown(60) == 0
+    process.kill()
+
+
+def render(
+    engine: EngineProcess, grasps: tuple[Path, int], out: Path, outputs: list[str], **extra: Any
+) -> dict[str, Any]:
+    params = {
+        "grasp_index": grasps[1],
+        "render": RENDER,
+        "views": [{"view_index": 0, "seed": SEED}],
+        "outputs": outputs,
+        **extra,
+    }
+    return engine.task(out.name, params, out, [grasps[0]])
+
+
+@pytest.fixture(scope="module")
+def view(engine: EngineProcess, grasps: tuple[Path, int], workdir: Path) -> tuple[dict[str, Any], Path]:
+    out = new_dir(workdir, "view")
+    reply = render(engine, grasps, out, ["rgb", "depth", "mask"])
+    assert reply["ok"] is True, reply
+    return reply, out
+
+
+def load_view(out: Path) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    depth = np.load(out / "v00_depth.npy")
+    mask = cv2.imread(str(out / "v00_mask.png"), cv2.IMREAD_UNCHANGED)
+    camera = json.loads((out / "v00_camera.json").read_text())
+    return depth, mask, camera
+
+
+def test_view_writes_the_protocol_outputs(view: tuple[dict[str, Any], Path]) -> None:
+    reply, out = view
+    names = {o["name"] for o in reply["outputs"]}
+    assert names == {"v00_rgb.png", "v00_depth.npy", "v00_mask.png", "v00_camera.json"}
+    rgb = cv2.imread(str(out / "v00_rgb.png"), cv2.IMREAD_UNCHANGED)
+    depth, mask, camera = load_view(out)
+    assert rgb.shape == (64, 64, 3) and rgb.dtype == np.uint8
+    assert depth.shape == (64, 64) and depth.dtype == np.float32 and np.isfinite(depth).all()
+    assert mask.shape == (64, 64) and mask.dtype == np.uint8 and set(np.unique(mask)) == {0, 255}
+    assert camera["visible_px"] == np.count_nonzero(mask) > 20
+    assert (depth[mask > 0] > 0).all()  # the object is hit wherever the mask says so
+    assert (depth == 0).any()  # and the background reads 0
+
+
+def test_camera_is_a_proper_opencv_camera(view: tuple[dict[str, Any], Path]) -> None:
+    _, _, camera = load_view(view[1])
+    K = np.array(camera["K"])
+    assert K[0, 0] == pytest.approx(32 / np.tan(np.radians(30))) and K[0, 0] == K[1, 1]
+    assert (K[0, 2], K[1, 2]) == (31.5, 31.5) and list(K[2]) == [0, 0, 1]
+    for key in ("R_w2c", "R_m2c"):
+        R = np.array(camera[key])
+        assert np.allclose(R @ R.T, np.eye(3), atol=1e-9) and np.linalg.det(R) == pytest.approx(1.0)
+    assert 0.15 < camera["t_m2c"][2] < 0.3  # the object is in front of the camera, at the sampled radius
+
+
+def test_depth_on_object_pixels_lies_on_the_object_surface(view: tuple[dict[str, Any], Path]) -> None:
+    """Back-project each object pixel with K and its depth, move it into the object frame with
+    (R_m2c, t_m2c) and measure its distance to the cylinder's surface."""
+    depth, mask, camera = load_view(view[1])
+    v, u = np.nonzero(mask)
+    rays = np.linalg.inv(np.array(camera["K"])) @ np.stack([u, v, np.ones_like(u)]).astype(float)
+    points_c = rays * depth[v, u]
+    points_m = np.array(camera["R_m2c"]).T @ (points_c - np.array(camera["t_m2c"])[:, None])
+    dx = np.hypot(points_m[0], points_m[1]) - CAN["radius"]
+    dz = np.abs(points_m[2]) - CAN["height"] / 2
+    distance = np.abs(np.minimum(np.maximum(dx, dz), 0) + np.hypot(np.maximum(dx, 0), np.maximum(dz, 0)))
+    assert np.percentile(distance, 95) < 0.002 and distance.max() < 0.005
+
+
+def test_same_seed_renders_identical_images(
+    engine: EngineProcess, grasps: tuple[Path, int], view: tuple[dict[str, Any], Path], workdir: Path
+) -> None:
+    again = new_dir(workdir, "again")
+    assert render(engine, grasps, again, ["rgb", "depth", "mask"])["ok"] is True
+    depth_a, mask_a, camera_a = load_view(view[1])
+    depth_b, mask_b, camera_b = load_view(again)
+    assert np.array_equal(depth_a, depth_b) and np.array_equal(mask_a, mask_b) and camera_a == camera_b
+    assert (view[1] / "v00_rgb.png").read_bytes() == (again / "v00_rgb.png").read_bytes()
+
+
+def test_rgb_is_skipped_unless_requested(
+    engine: EngineProcess, grasps: tuple[Path, int], workdir: Path
+) -> None:
+    out = new_dir(workdir, "no_rgb")
+    reply = render(engine, grasps, out, ["depth", "mask"])
+    assert reply["ok"] is True
+    assert sorted(p.name for p in out.iterdir()) == ["v00_camera.json", "v00_depth.npy", "v00_mask.png"]
+
+
+def test_unknown_grasp_or_environment_fails_without_retry(
+    engine: EngineProcess, grasps: tuple[Path, int], workdir: Path
+) -> None:
+    reply = render(engine, grasps, new_dir(workdir, "bad_index"), ["depth"], grasp_index=999)
+    assert reply["ok"] is False and reply["retryable"] is False and "999" in reply["error"]
+    reply = render(
+        engine, grasps, new_dir(workdir, "bad_env"), ["depth"], render={**RENDER, "environment": "moon"}
+    )
+    assert reply["ok"] is False and reply["retryable"] is False and "moon" in reply["error"]

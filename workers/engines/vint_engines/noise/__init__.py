@@ -1,0 +1,1 @@
+"""Noise stage: a Kinect-like depth-noise model applied to rendered depth maps."""

@@ -1,0 +1,101 @@
+"""Cameras in the OpenCV convention (x right, y down, z forward) and the ONE conversion to Blender's
+camera frame (x right, y up, looking down -z).
+
+Intrinsics follow OpenCV's pixel convention: pixel (u, v) has its centre at integer coordinates,
+so the principal point of a W×H image is ((W-1)/2, (H-1)/2). `fov_deg` is the horizontal field of
+view; pixels are square. Pure numpy: no Blender import here.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+Mat = npt.NDArray[np.float64]
+
+# OpenCV camera axes expressed in Blender's camera axes: flip y and z.
+_CV_TO_BLENDER = np.diag([1.0, -1.0, -1.0])
+
+# Look-at targets jitter uniformly within this many metres per axis around the object centre.
+TARGET_JITTER_M = 0.01
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    width: int
+    height: int
+    fov_deg: float
+
+    @property
+    def focal_px(self) -> float:
+        return (self.width / 2) / math.tan(math.radians(self.fov_deg) / 2)
+
+    def matrix(self) -> Mat:
+        f = self.focal_px
+        return np.array([[f, 0.0, (self.width - 1) / 2], [0.0, f, (self.height - 1) / 2], [0.0, 0.0, 1.0]])
+
+
+@dataclass(frozen=True)
+class CameraPose:
+    """World-to-camera transform in the OpenCV convention: x_c = R_w2c @ x_w + t_w2c."""
+
+    R_w2c: Mat
+    t_w2c: Mat
+
+    @property
+    def position(self) -> Mat:
+        return -self.R_w2c.T @ self.t_w2c
+
+    def blender_matrix_world(self) -> Mat:
+        """4×4 camera-to-world matrix for a Blender camera object."""
+        m = np.eye(4)
+        m[:3, :3] = self.R_w2c.T @ _CV_TO_BLENDER
+        m[:3, 3] = self.position
+        return m
+
+    def object_in_camera(self, R_m2w: Mat, t_m2w: Mat) -> tuple[Mat, Mat]:
+        """(R_m2c, t_m2c) of an object whose pose in the world is (R_m2w, t_m2w)."""
+        return self.R_w2c @ R_m2w, self.R_w2c @ t_m2w + self.t_w2c
+
+
+def look_at(eye: Mat, target: Mat, up: Mat | None = None) -> CameraPose:
+    """A camera at `eye` whose optical axis passes through `target`, image "up" towards `up`.
+
+    Near the pole (optical axis almost parallel to `up`) another up vector is used, so the frame is
+    always well defined.
+    """
+    up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=np.float64)
+    z = np.asarray(target, dtype=np.float64) - np.asarray(eye, dtype=np.float64)
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up)
+    if np.linalg.norm(x) < 1e-6:
+        x = np.cross(z, np.array([0.0, 1.0, 0.0]) if abs(z[1]) < 0.9 else np.array([1.0, 0.0, 0.0]))
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R_w2c = np.stack([x, y, z])
+    return CameraPose(R_w2c, -R_w2c @ np.asarray(eye, dtype=np.float64))
+
+
+def sample_on_hemisphere(
+    rng: np.random.Generator,
+    target: Mat,
+    radius_m: tuple[float, float],
+    elevation_deg: tuple[float, float],
+) -> CameraPose:
+    """A camera at a random radius, elevation and (uniform) azimuth around `target`, looking at it
+    with a small jitter. The draw order is fixed: radius, elevation, azimuth, jitter."""
+    radius = rng.uniform(*radius_m)
+    elevation = math.radians(rng.uniform(*elevation_deg))
+    azimuth = rng.uniform(0.0, 2.0 * math.pi)
+    jitter = rng.uniform(-TARGET_JITTER_M, TARGET_JITTER_M, size=3)
+    direction = np.array(
+        [
+            math.cos(elevation) * math.cos(azimuth),
+            math.cos(elevation) * math.sin(azimuth),
+            math.sin(elevation),
+        ]
+    )
+    return look_at(target + radius * direction, target + jitter)

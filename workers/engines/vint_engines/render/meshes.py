@@ -1,0 +1,80 @@
+"""Triangle meshes of MuJoCo's primitive geoms (box, sphere, capsule, cylinder), built with bmesh.
+
+Sizes follow MuJoCo: box half extents, sphere [r], capsule and cylinder [r, half length] along +z.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import bmesh
+import bpy
+from mathutils import Matrix, Quaternion, Vector
+
+from vint_engines.protocol import BadInput
+
+SEGMENTS = 32
+RINGS = 16
+
+
+def add_primitive(bm: bmesh.types.BMesh, kind: str, size: Sequence[float], matrix: Matrix) -> None:
+    """Add one primitive, placed by `matrix`, to `bm`: curved faces smooth, flat faces sharp-edged."""
+    before = set(bm.faces)
+    _create(bm, kind, size, matrix)
+    for face in set(bm.faces) - before:
+        face.smooth = kind != "box" and len(face.verts) <= 4  # cylinder caps are n-gons
+        if not face.smooth:
+            for edge in face.edges:
+                edge.smooth = False
+
+
+def _create(bm: bmesh.types.BMesh, kind: str, size: Sequence[float], matrix: Matrix) -> None:
+    if kind == "box":
+        hx, hy, hz = size
+        bmesh.ops.create_cube(bm, size=1.0, matrix=matrix @ Matrix.Diagonal((2 * hx, 2 * hy, 2 * hz, 1.0)))
+    elif kind == "sphere":
+        bmesh.ops.create_uvsphere(bm, u_segments=SEGMENTS, v_segments=RINGS, radius=size[0], matrix=matrix)
+    elif kind == "cylinder":
+        radius, half = size
+        bmesh.ops.create_cone(
+            bm,
+            cap_ends=True,
+            segments=SEGMENTS,
+            radius1=radius,
+            radius2=radius,
+            depth=2 * half,
+            matrix=matrix,
+        )
+    elif kind == "capsule":
+        radius, half = size
+        bmesh.ops.create_cone(
+            bm,
+            cap_ends=False,
+            segments=SEGMENTS,
+            radius1=radius,
+            radius2=radius,
+            depth=2 * half,
+            matrix=matrix,
+        )
+        for end in (-half, half):
+            cap = matrix @ Matrix.Translation((0.0, 0.0, end))
+            bmesh.ops.create_uvsphere(bm, u_segments=SEGMENTS, v_segments=RINGS, radius=radius, matrix=cap)
+    else:
+        raise BadInput(f"unsupported geom type {kind!r}")
+
+
+def geom_matrix(p: Sequence[float], q: Sequence[float]) -> Matrix:
+    return Matrix.LocRotScale(Vector(p), Quaternion(q), None)
+
+
+def new_mesh(name: str, geoms: Sequence[tuple[str, Sequence[float], Matrix]]) -> bpy.types.Mesh:
+    """One mesh holding every (kind, size, matrix) primitive."""
+    bm = bmesh.new()
+    try:
+        for kind, size, matrix in geoms:
+            add_primitive(bm, kind, size, matrix)
+        mesh = bpy.data.meshes.new(name)
+        bm.to_mesh(mesh)
+    finally:
+        bm.free()
+    return mesh
