@@ -1,1 +1,114 @@
-//! placeholder
+//! The coordinator: vint's gRPC front over the store. It plans jobs, hands tasks to workers,
+//! fences their completions, reaps expired leases and answers progress and lineage queries.
+//!
+//! It holds no state that is not in the database: kill it at any moment, start it again (or run
+//! several behind a load balancer on Postgres) and nothing is lost. It never runs an engine and
+//! never reads artifact contents; workers move the bytes, the coordinator records their hashes.
+
+mod convert;
+mod jobs_api;
+mod planner;
+mod work_api;
+
+use std::net::SocketAddr;
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use tokio::net::TcpListener;
+use tokio_stream::wrappers::TcpListenerStream;
+use vint_proto::v1::job_service_server::JobServiceServer;
+use vint_proto::v1::work_service_server::WorkServiceServer;
+use vint_store::Store;
+
+pub use jobs_api::JobApi;
+pub use work_api::WorkApi;
+
+/// Tunables of one coordinator process.
+#[derive(Clone, Debug)]
+pub struct CoordinatorConfig {
+    /// Lease length when a worker does not ask for one.
+    pub default_lease_ms: i64,
+    /// How often expired leases are reaped and finished jobs finalized.
+    pub reap_interval: Duration,
+    /// How often WatchJob polls the store.
+    pub watch_interval: Duration,
+}
+
+impl Default for CoordinatorConfig {
+    fn default() -> Self {
+        CoordinatorConfig {
+            default_lease_ms: 30_000,
+            reap_interval: Duration::from_millis(500),
+            watch_interval: Duration::from_millis(250),
+        }
+    }
+}
+
+/// Milliseconds since the Unix epoch: the only clock the coordinator reads.
+pub fn now_ms() -> i64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_millis() as i64)
+        .unwrap_or(0)
+}
+
+/// Largest gRPC message accepted (a spec is at most 1 MiB; completions list a few hundred files).
+const MAX_MESSAGE_BYTES: usize = 8 << 20;
+
+/// Serves both APIs on `listener` until `shutdown` resolves, with the lease reaper running.
+pub async fn serve(
+    store: Store,
+    config: CoordinatorConfig,
+    listener: TcpListener,
+    shutdown: impl std::future::Future<Output = ()> + Send + 'static,
+) -> Result<(), tonic::transport::Error> {
+    let reaper = tokio::spawn(reap_forever(store.clone(), config.reap_interval));
+    let jobs = JobServiceServer::new(JobApi::new(store.clone(), config.clone()))
+        .max_decoding_message_size(MAX_MESSAGE_BYTES);
+    let work = WorkServiceServer::new(WorkApi::new(store, config))
+        .max_decoding_message_size(MAX_MESSAGE_BYTES);
+    let result = tonic::transport::Server::builder()
+        .add_service(jobs)
+        .add_service(work)
+        .serve_with_incoming_shutdown(TcpListenerStream::new(listener), shutdown)
+        .await;
+    reaper.abort();
+    result
+}
+
+/// Binds `addr` (port 0 picks a free one) and returns the listener with its real address.
+pub async fn bind(addr: SocketAddr) -> std::io::Result<(TcpListener, SocketAddr)> {
+    let listener = TcpListener::bind(addr).await?;
+    let local = listener.local_addr()?;
+    Ok((listener, local))
+}
+
+async fn reap_forever(store: Store, every: Duration) {
+    let mut tick = tokio::time::interval(every);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        tick.tick().await;
+        let now = now_ms();
+        match store.reap_expired(now).await {
+            Ok(0) => {}
+            Ok(n) => tracing::warn!(tasks = n, "requeued tasks whose lease expired"),
+            Err(e) => tracing::error!(error = %e, "lease reaper failed"),
+        }
+        if let Err(e) = store.finalize_jobs(now).await {
+            tracing::error!(error = %e, "finalizing jobs failed");
+        }
+    }
+}
+
+/// Logs to stderr, filtered by `RUST_LOG` (default `info`), as text or JSON lines.
+pub fn init_tracing(json: bool) {
+    use tracing_subscriber::EnvFilter;
+    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));
+    let builder = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr);
+    let _ = if json {
+        builder.json().try_init()
+    } else {
+        builder.try_init()
+    };
+}

@@ -162,3 +162,50 @@ def test_unknown_grasp_or_environment_fails_without_retry(
         engine, grasps, new_dir(workdir, "bad_env"), ["depth"], render={**RENDER, "environment": "moon"}
     )
     assert reply["ok"] is False and reply["retryable"] is False and "moon" in reply["error"]
+    out = new_dir(workdir, "bad_view_env")
+    views = [{"view_index": 0, "seed": SEED}, {"view_index": 1, "seed": SEED, "environment": "moon"}]
+    reply = render(engine, grasps, out, ["depth"], views=views)
+    assert reply["ok"] is False and reply["retryable"] is False
+    assert "params.views[1].environment" in reply["error"] and "moon" in reply["error"]
+    assert not any(out.iterdir())  # checked before any view renders
+
+
+def test_each_view_renders_under_its_own_environment(
+    engine: EngineProcess, grasps: tuple[Path, int], workdir: Path
+) -> None:
+    """Two views with one seed (so one camera) under two HDRIs: same geometry, other light, and each
+    camera.json names its environment. Switching leaves no trace: the forest view matches the same
+    view rendered alone with forest as the task's default environment."""
+    small = {**RENDER, "width": 32, "height": 32, "samples": 4}
+    views = [
+        {"view_index": 0, "seed": SEED, "environment": "studio"},
+        {"view_index": 1, "seed": SEED, "environment": "forest"},
+    ]
+    mixed = new_dir(workdir, "environments")
+    reply = render(engine, grasps, mixed, ["rgb", "depth"], render=small, views=views)
+    assert reply["ok"] is True, reply
+    for index, environment in ((0, "studio"), (1, "forest")):
+        camera = json.loads((mixed / f"v{index:02d}_camera.json").read_text())
+        assert camera["environment"] == environment
+    assert np.array_equal(np.load(mixed / "v00_depth.npy"), np.load(mixed / "v01_depth.npy"))
+    assert (mixed / "v00_rgb.png").read_bytes() != (mixed / "v01_rgb.png").read_bytes()
+
+    alone = new_dir(workdir, "forest_alone")
+    forest = {**small, "environment": "forest"}
+    reply = render(engine, grasps, alone, ["rgb"], render=forest, views=[{"view_index": 1, "seed": SEED}])
+    assert reply["ok"] is True, reply
+    assert (alone / "v01_rgb.png").read_bytes() == (mixed / "v01_rgb.png").read_bytes()
+    assert json.loads((alone / "v01_camera.json").read_text())["environment"] == "forest"
+
+
+def test_another_engine_process_renders_the_same_bytes(
+    spawn_engine: Any, grasps: tuple[Path, int], view: tuple[dict[str, Any], Path], workdir: Path
+) -> None:
+    """Outputs are content-addressed artifacts: a retry on a fresh engine must reproduce them."""
+    fresh = spawn_engine("render")
+    assert fresh.receive() is not None, fresh.stderr_tail()
+    out = new_dir(workdir, "fresh")
+    assert render(fresh, grasps, out, ["rgb", "depth", "mask"])["ok"] is True
+    for name in ("v00_rgb.png", "v00_depth.npy", "v00_mask.png", "v00_camera.json"):
+        assert (out / name).read_bytes() == (view[1] / name).read_bytes(), name
+    assert fresh.shutdown(60) == 0

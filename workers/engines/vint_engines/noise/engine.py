@@ -40,9 +40,10 @@ class NoiseEngine:
 
 
 def load_depth(path: Path) -> np.ndarray:
+    """The depth map at `path`. I/O errors propagate (retryable); a malformed file is BadInput."""
     try:
         depth = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
+    except ValueError as exc:
         raise BadInput(f"cannot read depth map {path}: {exc}") from exc
     if not np.issubdtype(depth.dtype, np.floating):
         raise BadInput(f"depth map {path} has dtype {depth.dtype}, expected float")

@@ -2,7 +2,8 @@
 
 Builds the Blender scene once (and renders a tiny warm-up frame so the first task does not pay
 for kernel loading); per task it reads `grasps.json`, poses the hand and the object, then renders
-each view from a camera sampled with the view's seed.
+each view under its own environment (`render.environment` unless the view names one) from a
+camera sampled with the view's seed.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from vint_engines.poses import quat_to_matrix, read_pose
 from vint_engines.protocol import BadInput, Json, TaskRequest, TaskResult
 from vint_engines.render.camera import Intrinsics, look_at, sample_on_hemisphere
 from vint_engines.render.passes import Passes
-from vint_engines.render.scene import OBJECT_PASS_INDEX, BlenderScene
+from vint_engines.render.scene import OBJECT_PASS_INDEX, BlenderScene, check_environment
 
 GRASPS_INPUT = "grasps.json"
 OUTPUT_KINDS = ("rgb", "depth", "mask")
@@ -51,10 +52,34 @@ class RenderSettings:
                 fov_deg=P.number(obj, "fov_deg", where, 60.0, low=5.0, high=150.0),
             ),
             samples=P.integer(obj, "samples", where, 16, low=1, high=65536),
-            environment=P.string(obj, "environment", where, "studio"),
+            environment=environment_param(obj, "environment", where, "studio"),
             radius_m=P.number_range(obj, "radius_m", where, (0.35, 0.5), low=0.05),
             elevation_deg=P.number_range(obj, "elevation_deg", where, (15.0, 75.0), low=-90.0),
         )
+
+
+@dataclass(frozen=True)
+class RenderView:
+    index: int
+    seed: int
+    environment: str
+
+    @staticmethod
+    def parse_all(params: Mapping[str, Any], default_environment: str) -> list[RenderView]:
+        """`params.views`; a view without `environment` renders under `default_environment`."""
+        views = []
+        raw_views = P.items(params, "views", "params")
+        for i, ((index, seed), raw) in enumerate(zip(P.views(params), raw_views, strict=True)):
+            environment = environment_param(raw, "environment", f"params.views[{i}]", default_environment)
+            views.append(RenderView(index, seed, environment))
+        return views
+
+
+def environment_param(obj: Mapping[str, Any], key: str, where: str, default: str) -> str:
+    """The bundled HDRI named at `obj[key]` (or `default`); BadInput for an unknown name."""
+    name = P.string(obj, key, where, default)
+    check_environment(name, f"{where}.{key}")
+    return name
 
 
 class RenderEngine:
@@ -91,11 +116,10 @@ class RenderEngine:
         if not isinstance(outputs, list) or not set(outputs) <= set(OUTPUT_KINDS):
             raise BadInput(f"params.outputs: expected a subset of {list(OUTPUT_KINDS)}, got {outputs!r}")
         grasp_index = P.integer(params, "grasp_index", "params", low=0)
-        views = P.views(params)
+        views = RenderView.parse_all(params, settings.environment)
         grasps = load_grasps(task.input_path(GRASPS_INPUT))
 
         trial = find_trial(grasps, grasp_index)
-        self.scene.set_environment(settings.environment)
         self.scene.set_hand(grasps["hand"])
         self.scene.set_object(grasps["object"])
         object_pose = read_pose(trial["object_pose"], f"grasps.json trial {grasp_index} object_pose")
@@ -104,9 +128,10 @@ class RenderEngine:
 
         result = TaskResult()
         render_s = 0.0
-        for index, seed in views:
+        for view in views:
             started = time.perf_counter()
-            self._render_view(task.out_dir, f"v{index:02d}", seed, settings, outputs, object_pose, result)
+            self.scene.set_environment(view.environment)
+            self._render_view(task.out_dir, view, settings, outputs, object_pose, result)
             render_s += time.perf_counter() - started
         result.metrics.update(views=len(views), render_ms_per_view=round(1e3 * render_s / len(views), 3))
         return result
@@ -114,18 +139,20 @@ class RenderEngine:
     def _render_view(
         self,
         out_dir: Path,
-        prefix: str,
-        seed: int,
+        view: RenderView,
         settings: RenderSettings,
         outputs: list[str],
         object_pose: tuple[np.ndarray, np.ndarray],
         result: TaskResult,
     ) -> None:
+        prefix = f"v{view.index:02d}"
         p_obj, q_obj = object_pose
         camera = sample_on_hemisphere(
-            np.random.default_rng(seed), p_obj, settings.radius_m, settings.elevation_deg
+            np.random.default_rng(view.seed), p_obj, settings.radius_m, settings.elevation_deg
         )
-        passes = self.scene.render(camera, settings.intrinsics, settings.samples, seed, rgb="rgb" in outputs)
+        passes = self.scene.render(
+            camera, settings.intrinsics, settings.samples, view.seed, rgb="rgb" in outputs
+        )
         mask = object_mask(passes)
         if passes.rgb is not None:
             result.add(write_png(out_dir / f"{prefix}_rgb.png", passes.rgb), "image/png")
@@ -146,6 +173,7 @@ class RenderEngine:
             "R_m2c": R_m2c.tolist(),
             "t_m2c": t_m2c.tolist(),
             "visible_px": int(np.count_nonzero(mask)),
+            "environment": view.environment,
         }
         path = out_dir / f"{prefix}_camera.json"
         path.write_text(json.dumps(record, indent=1))
@@ -164,9 +192,10 @@ def write_png(path: Path, image: np.ndarray) -> Path:
 
 
 def load_grasps(path: Path) -> dict[str, Any]:
+    """The grasp document at `path`. I/O errors propagate (retryable); malformed JSON is BadInput."""
     try:
         grasps = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
+    except ValueError as exc:
         raise BadInput(f"cannot read {GRASPS_INPUT} at {path}: {exc}") from exc
     if not isinstance(grasps, dict) or not all(k in grasps for k in ("hand", "object", "trials")):
         raise BadInput(f"{GRASPS_INPUT}: expected an object with hand, object and trials")

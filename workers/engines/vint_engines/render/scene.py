@@ -1,8 +1,9 @@
 """The Blender scene of the render engine: built once, then only moved.
 
-Owns all Blender datablocks: render settings, the world (a bundled HDRI), one camera, the hand's
-link objects (rebuilt only when the hand geometry changes) and the object (rebuilt only when its
-shape changes). Knows nothing about tasks or files beyond the pass scratch directory.
+Owns all Blender datablocks: render settings, the world (one environment texture node whose image
+is swapped between bundled HDRIs, each loaded once), one camera, the hand's link objects (rebuilt
+only when the hand geometry changes) and the object (rebuilt only when its shape changes). Knows
+nothing about tasks or files beyond the pass scratch directory.
 """
 
 from __future__ import annotations
@@ -47,6 +48,12 @@ def environments() -> list[str]:
     return sorted(path.stem for path in environment_dir().glob("*.exr"))
 
 
+def check_environment(name: str, where: str) -> None:
+    """BadInput unless `name` is a bundled HDRI; `where` names the parameter in the message."""
+    if name not in environments():  # a name, never a path
+        raise BadInput(f"{where}: unknown environment {name!r} (have {environments()})")
+
+
 class BlenderScene:
     def __init__(self, scratch: Path) -> None:
         self.scratch = scratch
@@ -56,6 +63,7 @@ class BlenderScene:
         self._configure_render()
         self.camera = self._add_camera()
         self._environment_node = self._add_world()
+        self._environment_images: dict[str, bpy.types.Image] = {}
         self.environment: str | None = None
         add_pass_outputs(self.scene, scratch)
         self._hand_key: str | None = None
@@ -105,12 +113,15 @@ class BlenderScene:
     # -- scene content ---------------------------------------------------------------------------
 
     def set_environment(self, name: str) -> None:
+        """Light the scene with the bundled HDRI `name`. Each HDRI is loaded on first use and kept,
+        so switching between views only swaps the texture's image."""
         if name == self.environment:
             return
-        path = environment_dir() / f"{name}.exr"
-        if not path.is_file():
-            raise BadInput(f"params.render.environment: unknown {name!r} (have {environments()})")
-        image = bpy.data.images.load(str(path), check_existing=True)
+        image = self._environment_images.get(name)
+        if image is None:
+            check_environment(name, "environment")
+            image = bpy.data.images.load(str(environment_dir() / f"{name}.exr"), check_existing=True)
+            self._environment_images[name] = image
         self._environment_node.image = image
         self.environment = name
 

@@ -1,0 +1,63 @@
+//! `vint-coordinator`: the gRPC coordinator as a standalone server (cluster mode).
+
+use std::net::SocketAddr;
+
+use anyhow::Context;
+use clap::Parser;
+use vint_coordinator::CoordinatorConfig;
+use vint_store::{RetryPolicy, Store};
+
+#[derive(Parser)]
+#[command(
+    version,
+    about = "vint coordinator: schedules grasp, render, noise and package tasks over gRPC"
+)]
+struct Args {
+    /// Database URL: postgres://… (cluster) or sqlite://… (single machine).
+    #[arg(long, env = "VINT_DATABASE_URL")]
+    database: String,
+    /// Address to listen on.
+    #[arg(long, env = "VINT_LISTEN", default_value = "127.0.0.1:7700")]
+    listen: SocketAddr,
+    /// Default lease length in milliseconds.
+    #[arg(long, default_value_t = 30_000)]
+    lease_ms: i64,
+    /// Attempts per task before it fails permanently.
+    #[arg(long, default_value_t = 4)]
+    max_attempts: u32,
+    /// Base of the exponential retry backoff, in milliseconds.
+    #[arg(long, default_value_t = 1_000)]
+    backoff_ms: i64,
+    /// Log as JSON lines.
+    #[arg(long)]
+    log_json: bool,
+}
+
+#[tokio::main]
+async fn main() -> anyhow::Result<()> {
+    let args = Args::parse();
+    vint_coordinator::init_tracing(args.log_json);
+    let retry = RetryPolicy {
+        max_attempts: args.max_attempts,
+        backoff_base_ms: args.backoff_ms,
+        ..RetryPolicy::default()
+    };
+    let store = Store::open(&args.database, retry)
+        .await
+        .with_context(|| format!("opening database {}", args.database))?;
+    let (listener, addr) = vint_coordinator::bind(args.listen)
+        .await
+        .with_context(|| format!("binding {}", args.listen))?;
+    tracing::info!(%addr, backend = ?store.backend(), "coordinator listening");
+    println!("listening on {addr}");
+    let config = CoordinatorConfig {
+        default_lease_ms: args.lease_ms,
+        ..CoordinatorConfig::default()
+    };
+    let shutdown = async {
+        let _ = tokio::signal::ctrl_c().await;
+        tracing::info!("shutting down");
+    };
+    vint_coordinator::serve(store, config, listener, shutdown).await?;
+    Ok(())
+}

@@ -1,0 +1,72 @@
+//! Conversions between store records and protobuf messages, and store errors to gRPC statuses.
+
+use tonic::Status;
+use vint_proto::v1 as pb;
+use vint_store::{ArtifactRecord, JobRecord, Progress, StoreError};
+
+pub fn status(e: StoreError) -> Status {
+    match e {
+        StoreError::LeaseLost { .. } => Status::failed_precondition(e.to_string()),
+        StoreError::NotFound(_) => Status::not_found(e.to_string()),
+        other => {
+            tracing::error!(error = %other, "store error");
+            Status::internal(other.to_string())
+        }
+    }
+}
+
+pub fn artifact(a: &ArtifactRecord) -> pb::ArtifactRef {
+    pb::ArtifactRef {
+        name: a.name.clone(),
+        sha256: a.sha256.clone(),
+        size: a.size,
+        media_type: a.media_type.clone(),
+        key: a.object_key.clone(),
+        task_key: a.task_key.clone(),
+    }
+}
+
+pub fn progress(job: &JobRecord, p: &Progress) -> pb::JobProgress {
+    use vint_core::TaskState as S;
+    let stages = p
+        .by_stage
+        .iter()
+        .map(|(stage, counts)| {
+            let get = |s: S| counts.get(s.as_str()).copied().unwrap_or(0);
+            (
+                stage.clone(),
+                pb::StageProgress {
+                    total: counts.values().sum(),
+                    succeeded: get(S::Succeeded),
+                    failed: get(S::Failed),
+                },
+            )
+        })
+        .collect();
+    pb::JobProgress {
+        job_id: job.id.clone(),
+        state: job.state.as_str().to_string(),
+        tasks_total: p.total(),
+        tasks_succeeded: p.count(S::Succeeded),
+        tasks_failed: p.count(S::Failed),
+        tasks_running: p.count(S::Running),
+        tasks_queued: p.count(S::Queued),
+        tasks_waiting: p.count(S::Waiting),
+        tasks_cancelled: p.count(S::Cancelled),
+        samples_packaged: p.samples,
+        stages,
+    }
+}
+
+pub fn job(job: &JobRecord, p: &Progress) -> pb::Job {
+    pb::Job {
+        job_id: job.id.clone(),
+        name: job.name.clone(),
+        state: job.state.as_str().to_string(),
+        seed: job.seed,
+        spec_toml: job.spec_toml.clone(),
+        created_ms: job.created_ms,
+        finished_ms: job.finished_ms.unwrap_or(0),
+        progress: Some(progress(job, p)),
+    }
+}

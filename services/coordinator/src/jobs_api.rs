@@ -1,0 +1,317 @@
+//! The client API (`JobService`): submit, inspect, watch and cancel jobs; lineage and samples.
+
+use std::collections::BTreeSet;
+
+use sha2::{Digest, Sha256};
+use tokio_stream::wrappers::ReceiverStream;
+use tonic::{Request, Response, Status};
+use vint_core::plan;
+use vint_core::{DatasetSpec, SampleId};
+use vint_proto::v1 as pb;
+use vint_proto::v1::get_lineage_request::Subject;
+use vint_proto::v1::job_service_server::JobService;
+use vint_store::{JobRecord, LineageEntry, NewJob, Store};
+
+use crate::convert::{self, status};
+use crate::{CoordinatorConfig, now_ms};
+
+#[derive(Clone)]
+pub struct JobApi {
+    store: Store,
+    config: CoordinatorConfig,
+}
+
+impl JobApi {
+    pub fn new(store: Store, config: CoordinatorConfig) -> JobApi {
+        JobApi { store, config }
+    }
+
+    async fn job_record(&self, job_id: &str) -> Result<JobRecord, Status> {
+        self.store
+            .job(job_id)
+            .await
+            .map_err(status)?
+            .ok_or_else(|| Status::not_found(format!("job {job_id} not found")))
+    }
+
+    async fn job_message(&self, job: &JobRecord) -> Result<pb::Job, Status> {
+        let p = self.store.progress(&job.id).await.map_err(status)?;
+        Ok(convert::job(job, &p))
+    }
+
+    /// The job that packaged `sample_id`: the given one, or the most recent that has it.
+    async fn job_of_sample(
+        &self,
+        job_id: &str,
+        sample_id: &str,
+    ) -> Result<(String, String), Status> {
+        let candidates = if job_id.is_empty() {
+            self.store
+                .list_jobs(1_000)
+                .await
+                .map_err(status)?
+                .into_iter()
+                .map(|j| j.id)
+                .collect()
+        } else {
+            vec![job_id.to_string()]
+        };
+        for job in candidates {
+            if let Some(task) = self
+                .store
+                .sample_package_task(&job, sample_id)
+                .await
+                .map_err(status)?
+            {
+                return Ok((job, task));
+            }
+        }
+        Err(Status::not_found(format!(
+            "sample {sample_id} is not packaged in {}",
+            if job_id.is_empty() { "any job" } else { job_id }
+        )))
+    }
+
+    /// A sample's chain: its files in the package task, then its own noise, render and grasp tasks.
+    async fn sample_lineage(&self, job_id: &str, sample_id: &str) -> Result<pb::Lineage, Status> {
+        let id: SampleId = sample_id
+            .parse()
+            .map_err(|e: vint_core::sample::BadSampleId| Status::invalid_argument(e.to_string()))?;
+        let (job_id, package_task) = self.job_of_sample(job_id, sample_id).await?;
+        let job = self.job_record(&job_id).await?;
+        let spec =
+            DatasetSpec::parse(&job.spec_toml).map_err(|e| Status::internal(e.to_string()))?;
+        let own: BTreeSet<String> = [
+            plan::noise_key(&id.object, &id.hand, id.grasp_index),
+            plan::render_key(&id.object, &id.hand, id.grasp_index),
+            plan::chunk_of(&spec, &id.object, &id.hand, id.grasp_index).key(),
+        ]
+        .into_iter()
+        .collect();
+        let mut chain = self.store.lineage(&package_task).await.map_err(status)?;
+        let prefix = format!("{sample_id}/");
+        let sample_view = format!("v{:02}_", id.view_index);
+        let mut tasks = Vec::new();
+        for mut entry in chain.drain(..) {
+            let is_package = entry.task.id == package_task;
+            if !is_package && !own.contains(&entry.task.key) {
+                continue;
+            }
+            if is_package {
+                entry.outputs.retain(|a| a.name.starts_with(&prefix));
+                entry.inputs.retain(|a| {
+                    own.contains(&a.task_key)
+                        && (!a.name.starts_with('v') || a.name.starts_with(&sample_view))
+                });
+                entry
+                    .depends_on
+                    .retain(|d| own.iter().any(|k| d.ends_with(&format!("/{k}"))));
+            }
+            tasks.push(self.lineage_task(entry).await?);
+        }
+        Ok(pb::Lineage {
+            job_id,
+            subject: sample_id.to_string(),
+            tasks,
+        })
+    }
+
+    async fn lineage_task(&self, e: LineageEntry) -> Result<pb::LineageTask, Status> {
+        let attempts = self.store.attempt_count(&e.task.id).await.map_err(status)?;
+        Ok(pb::LineageTask {
+            task_id: e.task.id,
+            key: e.task.key,
+            stage: e.task.stage.as_str().to_string(),
+            state: e.task.state.as_str().to_string(),
+            params_json: e.task.params_json,
+            engine_json: e.task.engine_json.unwrap_or_default(),
+            attempts,
+            inputs: e.inputs.iter().map(convert::artifact).collect(),
+            outputs: e.outputs.iter().map(convert::artifact).collect(),
+            depends_on: e.depends_on,
+        })
+    }
+}
+
+/// Default idempotency key: the spec's content, so resubmitting the same file is a no-op.
+fn default_idempotency_key(spec_toml: &str) -> String {
+    format!(
+        "spec-sha256:{}",
+        hex::encode(Sha256::digest(spec_toml.as_bytes()))
+    )
+}
+
+#[tonic::async_trait]
+impl JobService for JobApi {
+    async fn submit_job(
+        &self,
+        request: Request<pb::SubmitJobRequest>,
+    ) -> Result<Response<pb::SubmitJobResponse>, Status> {
+        let req = request.into_inner();
+        let spec = DatasetSpec::parse(&req.spec_toml)
+            .map_err(|e| Status::invalid_argument(format!("invalid spec:\n{e}")))?;
+        let key = if req.idempotency_key.is_empty() {
+            default_idempotency_key(&req.spec_toml)
+        } else {
+            req.idempotency_key
+        };
+        let uuid = uuid::Uuid::new_v4().simple().to_string();
+        let new_job = NewJob {
+            id: format!("j{}", &uuid[..12]),
+            name: spec.dataset.name.clone(),
+            seed: spec.dataset.seed,
+            spec_toml: req.spec_toml,
+            idempotency_key: key,
+        };
+        let tasks = plan::initial_tasks(&spec);
+        let (job, created) = self
+            .store
+            .submit_job(&new_job, &tasks, now_ms())
+            .await
+            .map_err(status)?;
+        tracing::info!(job = %job.id, created, tasks = tasks.len(), "job submitted");
+        Ok(Response::new(pb::SubmitJobResponse {
+            job: Some(self.job_message(&job).await?),
+            created,
+        }))
+    }
+
+    async fn get_job(
+        &self,
+        request: Request<pb::GetJobRequest>,
+    ) -> Result<Response<pb::Job>, Status> {
+        let job = self.job_record(&request.into_inner().job_id).await?;
+        Ok(Response::new(self.job_message(&job).await?))
+    }
+
+    async fn list_jobs(
+        &self,
+        request: Request<pb::ListJobsRequest>,
+    ) -> Result<Response<pb::ListJobsResponse>, Status> {
+        let limit = match request.into_inner().limit {
+            0 => 50,
+            n => n.min(1_000),
+        };
+        let mut jobs = Vec::new();
+        for job in self.store.list_jobs(limit).await.map_err(status)? {
+            jobs.push(self.job_message(&job).await?);
+        }
+        Ok(Response::new(pb::ListJobsResponse { jobs }))
+    }
+
+    type WatchJobStream = ReceiverStream<Result<pb::JobProgress, Status>>;
+
+    async fn watch_job(
+        &self,
+        request: Request<pb::WatchJobRequest>,
+    ) -> Result<Response<Self::WatchJobStream>, Status> {
+        let job_id = request.into_inner().job_id;
+        self.job_record(&job_id).await?;
+        let (tx, rx) = tokio::sync::mpsc::channel(16);
+        let api = self.clone();
+        tokio::spawn(async move {
+            let mut last = None;
+            loop {
+                let update = async {
+                    let job = api.job_record(&job_id).await?;
+                    let p = api.store.progress(&job_id).await.map_err(status)?;
+                    Ok::<_, Status>((job.state.is_terminal(), convert::progress(&job, &p)))
+                }
+                .await;
+                match update {
+                    Ok((done, progress)) => {
+                        if last.as_ref() != Some(&progress) {
+                            last = Some(progress.clone());
+                            if tx.send(Ok(progress)).await.is_err() {
+                                return; // the client went away
+                            }
+                        }
+                        if done {
+                            return;
+                        }
+                    }
+                    Err(e) => {
+                        let _ = tx.send(Err(e)).await;
+                        return;
+                    }
+                }
+                tokio::time::sleep(api.config.watch_interval).await;
+            }
+        });
+        Ok(Response::new(ReceiverStream::new(rx)))
+    }
+
+    async fn cancel_job(
+        &self,
+        request: Request<pb::CancelJobRequest>,
+    ) -> Result<Response<pb::Job>, Status> {
+        let job_id = request.into_inner().job_id;
+        self.job_record(&job_id).await?;
+        let job = self
+            .store
+            .cancel_job(&job_id, now_ms())
+            .await
+            .map_err(status)?;
+        tracing::info!(job = %job_id, state = %job.state, "job cancel requested");
+        Ok(Response::new(self.job_message(&job).await?))
+    }
+
+    async fn get_lineage(
+        &self,
+        request: Request<pb::GetLineageRequest>,
+    ) -> Result<Response<pb::Lineage>, Status> {
+        let req = request.into_inner();
+        match req.subject {
+            Some(Subject::SampleId(sample)) => Ok(Response::new(
+                self.sample_lineage(&req.job_id, &sample).await?,
+            )),
+            Some(Subject::ArtifactSha256(sha)) => {
+                let job = (!req.job_id.is_empty()).then_some(req.job_id.as_str());
+                let producers = self.store.producers_of(&sha, job).await.map_err(status)?;
+                // Packaging copies content; the task that first made it is its origin.
+                let first = producers
+                    .iter()
+                    .find(|a| !a.task_key.starts_with("package/"))
+                    .or(producers.first())
+                    .ok_or_else(|| Status::not_found(format!("no artifact with sha256 {sha}")))?;
+                let chain = self.store.lineage(&first.task_id).await.map_err(status)?;
+                let job_id = chain
+                    .first()
+                    .map(|e| e.task.job_id.clone())
+                    .unwrap_or_default();
+                let mut tasks = Vec::new();
+                for e in chain {
+                    tasks.push(self.lineage_task(e).await?);
+                }
+                Ok(Response::new(pb::Lineage {
+                    job_id,
+                    subject: sha,
+                    tasks,
+                }))
+            }
+            None => Err(Status::invalid_argument(
+                "lineage needs a sample_id or an artifact_sha256",
+            )),
+        }
+    }
+
+    async fn list_samples(
+        &self,
+        request: Request<pb::ListSamplesRequest>,
+    ) -> Result<Response<pb::ListSamplesResponse>, Status> {
+        let job_id = request.into_inner().job_id;
+        self.job_record(&job_id).await?;
+        let samples = self
+            .store
+            .samples(&job_id)
+            .await
+            .map_err(status)?
+            .into_iter()
+            .map(|(sample_id, files)| pb::Sample {
+                sample_id,
+                files: files.iter().map(convert::artifact).collect(),
+            })
+            .collect();
+        Ok(Response::new(pb::ListSamplesResponse { samples }))
+    }
+}

@@ -1,0 +1,132 @@
+//! `vint-worker`: leases tasks of the given stages from a coordinator and runs them.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::Context;
+use clap::Parser;
+use vint_artifacts::ArtifactStore;
+use vint_core::Stage;
+use vint_runtime::engine::EngineCommand;
+use vint_runtime::worker::{Worker, WorkerConfig};
+
+#[derive(Parser)]
+#[command(
+    version,
+    about = "vint worker: runs grasp, render, noise and package tasks"
+)]
+struct Args {
+    /// Coordinator URL.
+    #[arg(
+        long,
+        env = "VINT_COORDINATOR",
+        default_value = "http://127.0.0.1:7700"
+    )]
+    coordinator: String,
+    /// Artifact store URL: file:///abs/dir or s3://bucket[/prefix].
+    #[arg(long, env = "VINT_STORE")]
+    store: String,
+    /// Stages to serve, comma-separated.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "grasp,render,noise,package"
+    )]
+    stages: Vec<String>,
+    /// Python interpreter with the engines' packages (bpy, mujoco, opencv).
+    #[arg(long, env = "VINT_PYTHON")]
+    python: Option<PathBuf>,
+    /// Directory holding the vint_engines package.
+    #[arg(long, env = "VINT_ENGINES_DIR")]
+    engines_dir: Option<PathBuf>,
+    /// Scratch directory for staged inputs and outputs.
+    #[arg(long, env = "VINT_SCRATCH")]
+    scratch: Option<PathBuf>,
+    /// Lease length requested from the coordinator, in milliseconds; heartbeats renew it.
+    #[arg(long, default_value_t = 30_000)]
+    lease_ms: u32,
+    /// Longest one task may run in an engine, in seconds.
+    #[arg(long, default_value_t = 1_800)]
+    task_timeout_s: u64,
+    /// Worker id (default: host name, process id and a random suffix).
+    #[arg(long)]
+    worker_id: Option<String>,
+    /// Log as JSON lines.
+    #[arg(long)]
+    log_json: bool,
+}
+
+#[tokio::main]
+async fn main() -> anyhow::Result<()> {
+    let args = Args::parse();
+    init_tracing(args.log_json);
+    let stages = args
+        .stages
+        .iter()
+        .map(|s| s.parse::<Stage>())
+        .collect::<Result<Vec<_>, _>>()
+        .context("--stages")?;
+    let (default_engines, default_python) = vint_runtime::checkout_defaults();
+    let worker_id = args.worker_id.unwrap_or_else(|| {
+        let host =
+            std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap_or_else(|_| "host".into());
+        format!(
+            "{}-{}-{}",
+            host.trim(),
+            std::process::id(),
+            &uuid::Uuid::new_v4().simple().to_string()[..6]
+        )
+    });
+    let scratch = args
+        .scratch
+        .unwrap_or_else(|| std::env::temp_dir().join(format!("vint-worker-{worker_id}")));
+    let store = ArtifactStore::open(&args.store)
+        .with_context(|| format!("opening artifact store {}", args.store))?;
+    let config = WorkerConfig {
+        coordinator: args.coordinator,
+        worker_id,
+        stages,
+        lease_ms: args.lease_ms,
+        scratch: scratch.clone(),
+        engine: EngineCommand {
+            python: args.python.unwrap_or(default_python),
+            engines_dir: args.engines_dir.unwrap_or(default_engines),
+            task_timeout: Duration::from_secs(args.task_timeout_s),
+            start_timeout: Duration::from_secs(120),
+        },
+        max_idle_poll: Duration::from_millis(500),
+    };
+    tracing::info!(worker = %config.worker_id, stages = ?config.stages, "worker starting");
+    let worker = Worker::new(config, store)?;
+    worker.run(shutdown_signal()).await;
+    let _ = std::fs::remove_dir_all(&scratch);
+    Ok(())
+}
+
+/// Resolves on SIGINT or SIGTERM.
+async fn shutdown_signal() {
+    let mut term = match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+        Ok(s) => s,
+        Err(_) => {
+            let _ = tokio::signal::ctrl_c().await;
+            return;
+        }
+    };
+    tokio::select! {
+        _ = tokio::signal::ctrl_c() => {}
+        _ = term.recv() => {}
+    }
+}
+
+fn init_tracing(json: bool) {
+    use tracing_subscriber::EnvFilter;
+    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));
+    let builder = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr);
+    let _ = if json {
+        builder.json().try_init()
+    } else {
+        builder.try_init()
+    };
+}

@@ -1,0 +1,295 @@
+//! The engine host: one long-lived Python engine process per stage, spoken to over the framed
+//! protocol of `workers/engines/PROTOCOL.md` (4-byte big-endian length + a JSON object).
+//!
+//! The host owns the child process. An engine that exits, breaks a frame or overruns its task
+//! deadline is killed and reported as `EngineError::Crashed`; the worker fails the task as
+//! retryable and starts a fresh engine for the next one.
+
+use std::path::{Path, PathBuf};
+use std::process::Stdio;
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::process::{Child, ChildStdin, ChildStdout, Command};
+use vint_core::Stage;
+
+/// Frames above this size are a protocol error (matches the engines' limit).
+const MAX_FRAME_BYTES: u32 = 64 << 20;
+
+#[derive(Debug, thiserror::Error)]
+pub enum EngineError {
+    #[error("could not start the {stage} engine ({python}): {source}")]
+    Spawn {
+        stage: Stage,
+        python: String,
+        source: std::io::Error,
+    },
+    #[error("the {stage} engine crashed: {detail}")]
+    Crashed { stage: Stage, detail: String },
+    #[error("the {stage} engine broke the protocol: {detail}")]
+    Protocol { stage: Stage, detail: String },
+}
+
+/// How to start engines.
+#[derive(Clone, Debug)]
+pub struct EngineCommand {
+    /// The Python interpreter of the engines' environment.
+    pub python: PathBuf,
+    /// Directory that holds the `vint_engines` package.
+    pub engines_dir: PathBuf,
+    /// Longest a single task may run before the engine is presumed hung.
+    pub task_timeout: Duration,
+    /// Longest an engine may take to import its libraries and say hello.
+    pub start_timeout: Duration,
+}
+
+/// One file a task reads.
+#[derive(Clone, Debug, Serialize)]
+pub struct EngineInput {
+    pub name: String,
+    pub task_key: String,
+    pub path: PathBuf,
+}
+
+#[derive(Serialize)]
+struct TaskMessage<'a> {
+    #[serde(rename = "type")]
+    kind: &'static str,
+    task_id: &'a str,
+    params: &'a Value,
+    inputs: &'a [EngineInput],
+    out_dir: &'a Path,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+pub struct EngineOutput {
+    pub name: String,
+    pub path: PathBuf,
+    pub media_type: String,
+}
+
+/// What an engine answered for one task.
+#[derive(Clone, Debug, Deserialize)]
+pub struct EngineResult {
+    pub ok: bool,
+    #[serde(default)]
+    pub outputs: Vec<EngineOutput>,
+    #[serde(default)]
+    pub metrics: serde_json::Map<String, Value>,
+    #[serde(default)]
+    pub retryable: bool,
+    #[serde(default)]
+    pub error: String,
+    #[serde(default)]
+    pub task_id: String,
+}
+
+/// A running engine process.
+pub struct Engine {
+    stage: Stage,
+    child: Child,
+    stdin: ChildStdin,
+    stdout: ChildStdout,
+    /// The engine's self-description from its hello (name, version, library versions).
+    pub identity: Value,
+    task_timeout: Duration,
+}
+
+impl Engine {
+    /// Starts the engine for `stage` and waits for its hello.
+    pub async fn start(stage: Stage, cmd: &EngineCommand) -> Result<Engine, EngineError> {
+        let mut child = Command::new(&cmd.python)
+            .args(["-m", "vint_engines", "serve", "--stage", stage.as_str()])
+            .env("PYTHONPATH", &cmd.engines_dir)
+            .env("PYTHONUNBUFFERED", "1")
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .kill_on_drop(true)
+            .spawn()
+            .map_err(|source| EngineError::Spawn {
+                stage,
+                python: cmd.python.display().to_string(),
+                source,
+            })?;
+        let crashed = |detail: &str| EngineError::Crashed {
+            stage,
+            detail: detail.to_string(),
+        };
+        let stdin = child.stdin.take().ok_or_else(|| crashed("no stdin pipe"))?;
+        let stdout = child
+            .stdout
+            .take()
+            .ok_or_else(|| crashed("no stdout pipe"))?;
+        let mut engine = Engine {
+            stage,
+            child,
+            stdin,
+            stdout,
+            identity: Value::Null,
+            task_timeout: cmd.task_timeout,
+        };
+        let hello = match tokio::time::timeout(cmd.start_timeout, engine.read_frame()).await {
+            Ok(r) => r?,
+            Err(_) => {
+                return Err(engine
+                    .kill(&format!("no hello within {:?}", cmd.start_timeout))
+                    .await);
+            }
+        };
+        if hello.get("type").and_then(Value::as_str) != Some("hello") {
+            return Err(EngineError::Protocol {
+                stage,
+                detail: format!("expected hello, got {hello}"),
+            });
+        }
+        engine.identity = hello.get("engine").cloned().unwrap_or(Value::Null);
+        tracing::info!(stage = %stage, engine = %engine.identity, "engine ready");
+        Ok(engine)
+    }
+
+    pub fn stage(&self) -> Stage {
+        self.stage
+    }
+
+    /// Runs one task. An `Err` means the engine is unusable and must be dropped.
+    pub async fn run(
+        &mut self,
+        task_id: &str,
+        params: &Value,
+        inputs: &[EngineInput],
+        out_dir: &Path,
+    ) -> Result<EngineResult, EngineError> {
+        let msg = TaskMessage {
+            kind: "task",
+            task_id,
+            params,
+            inputs,
+            out_dir,
+        };
+        let body = serde_json::to_vec(&msg).map_err(|e| EngineError::Protocol {
+            stage: self.stage,
+            detail: e.to_string(),
+        })?;
+        self.write_frame(&body).await?;
+        let reply = match tokio::time::timeout(self.task_timeout, self.read_frame()).await {
+            Ok(r) => r?,
+            Err(_) => {
+                return Err(self
+                    .kill(&format!("task {task_id} ran past {:?}", self.task_timeout))
+                    .await);
+            }
+        };
+        if reply.get("type").and_then(Value::as_str) != Some("result") {
+            return Err(EngineError::Protocol {
+                stage: self.stage,
+                detail: format!("expected result, got {reply}"),
+            });
+        }
+        let result: EngineResult =
+            serde_json::from_value(reply).map_err(|e| EngineError::Protocol {
+                stage: self.stage,
+                detail: e.to_string(),
+            })?;
+        if result.task_id != task_id {
+            return Err(EngineError::Protocol {
+                stage: self.stage,
+                detail: format!(
+                    "result for task {:?} while running {task_id:?}",
+                    result.task_id
+                ),
+            });
+        }
+        Ok(result)
+    }
+
+    /// Asks the engine to exit and waits briefly; kills it otherwise.
+    pub async fn shutdown(mut self) {
+        let _ = self.write_frame(br#"{"type":"shutdown"}"#).await;
+        if tokio::time::timeout(Duration::from_secs(5), self.child.wait())
+            .await
+            .is_err()
+        {
+            let _ = self.child.kill().await;
+        }
+    }
+
+    /// Process id, for tests that need to kill an engine from outside.
+    pub fn pid(&self) -> Option<u32> {
+        self.child.id()
+    }
+
+    async fn kill(&mut self, why: &str) -> EngineError {
+        let _ = self.child.kill().await;
+        EngineError::Crashed {
+            stage: self.stage,
+            detail: why.to_string(),
+        }
+    }
+
+    async fn write_frame(&mut self, body: &[u8]) -> Result<(), EngineError> {
+        let len = u32::try_from(body.len())
+            .ok()
+            .filter(|&n| n <= MAX_FRAME_BYTES)
+            .ok_or_else(|| EngineError::Protocol {
+                stage: self.stage,
+                detail: format!("frame of {} bytes is too large", body.len()),
+            })?;
+        let write = async {
+            self.stdin.write_all(&len.to_be_bytes()).await?;
+            self.stdin.write_all(body).await?;
+            self.stdin.flush().await
+        };
+        if let Err(e) = write.await {
+            let detail = self.exit_detail(&e.to_string()).await;
+            return Err(EngineError::Crashed {
+                stage: self.stage,
+                detail,
+            });
+        }
+        Ok(())
+    }
+
+    async fn read_frame(&mut self) -> Result<Value, EngineError> {
+        let mut len = [0u8; 4];
+        if let Err(e) = self.stdout.read_exact(&mut len).await {
+            let detail = self.exit_detail(&e.to_string()).await;
+            return Err(EngineError::Crashed {
+                stage: self.stage,
+                detail,
+            });
+        }
+        let len = u32::from_be_bytes(len);
+        if len > MAX_FRAME_BYTES {
+            return Err(EngineError::Protocol {
+                stage: self.stage,
+                detail: format!("frame of {len} bytes"),
+            });
+        }
+        let mut body = vec![0u8; len as usize];
+        if let Err(e) = self.stdout.read_exact(&mut body).await {
+            let detail = self.exit_detail(&e.to_string()).await;
+            return Err(EngineError::Crashed {
+                stage: self.stage,
+                detail,
+            });
+        }
+        serde_json::from_slice(&body).map_err(|e| EngineError::Protocol {
+            stage: self.stage,
+            detail: e.to_string(),
+        })
+    }
+
+    /// Describes how the engine ended, after an I/O error on its pipes.
+    async fn exit_detail(&mut self, io_error: &str) -> String {
+        match tokio::time::timeout(Duration::from_secs(2), self.child.wait()).await {
+            Ok(Ok(status)) => format!("engine exited ({status}) [{io_error}]"),
+            _ => {
+                let _ = self.child.kill().await;
+                format!("engine pipe failed [{io_error}]; killed")
+            }
+        }
+    }
+}

@@ -1,0 +1,521 @@
+//! The worker loop: lease a task, stage its inputs, run it (engine or in-process package stage),
+//! upload its outputs, and complete or fail it, heartbeating all the while.
+//!
+//! A worker keeps one engine per stage it has served, alive between tasks. It survives a
+//! coordinator restart (RPCs are retried with backoff) and never completes a task whose lease it
+//! has lost. It holds no durable state: kill it at any moment and its task is leased again.
+
+use std::collections::HashMap;
+use std::future::Future;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use serde_json::Value;
+use tonic::transport::{Channel, Endpoint};
+use tonic::{Code, Status};
+use tracing::Instrument;
+use vint_artifacts::ArtifactStore;
+use vint_core::Stage;
+use vint_proto::v1 as pb;
+use vint_proto::v1::work_service_client::WorkServiceClient;
+
+use crate::engine::{Engine, EngineCommand, EngineError, EngineInput};
+use crate::package::{self, PackageInput};
+
+#[derive(Clone, Debug)]
+pub struct WorkerConfig {
+    /// Coordinator URL, e.g. `http://127.0.0.1:7700`.
+    pub coordinator: String,
+    pub worker_id: String,
+    pub stages: Vec<Stage>,
+    pub lease_ms: u32,
+    /// Directory for staged inputs and engine outputs; one subdirectory per task attempt.
+    pub scratch: PathBuf,
+    pub engine: EngineCommand,
+    /// Longest pause between lease polls when there is no work.
+    pub max_idle_poll: Duration,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum WorkerError {
+    #[error("invalid coordinator URL {url:?}: {source}")]
+    BadCoordinatorUrl {
+        url: String,
+        source: tonic::transport::Error,
+    },
+}
+
+/// Why a task attempt did not complete.
+#[derive(Debug)]
+struct TaskFailure {
+    retryable: bool,
+    message: String,
+}
+
+impl TaskFailure {
+    fn retryable(message: impl Into<String>) -> Self {
+        TaskFailure {
+            retryable: true,
+            message: message.into(),
+        }
+    }
+    fn permanent(message: impl Into<String>) -> Self {
+        TaskFailure {
+            retryable: false,
+            message: message.into(),
+        }
+    }
+}
+
+struct Finished {
+    outputs: Vec<pb::ArtifactRef>,
+    engine_json: String,
+    result_json: String,
+    timings: pb::Timings,
+}
+
+pub struct Worker {
+    config: WorkerConfig,
+    client: WorkServiceClient<Channel>,
+    store: ArtifactStore,
+    engines: HashMap<Stage, Engine>,
+}
+
+impl Worker {
+    pub fn new(config: WorkerConfig, store: ArtifactStore) -> Result<Worker, WorkerError> {
+        let endpoint = Endpoint::from_shared(config.coordinator.clone())
+            .map_err(|source| WorkerError::BadCoordinatorUrl {
+                url: config.coordinator.clone(),
+                source,
+            })?
+            .connect_timeout(Duration::from_secs(5));
+        let client = WorkServiceClient::new(endpoint.connect_lazy());
+        Ok(Worker {
+            config,
+            client,
+            store,
+            engines: HashMap::new(),
+        })
+    }
+
+    /// Serves tasks until `shutdown` resolves; the task in flight is finished first.
+    pub async fn run(mut self, shutdown: impl Future<Output = ()>) {
+        tokio::pin!(shutdown);
+        let stages: Vec<String> = self
+            .config
+            .stages
+            .iter()
+            .map(|s| s.as_str().to_string())
+            .collect();
+        let mut idle = Duration::from_millis(50);
+        loop {
+            let request = pb::LeaseTasksRequest {
+                worker_id: self.config.worker_id.clone(),
+                stages: stages.clone(),
+                capacity: 1,
+                lease_ms: self.config.lease_ms,
+            };
+            let leased = tokio::select! {
+                _ = &mut shutdown => break,
+                r = self.client.lease_tasks(request) => r,
+            };
+            match leased {
+                Ok(resp) if !resp.get_ref().tasks.is_empty() => {
+                    idle = Duration::from_millis(50);
+                    for task in resp.into_inner().tasks {
+                        self.serve(task).await;
+                    }
+                    continue;
+                }
+                Ok(_) => {}
+                Err(status) => {
+                    tracing::warn!(error = %status.message(), code = ?status.code(), "lease failed; coordinator unreachable?")
+                }
+            }
+            tokio::select! {
+                _ = &mut shutdown => break,
+                _ = tokio::time::sleep(idle) => {}
+            }
+            idle = (idle * 2).min(self.config.max_idle_poll);
+        }
+        for (_, engine) in self.engines.drain() {
+            engine.shutdown().await;
+        }
+        tracing::info!(worker = %self.config.worker_id, "worker stopped");
+    }
+
+    async fn serve(&mut self, task: pb::LeasedTask) {
+        let span = tracing::info_span!("task", job = %task.job_id, task = %task.key, stage = %task.stage, attempt = task.attempt);
+        async {
+            let lost = Arc::new(AtomicBool::new(false));
+            let heartbeat = tokio::spawn(heartbeat_loop(
+                self.client.clone(),
+                self.config.worker_id.clone(),
+                pb::TaskAttempt {
+                    task_id: task.task_id.clone(),
+                    attempt: task.attempt,
+                },
+                self.config.lease_ms,
+                lost.clone(),
+            ));
+            let dir =
+                self.config
+                    .scratch
+                    .join(format!("{}-a{}", sanitize(&task.task_id), task.attempt));
+            let outcome = self.execute(&task, &dir).await;
+            heartbeat.abort();
+            let _ = tokio::fs::remove_dir_all(&dir).await;
+            if lost.load(Ordering::SeqCst) {
+                tracing::warn!("lease lost while running; result discarded");
+                return;
+            }
+            match outcome {
+                Ok(done) => self.complete(&task, done).await,
+                Err(failure) => self.fail(&task, failure).await,
+            }
+        }
+        .instrument(span)
+        .await
+    }
+
+    async fn execute(
+        &mut self,
+        task: &pb::LeasedTask,
+        dir: &Path,
+    ) -> Result<Finished, TaskFailure> {
+        let started = Instant::now();
+        let stage: Stage = task
+            .stage
+            .parse()
+            .map_err(|e: vint_core::stage::UnknownStage| TaskFailure::permanent(e.to_string()))?;
+        let params: Value = serde_json::from_str(&task.params_json)
+            .map_err(|e| TaskFailure::permanent(format!("task params are not JSON: {e}")))?;
+        if stage == Stage::Package {
+            let inputs: Vec<PackageInput> = task
+                .inputs
+                .iter()
+                .map(|a| PackageInput {
+                    name: a.name.clone(),
+                    task_key: a.task_key.clone(),
+                    sha256: a.sha256.clone(),
+                    size: a.size,
+                    media_type: a.media_type.clone(),
+                    key: a.key.clone(),
+                })
+                .collect();
+            let files = package::package(&params, &inputs, &self.store)
+                .await
+                .map_err(|e| TaskFailure {
+                    retryable: e.retryable(),
+                    message: e.to_string(),
+                })?;
+            let engine_ms = ms(started.elapsed());
+            let outputs = files
+                .into_iter()
+                .map(|f| pb::ArtifactRef {
+                    name: f.name,
+                    sha256: f.sha256,
+                    size: f.size,
+                    media_type: f.media_type,
+                    key: f.key,
+                    task_key: task.key.clone(),
+                })
+                .collect();
+            let engine =
+                serde_json::json!({"name": "vint-package", "version": env!("CARGO_PKG_VERSION")});
+            return Ok(Finished {
+                outputs,
+                engine_json: engine.to_string(),
+                result_json: "{}".into(),
+                timings: pb::Timings {
+                    fetch_ms: 0.0,
+                    engine_ms,
+                    upload_ms: 0.0,
+                    total_ms: engine_ms,
+                },
+            });
+        }
+
+        let in_dir = dir.join("in");
+        let out_dir = dir.join("out");
+        tokio::fs::create_dir_all(&out_dir).await.map_err(|e| {
+            TaskFailure::retryable(format!("creating scratch {}: {e}", out_dir.display()))
+        })?;
+        let fetch_start = Instant::now();
+        let mut inputs = Vec::new();
+        for a in task.inputs.iter().filter(|a| stage_reads(stage, &a.name)) {
+            let path = in_dir.join(sanitize(&a.task_key)).join(&a.name);
+            self.store
+                .get_to_file(&a.sha256, &path)
+                .await
+                .map_err(|e| {
+                    TaskFailure::retryable(format!(
+                        "fetching input {} of {}: {e}",
+                        a.name, a.task_key
+                    ))
+                })?;
+            inputs.push(EngineInput {
+                name: a.name.clone(),
+                task_key: a.task_key.clone(),
+                path,
+            });
+        }
+        let fetch_ms = ms(fetch_start.elapsed());
+
+        let engine_start = Instant::now();
+        let engine = self.engine(stage).await?;
+        let identity = engine.identity.to_string();
+        let result = match engine.run(&task.task_id, &params, &inputs, &out_dir).await {
+            Ok(r) => r,
+            Err(e) => {
+                // The engine is unusable: drop (and so kill) it; the next task starts a fresh one.
+                self.engines.remove(&stage);
+                return Err(TaskFailure::retryable(e.to_string()));
+            }
+        };
+        let engine_ms = ms(engine_start.elapsed());
+        if !result.ok {
+            return Err(TaskFailure {
+                retryable: result.retryable,
+                message: format!("engine: {}", result.error),
+            });
+        }
+
+        let upload_start = Instant::now();
+        let mut outputs = Vec::with_capacity(result.outputs.len());
+        for o in &result.outputs {
+            if !o.path.starts_with(&out_dir) {
+                return Err(TaskFailure::permanent(format!(
+                    "engine output {} lies outside its out_dir",
+                    o.path.display()
+                )));
+            }
+            let stored = self
+                .store
+                .put_file(&o.path)
+                .await
+                .map_err(|e| TaskFailure::retryable(format!("uploading {}: {e}", o.name)))?;
+            outputs.push(pb::ArtifactRef {
+                name: o.name.clone(),
+                sha256: stored.sha256,
+                size: stored.size,
+                media_type: o.media_type.clone(),
+                key: stored.key,
+                task_key: task.key.clone(),
+            });
+        }
+        let upload_ms = ms(upload_start.elapsed());
+        let result_json = match stage {
+            Stage::Grasp => grasp_summary(&result.outputs).await?,
+            _ => "{}".to_string(),
+        };
+        let mut engine_json: Value = serde_json::from_str(&identity).unwrap_or(Value::Null);
+        if let Value::Object(map) = &mut engine_json {
+            map.insert("metrics".into(), Value::Object(result.metrics.clone()));
+        }
+        Ok(Finished {
+            outputs,
+            engine_json: engine_json.to_string(),
+            result_json,
+            timings: pb::Timings {
+                fetch_ms,
+                engine_ms,
+                upload_ms,
+                total_ms: ms(started.elapsed()),
+            },
+        })
+    }
+
+    /// The warm engine of `stage`, started on first use.
+    async fn engine(&mut self, stage: Stage) -> Result<&mut Engine, TaskFailure> {
+        if !self.engines.contains_key(&stage) {
+            let engine = Engine::start(stage, &self.config.engine)
+                .await
+                .map_err(|e| match e {
+                    EngineError::Spawn { .. } => TaskFailure::retryable(e.to_string()),
+                    other => TaskFailure::retryable(other.to_string()),
+                })?;
+            self.engines.insert(stage, engine);
+        }
+        self.engines
+            .get_mut(&stage)
+            .ok_or_else(|| TaskFailure::retryable("engine vanished"))
+    }
+
+    async fn complete(&mut self, task: &pb::LeasedTask, done: Finished) {
+        let request = pb::CompleteTaskRequest {
+            worker_id: self.config.worker_id.clone(),
+            task_id: task.task_id.clone(),
+            attempt: task.attempt,
+            outputs: done.outputs,
+            engine_json: done.engine_json,
+            timings: Some(done.timings),
+            result_json: done.result_json,
+        };
+        let client = self.client.clone();
+        let sent = with_retries(task.lease_deadline_ms, || {
+            let mut c = client.clone();
+            let r = request.clone();
+            async move { c.complete_task(r).await.map(|_| ()) }
+        })
+        .await;
+        match sent {
+            Ok(()) => tracing::info!(
+                total_ms = done.timings.total_ms,
+                engine_ms = done.timings.engine_ms,
+                "task completed"
+            ),
+            Err(s) if s.code() == Code::FailedPrecondition => {
+                tracing::warn!(error = %s.message(), "completion refused: lease lost")
+            }
+            Err(s) => {
+                tracing::error!(error = %s.message(), code = ?s.code(), "completion failed; the task will be leased again")
+            }
+        }
+    }
+
+    async fn fail(&mut self, task: &pb::LeasedTask, failure: TaskFailure) {
+        tracing::warn!(retryable = failure.retryable, error = %failure.message, "task failed");
+        let request = pb::FailTaskRequest {
+            worker_id: self.config.worker_id.clone(),
+            task_id: task.task_id.clone(),
+            attempt: task.attempt,
+            retryable: failure.retryable,
+            message: failure.message,
+        };
+        let client = self.client.clone();
+        let sent = with_retries(task.lease_deadline_ms, || {
+            let mut c = client.clone();
+            let r = request.clone();
+            async move { c.fail_task(r).await.map(|_| ()) }
+        })
+        .await;
+        if let Err(s) = sent {
+            tracing::warn!(error = %s.message(), "could not report the failure; the lease will expire instead");
+        }
+    }
+}
+
+/// Which staged inputs a stage's engine reads: nothing else is downloaded.
+fn stage_reads(stage: Stage, name: &str) -> bool {
+    match stage {
+        Stage::Render => name == "grasps.json",
+        Stage::Noise => name.ends_with("_depth.npy"),
+        Stage::Grasp | Stage::Package => false,
+    }
+}
+
+/// The planner's view of a grasp chunk: which trials were accepted.
+async fn grasp_summary(outputs: &[crate::engine::EngineOutput]) -> Result<String, TaskFailure> {
+    let out = outputs
+        .iter()
+        .find(|o| o.name == "grasps.json")
+        .ok_or_else(|| TaskFailure::permanent("grasp engine wrote no grasps.json"))?;
+    let bytes = tokio::fs::read(&out.path)
+        .await
+        .map_err(|e| TaskFailure::retryable(format!("reading grasps.json: {e}")))?;
+    let doc: Value = serde_json::from_slice(&bytes)
+        .map_err(|e| TaskFailure::permanent(format!("grasps.json: {e}")))?;
+    let trials = doc["trials"]
+        .as_array()
+        .ok_or_else(|| TaskFailure::permanent("grasps.json has no trials"))?;
+    let mut accepted = Vec::new();
+    let mut rejected: std::collections::BTreeMap<String, u64> = Default::default();
+    for t in trials {
+        let index = t["grasp_index"]
+            .as_u64()
+            .ok_or_else(|| TaskFailure::permanent("trial without grasp_index"))?;
+        if t["accepted"].as_bool() == Some(true) {
+            accepted.push(index);
+        } else {
+            *rejected
+                .entry(t["reason"].as_str().unwrap_or("unknown").to_string())
+                .or_default() += 1;
+        }
+    }
+    Ok(serde_json::json!({"accepted": accepted, "rejected": rejected}).to_string())
+}
+
+async fn heartbeat_loop(
+    mut client: WorkServiceClient<Channel>,
+    worker_id: String,
+    held: pb::TaskAttempt,
+    lease_ms: u32,
+    lost: Arc<AtomicBool>,
+) {
+    let every = Duration::from_millis(u64::from(lease_ms / 3).max(200));
+    loop {
+        tokio::time::sleep(every).await;
+        let request = pb::HeartbeatRequest {
+            worker_id: worker_id.clone(),
+            held: vec![held.clone()],
+            lease_ms,
+        };
+        match client.heartbeat(request).await {
+            Ok(resp)
+                if resp
+                    .get_ref()
+                    .lost
+                    .iter()
+                    .any(|l| l.task_id == held.task_id) =>
+            {
+                lost.store(true, Ordering::SeqCst);
+                return;
+            }
+            Ok(_) => {}
+            Err(s) => tracing::warn!(error = %s.message(), "heartbeat failed"),
+        }
+    }
+}
+
+/// Retries an RPC through transient coordinator outages until the lease deadline has passed
+/// (after which the coordinator would refuse it anyway).
+async fn with_retries<F, Fut>(lease_deadline_ms: i64, mut call: F) -> Result<(), Status>
+where
+    F: FnMut() -> Fut,
+    Fut: Future<Output = Result<(), Status>>,
+{
+    let mut wait = Duration::from_millis(100);
+    loop {
+        match call().await {
+            Ok(()) => return Ok(()),
+            Err(s)
+                if matches!(
+                    s.code(),
+                    Code::Unavailable | Code::Unknown | Code::DeadlineExceeded | Code::Cancelled
+                ) =>
+            {
+                let now = std::time::SystemTime::now()
+                    .duration_since(std::time::UNIX_EPOCH)
+                    .map(|d| d.as_millis() as i64)
+                    .unwrap_or(i64::MAX);
+                if now > lease_deadline_ms + 60_000 {
+                    return Err(s);
+                }
+                tracing::warn!(error = %s.message(), "coordinator unavailable; retrying");
+                tokio::time::sleep(wait).await;
+                wait = (wait * 2).min(Duration::from_secs(2));
+            }
+            Err(s) => return Err(s),
+        }
+    }
+}
+
+fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1_000.0
+}
+
+/// A path component from an id: keeps `[A-Za-z0-9._-]`, replaces the rest.
+fn sanitize(s: &str) -> String {
+    s.chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-') {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect()
+}
