@@ -1,1 +1,253 @@
-//! placeholder
+//! Test harness: locate the built binaries and the engines' Python, make Postgres databases,
+//! start coordinators and workers as separate processes, and check exported datasets.
+//!
+//! Nothing here is a test double: the processes are the product's own binaries.
+
+use std::net::TcpListener;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+use sha2::{Digest, Sha256};
+
+pub fn repo_root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("..")
+        .canonicalize()
+        .expect("repo root")
+}
+
+/// A workspace binary built by `cargo build --workspace --bins` (scripts/test.sh does this).
+pub fn bin(name: &str) -> PathBuf {
+    let exe = std::env::current_exe().expect("test executable path");
+    let dir = exe
+        .parent()
+        .and_then(Path::parent)
+        .expect("target profile directory");
+    let path = dir.join(name);
+    assert!(
+        path.exists(),
+        "{} is missing: run `cargo build --workspace --bins` first (scripts/test.sh does)",
+        path.display()
+    );
+    path
+}
+
+/// The engines' Python: `VINT_PYTHON` or the checkout's `.venv`. Missing engines fail the tests.
+pub fn python() -> PathBuf {
+    let p = std::env::var("VINT_PYTHON")
+        .map(PathBuf::from)
+        .unwrap_or_else(|_| repo_root().join(".venv/bin/python"));
+    assert!(
+        p.exists(),
+        "engine Python {} is missing: run scripts/setup-python.sh",
+        p.display()
+    );
+    p
+}
+
+pub fn tiny_spec() -> PathBuf {
+    repo_root().join("examples/tiny.toml")
+}
+
+pub fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0")
+        .expect("bind")
+        .local_addr()
+        .expect("addr")
+        .port()
+}
+
+/// A fresh Postgres database: `VINT_TEST_POSTGRES_URL` (an admin URL) with a new database.
+pub async fn postgres_database(tag: &str) -> String {
+    let admin = std::env::var("VINT_TEST_POSTGRES_URL")
+        .unwrap_or_else(|_| "postgres://postgres@127.0.0.1:5432/postgres".to_string());
+    sqlx::any::install_default_drivers();
+    let mut conn = <sqlx::AnyConnection as sqlx::Connection>::connect(&admin)
+        .await
+        .unwrap_or_else(|e| panic!("Postgres is required for these tests ({admin}): {e}"));
+    let n = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_nanos()
+        % 1_000_000_000;
+    let db = format!("vint_test_{tag}_{}_{n}", std::process::id());
+    sqlx::Executor::execute(
+        &mut conn,
+        sqlx::AssertSqlSafe(format!("CREATE DATABASE {db}")),
+    )
+    .await
+    .expect("create db");
+    let base = admin
+        .rsplit_once('/')
+        .map(|(b, _)| b.to_string())
+        .expect("admin URL has a database");
+    format!("{base}/{db}")
+}
+
+/// A child process killed when dropped.
+pub struct Proc {
+    pub child: Child,
+    pub name: String,
+}
+
+impl Proc {
+    pub fn pid(&self) -> i32 {
+        self.child.id() as i32
+    }
+
+    pub fn sigkill(&mut self) {
+        let _ = nix::sys::signal::kill(
+            nix::unistd::Pid::from_raw(self.pid()),
+            nix::sys::signal::Signal::SIGKILL,
+        );
+        let _ = self.child.wait();
+    }
+
+    pub fn sigterm_and_wait(&mut self) {
+        let _ = nix::sys::signal::kill(
+            nix::unistd::Pid::from_raw(self.pid()),
+            nix::sys::signal::Signal::SIGTERM,
+        );
+        let deadline = Instant::now() + Duration::from_secs(15);
+        while Instant::now() < deadline {
+            if let Ok(Some(_)) = self.child.try_wait() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        self.sigkill();
+    }
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn log_file(dir: &Path, name: &str) -> Stdio {
+    std::fs::create_dir_all(dir).expect("log dir");
+    Stdio::from(std::fs::File::create(dir.join(format!("{name}.log"))).expect("log file"))
+}
+
+/// Starts `vint-coordinator` on `port` and waits until it accepts connections.
+pub fn start_coordinator(database: &str, port: u16, logs: &Path, name: &str) -> Proc {
+    let child = Command::new(bin("vint-coordinator"))
+        .args([
+            "--database",
+            database,
+            "--listen",
+            &format!("127.0.0.1:{port}"),
+            "--backoff-ms",
+            "200",
+        ])
+        .stdout(Stdio::null())
+        .stderr(log_file(logs, name))
+        .spawn()
+        .expect("start coordinator");
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+        assert!(
+            Instant::now() < deadline,
+            "coordinator did not start; see {}",
+            logs.display()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    Proc {
+        child,
+        name: name.to_string(),
+    }
+}
+
+/// Starts `vint-worker` with a short lease so that a dead worker's task returns quickly.
+pub fn start_worker(coordinator: &str, store: &str, id: &str, logs: &Path, scratch: &Path) -> Proc {
+    let child = Command::new(bin("vint-worker"))
+        .args([
+            "--coordinator",
+            coordinator,
+            "--store",
+            store,
+            "--worker-id",
+            id,
+            "--lease-ms",
+            "3000",
+        ])
+        .arg("--python")
+        .arg(python())
+        .arg("--scratch")
+        .arg(scratch.join(id))
+        .stdout(Stdio::null())
+        .stderr(log_file(logs, id))
+        .spawn()
+        .expect("start worker");
+    Proc {
+        child,
+        name: id.to_string(),
+    }
+}
+
+/// Runs vintctl to completion.
+pub fn vintctl(args: &[&str]) -> Output {
+    Command::new(bin("vintctl"))
+        .args(args)
+        .env("VINT_PYTHON", python())
+        .output()
+        .expect("run vintctl")
+}
+
+pub fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+pub fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// Checks every file of an exported dataset against manifest.jsonl; returns the manifest's lines.
+pub fn verify_dataset(dir: &Path) -> Vec<serde_json::Value> {
+    let manifest = std::fs::read_to_string(dir.join("manifest.jsonl")).expect("manifest.jsonl");
+    let lines: Vec<serde_json::Value> = manifest
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("manifest line"))
+        .collect();
+    for line in &lines {
+        let sample = line["sample_id"].as_str().expect("sample_id");
+        for (name, f) in line["files"].as_object().expect("files") {
+            let bytes = std::fs::read(dir.join(sample).join(name))
+                .unwrap_or_else(|e| panic!("{sample}/{name}: {e}"));
+            assert_eq!(
+                hex::encode(Sha256::digest(&bytes)),
+                f["sha256"].as_str().unwrap(),
+                "{sample}/{name} hash"
+            );
+            assert_eq!(
+                bytes.len() as u64,
+                f["size"].as_u64().unwrap(),
+                "{sample}/{name} size"
+            );
+        }
+    }
+    lines
+}
+
+pub fn manifest_sha256(dir: &Path) -> String {
+    hex::encode(Sha256::digest(
+        std::fs::read(dir.join("manifest.jsonl")).expect("manifest.jsonl"),
+    ))
+}
+
+/// Polls `cond` every 20 ms until it holds or `timeout` passes.
+pub async fn wait_for<F, Fut>(timeout: Duration, what: &str, mut cond: F)
+where
+    F: FnMut() -> Fut,
+    Fut: std::future::Future<Output = bool>,
+{
+    let deadline = Instant::now() + timeout;
+    while !cond().await {
+        assert!(Instant::now() < deadline, "timed out waiting for {what}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}

@@ -89,6 +89,8 @@ impl JobApi {
         .into_iter()
         .collect();
         let mut chain = self.store.lineage(&package_task).await.map_err(status)?;
+        // Show the sample's chain in pipeline order, from its package back to its grasp.
+        chain.sort_by_key(|e| std::cmp::Reverse(e.task.stage));
         let prefix = format!("{sample_id}/");
         let sample_view = format!("v{:02}_", id.view_index);
         let mut tasks = Vec::new();

@@ -153,4 +153,20 @@ impl Store {
             .try_get("n")?;
         to_u32("attempt count", n)
     }
+
+    /// (artifact rows, distinct contents) of a job: with content addressing, retries and copies
+    /// add rows but never new objects for the same content.
+    pub async fn artifact_stats(&self, job_id: &str) -> Result<(u64, u64)> {
+        let row = sqlx::query(
+            "SELECT COUNT(*) AS n, COUNT(DISTINCT a.sha256) AS d FROM artifacts a JOIN tasks t ON t.id = a.task_id \
+             WHERE t.job_id = $1",
+        )
+        .bind(job_id)
+        .fetch_one(&self.pool)
+        .await?;
+        Ok((
+            row.try_get::<i64, _>("n")? as u64,
+            row.try_get::<i64, _>("d")? as u64,
+        ))
+    }
 }

@@ -157,7 +157,12 @@ pub async fn cancel(url: &str, job: &str, json: bool) -> CliResult {
 /// Follows a job until it ends; exits 1 unless it succeeded.
 pub async fn watch(url: &str, job: &str, json: bool) -> CliResult {
     let mut client = connect(url).await?;
-    let last = report::follow(&mut client, job, json).await?;
+    let last = report::follow(
+        &mut client,
+        job,
+        json.then_some(report::JsonProgress::Stdout),
+    )
+    .await?;
     job_outcome(&last)
 }
 

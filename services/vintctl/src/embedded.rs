@@ -95,7 +95,7 @@ pub async fn run(
         }
         let mut pool = WorkerPool::start(&url, &store_url, &state, workers)?;
         let followed = tokio::select! {
-            r = report::follow(&mut client, &job.job_id, json) => r,
+            r = report::follow(&mut client, &job.job_id, json.then_some(report::JsonProgress::Stderr)) => r,
             e = pool.supervise() => Err(e),
         };
         pool.stop().await;

@@ -96,7 +96,7 @@ pub async fn export(
 }
 
 /// Refuses to replace a non-empty directory that is not a vint dataset.
-fn check_destination(out: &Path) -> Result<(), Failure> {
+pub fn check_destination(out: &Path) -> Result<(), Failure> {
     if !out.exists() {
         return Ok(());
     }

@@ -87,11 +87,19 @@ pub fn jobs(jobs: &[pb::Job], json: bool) {
     }
 }
 
+/// Where `--json` progress lines go: stdout when they are the command's output (`watch`),
+/// stderr when a final result follows on stdout (`run`).
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub enum JsonProgress {
+    Stdout,
+    Stderr,
+}
+
 /// Streams a job's progress until it ends, as a progress bar (text) or JSON lines (`--json`).
 pub async fn follow(
     client: &mut JobServiceClient<Channel>,
     job_id: &str,
-    json: bool,
+    json: Option<JsonProgress>,
 ) -> Result<pb::JobProgress, Failure> {
     let mut stream = client
         .watch_job(pb::WatchJobRequest {
@@ -100,7 +108,7 @@ pub async fn follow(
         .await
         .map_err(|s| rpc_failure("watch", s))?
         .into_inner();
-    let bar = if json {
+    let bar = if json.is_some() {
         ProgressBar::hidden()
     } else {
         ProgressBar::new(0)
@@ -114,8 +122,10 @@ pub async fn follow(
     let mut last = None;
     while let Some(update) = stream.next().await {
         let p = update.map_err(|s| rpc_failure("watch", s))?;
-        if json {
-            println!("{}", progress_json(&p));
+        match json {
+            Some(JsonProgress::Stdout) => println!("{}", progress_json(&p)),
+            Some(JsonProgress::Stderr) => eprintln!("{}", progress_json(&p)),
+            None => {}
         }
         bar.set_length(p.tasks_total);
         bar.set_position(p.tasks_succeeded + p.tasks_failed + p.tasks_cancelled);
@@ -125,7 +135,7 @@ pub async fn follow(
     bar.finish_and_clear();
     let last =
         last.ok_or_else(|| anyhow!("the coordinator closed the watch without any progress"))?;
-    if !json {
+    if json.is_none() {
         eprintln!(
             "job {} {}: {}",
             last.job_id,

@@ -1,0 +1,362 @@
+//! The cluster path: Postgres, a standalone coordinator, separate worker processes — and the
+//! faults it must survive: a worker SIGKILLed mid-task, a coordinator restarted mid-job, a worker
+//! whose lease expired trying to complete.
+
+use std::path::Path;
+use std::sync::OnceLock;
+use std::time::Duration;
+
+use vint_core::Stage;
+use vint_proto::v1 as pb;
+use vint_proto::v1::work_service_client::WorkServiceClient;
+use vint_store::{RetryPolicy, Store};
+use vint_tests::*;
+
+/// The manifest hash of tiny.toml on the embedded default: what every cluster run must equal.
+fn reference_manifest() -> &'static str {
+    static HASH: OnceLock<String> = OnceLock::new();
+    HASH.get_or_init(|| {
+        let tmp = tempfile::tempdir().unwrap();
+        let out = tmp.path().join("out");
+        let state = tmp.path().join("state");
+        let o = vintctl(&[
+            "run",
+            tiny_spec().to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--state",
+            state.to_str().unwrap(),
+            "--workers",
+            "1",
+        ]);
+        assert!(o.status.success(), "reference run failed: {}", stderr(&o));
+        manifest_sha256(&out)
+    })
+}
+
+struct Cluster {
+    database: String,
+    store_url: String,
+    coordinator: String,
+    port: u16,
+    dir: tempfile::TempDir,
+}
+
+impl Cluster {
+    async fn new(tag: &str) -> Cluster {
+        let dir = tempfile::tempdir().unwrap();
+        let store_url = format!("file://{}", dir.path().join("objects").display());
+        let port = free_port();
+        Cluster {
+            database: postgres_database(tag).await,
+            store_url,
+            coordinator: format!("http://127.0.0.1:{port}"),
+            port,
+            dir,
+        }
+    }
+    fn logs(&self) -> std::path::PathBuf {
+        self.dir.path().join("logs")
+    }
+    fn coordinator_proc(&self, name: &str) -> Proc {
+        start_coordinator(&self.database, self.port, &self.logs(), name)
+    }
+    fn worker(&self, id: &str) -> Proc {
+        start_worker(
+            &self.coordinator,
+            &self.store_url,
+            id,
+            &self.logs(),
+            &self.dir.path().join("scratch"),
+        )
+    }
+    fn submit(&self) -> String {
+        let o = vintctl(&[
+            "submit",
+            tiny_spec().to_str().unwrap(),
+            "--coordinator",
+            &self.coordinator,
+        ]);
+        assert!(o.status.success(), "submit: {}", stderr(&o));
+        stdout(&o).trim().to_string()
+    }
+    fn watch(&self, job: &str) {
+        let o = vintctl(&["watch", job, "--coordinator", &self.coordinator, "--json"]);
+        assert!(
+            o.status.success(),
+            "job did not succeed: {}\n{}",
+            stdout(&o),
+            stderr(&o)
+        );
+    }
+    fn export(&self, job: &str) -> std::path::PathBuf {
+        let out = self.dir.path().join("dataset");
+        let o = vintctl(&[
+            "export",
+            job,
+            "--out",
+            out.to_str().unwrap(),
+            "--store",
+            &self.store_url,
+            "--coordinator",
+            &self.coordinator,
+        ]);
+        assert!(o.status.success(), "export: {}", stderr(&o));
+        verify_dataset(&out);
+        out
+    }
+    async fn store(&self) -> Store {
+        Store::open(&self.database, RetryPolicy::default())
+            .await
+            .unwrap()
+    }
+}
+
+fn assert_same_as_embedded(out: &Path) {
+    assert_eq!(
+        manifest_sha256(out),
+        reference_manifest(),
+        "cluster dataset differs from the embedded run"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn postgres_cluster_matches_embedded_and_lineage_shows_the_full_chain() {
+    let c = Cluster::new("cluster").await;
+    let _coordinator = c.coordinator_proc("coordinator");
+    let job = c.submit();
+    let resubmit = c.submit();
+    assert_eq!(job, resubmit, "a retried submit returns the same job");
+    let _w1 = c.worker("w1");
+    let _w2 = c.worker("w2");
+    c.watch(&job);
+    let out = c.export(&job);
+    assert_same_as_embedded(&out);
+
+    let manifest = std::fs::read_to_string(out.join("manifest.jsonl")).unwrap();
+    let first: serde_json::Value = serde_json::from_str(manifest.lines().next().unwrap()).unwrap();
+    let sample = first["sample_id"].as_str().unwrap();
+    let o = vintctl(&[
+        "lineage",
+        sample,
+        "--job",
+        &job,
+        "--coordinator",
+        &c.coordinator,
+        "--json",
+    ]);
+    assert!(o.status.success(), "lineage: {}", stderr(&o));
+    let lineage: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    let tasks = lineage["tasks"].as_array().unwrap();
+    let stages: Vec<&str> = tasks.iter().map(|t| t["stage"].as_str().unwrap()).collect();
+    assert_eq!(
+        stages,
+        ["package", "noise", "render", "grasp"],
+        "{lineage:#}"
+    );
+    for t in tasks {
+        assert_eq!(t["state"], "succeeded");
+        assert!(
+            t["engine"]["name"].as_str().unwrap().starts_with("vint-"),
+            "engine recorded: {t:#}"
+        );
+        assert!(!t["outputs"].as_array().unwrap().is_empty());
+        assert!(t["params"].is_object());
+    }
+    let engine_libs =
+        |stage: &str| tasks.iter().find(|t| t["stage"] == stage).unwrap()["engine"]["libs"].clone();
+    assert!(engine_libs("grasp")["mujoco"].is_string());
+    assert!(engine_libs("render")["bpy"].is_string());
+    // The sample's packaged files are the very artifacts its render and noise tasks made.
+    let package = &tasks[0];
+    let files = &first["files"];
+    for out in package["outputs"].as_array().unwrap() {
+        let file = out["name"].as_str().unwrap().rsplit('/').next().unwrap();
+        assert_eq!(out["sha256"], files[file]["sha256"], "{file}");
+    }
+    let render_outputs: Vec<&str> = tasks[2]["outputs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|a| a["sha256"].as_str().unwrap())
+        .collect();
+    assert!(render_outputs.contains(&files["rgb.png"]["sha256"].as_str().unwrap()));
+
+    // Lineage by artifact hash leads to the same render task.
+    let rgb = files["rgb.png"]["sha256"].as_str().unwrap();
+    let o = vintctl(&[
+        "lineage",
+        rgb,
+        "--artifact",
+        "--coordinator",
+        &c.coordinator,
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let by_hash: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    assert_eq!(by_hash["tasks"][0]["stage"], "render");
+
+    let status = vintctl(&["status", &job, "--coordinator", &c.coordinator, "--json"]);
+    let status: serde_json::Value = serde_json::from_str(&stdout(&status)).unwrap();
+    assert_eq!(status["state"], "succeeded");
+
+    let unknown = vintctl(&["status", "jnope", "--coordinator", &c.coordinator]);
+    assert_eq!(unknown.status.code(), Some(2));
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_worker_killed_mid_task_loses_nothing_and_duplicates_nothing() {
+    let c = Cluster::new("sigkill").await;
+    let _coordinator = c.coordinator_proc("coordinator");
+    let job = c.submit();
+    let store = c.store().await;
+    let mut victim = c.worker("victim");
+    // Kill the victim while it holds a render task (Blender mid-frame, outputs maybe half uploaded).
+    let deadline = std::time::Instant::now() + Duration::from_secs(120);
+    let killed_task = loop {
+        let running = store.running_tasks().await.unwrap();
+        if let Some(t) = running
+            .iter()
+            .find(|t| t.lease_owner.as_deref() == Some("victim") && t.stage == Stage::Render)
+        {
+            break t.id.clone();
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the victim never ran a render task"
+        );
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    };
+    victim.sigkill();
+    let _survivor = c.worker("survivor");
+    c.watch(&job);
+
+    let attempts = store.attempts(&killed_task).await.unwrap();
+    assert!(attempts.len() >= 2, "{attempts:?}");
+    assert_eq!(attempts[0].worker_id, "victim");
+    assert_eq!(attempts[0].outcome.as_deref(), Some("lease_expired"));
+    assert_eq!(
+        attempts.last().unwrap().outcome.as_deref(),
+        Some("succeeded")
+    );
+
+    let out = c.export(&job);
+    assert_same_as_embedded(&out);
+    // Content addressing: every stored object is the content of some recorded artifact, once.
+    let (_rows, distinct) = store.artifact_stats(&job).await.unwrap();
+    let objects = vint_artifacts::ArtifactStore::open(&c.store_url)
+        .unwrap()
+        .count_objects()
+        .await
+        .unwrap();
+    assert_eq!(
+        objects as u64, distinct,
+        "no orphaned or duplicated objects"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_coordinator_restart_mid_job_loses_nothing() {
+    let c = Cluster::new("restart").await;
+    let mut coordinator = c.coordinator_proc("coordinator-1");
+    let job = c.submit();
+    let store = c.store().await;
+    let _w1 = c.worker("w1");
+    let _w2 = c.worker("w2");
+    wait_for(Duration::from_secs(120), "some work to finish", || {
+        let store = store.clone();
+        let job = job.clone();
+        async move {
+            let p = store.progress(&job).await.unwrap();
+            p.stage_count(Stage::Render, vint_core::TaskState::Succeeded) >= 1
+        }
+    })
+    .await;
+    coordinator.sigkill();
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let _coordinator = c.coordinator_proc("coordinator-2");
+    c.watch(&job);
+    let out = c.export(&job);
+    assert_same_as_embedded(&out);
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_worker_whose_lease_expired_cannot_complete_its_task() {
+    let c = Cluster::new("fence").await;
+    let _coordinator = c.coordinator_proc("coordinator");
+    let job = c.submit();
+    let mut client = WorkServiceClient::connect(c.coordinator.clone())
+        .await
+        .unwrap();
+    let lease = |worker: &str| pb::LeaseTasksRequest {
+        worker_id: worker.into(),
+        stages: vec!["grasp".into()],
+        capacity: 1,
+        lease_ms: 1_000,
+    };
+    let stale = client
+        .lease_tasks(lease("stale"))
+        .await
+        .unwrap()
+        .into_inner()
+        .tasks
+        .remove(0);
+    tokio::time::sleep(Duration::from_millis(1_300)).await;
+    let complete = |worker: &str, t: &pb::LeasedTask| pb::CompleteTaskRequest {
+        worker_id: worker.into(),
+        task_id: t.task_id.clone(),
+        attempt: t.attempt,
+        outputs: vec![],
+        engine_json: "{}".into(),
+        timings: None,
+        result_json: r#"{"accepted": []}"#.into(),
+    };
+    let refused = client
+        .complete_task(complete("stale", &stale))
+        .await
+        .unwrap_err();
+    assert_eq!(refused.code(), tonic::Code::FailedPrecondition, "{refused}");
+    let fail = pb::FailTaskRequest {
+        worker_id: "stale".into(),
+        task_id: stale.task_id.clone(),
+        attempt: stale.attempt,
+        retryable: false,
+        message: "late".into(),
+    };
+    assert_eq!(
+        client.fail_task(fail).await.unwrap_err().code(),
+        tonic::Code::FailedPrecondition
+    );
+    // The reaper returns it to the queue; a live worker takes it over and can complete it.
+    let store = c.store().await;
+    wait_for(Duration::from_secs(10), "the task to be requeued", || {
+        let store = store.clone();
+        let id = stale.task_id.clone();
+        async move { store.task(&id).await.unwrap().unwrap().state == vint_core::TaskState::Queued }
+    })
+    .await;
+    tokio::time::sleep(Duration::from_millis(300)).await; // retry backoff (--backoff-ms 200)
+    let mut fresh = Vec::new();
+    while fresh.is_empty() {
+        fresh = client
+            .lease_tasks(lease("fresh"))
+            .await
+            .unwrap()
+            .into_inner()
+            .tasks;
+    }
+    let fresh = fresh
+        .into_iter()
+        .find(|t| t.task_id == stale.task_id)
+        .expect("the same task, leased again");
+    assert_eq!(fresh.attempt, stale.attempt + 1);
+    client
+        .complete_task(complete("fresh", &fresh))
+        .await
+        .unwrap();
+    assert_eq!(
+        store.task(&fresh.task_id).await.unwrap().unwrap().state,
+        vint_core::TaskState::Succeeded
+    );
+    let _ = job;
+}
