@@ -360,3 +360,63 @@ async fn a_worker_whose_lease_expired_cannot_complete_its_task() {
     );
     let _ = job;
 }
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_crashed_engine_fails_its_task_as_retryable_and_is_restarted() {
+    let c = Cluster::new("crash").await;
+    let _coordinator = c.coordinator_proc("coordinator");
+    let job = c.submit();
+    let store = c.store().await;
+    let worker = c.worker("lone");
+    let deadline = std::time::Instant::now() + Duration::from_secs(120);
+    let crashed_task = loop {
+        let running = store.running_tasks().await.unwrap();
+        if let Some(t) = running.iter().find(|t| t.stage == Stage::Render) {
+            let engines = children_of(worker.pid());
+            if !engines.is_empty() {
+                for pid in engines {
+                    let _ = nix::sys::signal::kill(
+                        nix::unistd::Pid::from_raw(pid),
+                        nix::sys::signal::Signal::SIGKILL,
+                    );
+                }
+                break t.id.clone();
+            }
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the worker never ran a render task"
+        );
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    };
+    c.watch(&job);
+    let attempts = store.attempts(&crashed_task).await.unwrap();
+    let first = &attempts[0];
+    // The kill may land just after the render finished; then a later task took the hit instead.
+    if first.outcome.as_deref() == Some("retry") {
+        assert!(
+            first.error.as_deref().unwrap_or("").contains("crashed"),
+            "{first:?}"
+        );
+        assert_eq!(
+            attempts.last().unwrap().outcome.as_deref(),
+            Some("succeeded")
+        );
+    }
+    let all = store.tasks_of_job(&job).await.unwrap();
+    let mut retried = 0;
+    for t in &all {
+        retried += store
+            .attempts(&t.id)
+            .await
+            .unwrap()
+            .iter()
+            .filter(|a| a.outcome.as_deref() == Some("retry"))
+            .count();
+    }
+    assert!(
+        retried >= 1,
+        "the crash must have failed some attempt as retryable"
+    );
+    assert_same_as_embedded(&c.export(&job));
+}

@@ -1,0 +1,142 @@
+//! The engine host against a real engine (the OpenCV noise engine: the quickest to start).
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use serde_json::json;
+use vint_core::Stage;
+use vint_runtime::engine::{Engine, EngineCommand, EngineError, EngineInput};
+
+fn command() -> EngineCommand {
+    let (engines_dir, default_python) = vint_runtime::checkout_defaults();
+    let python = std::env::var("VINT_PYTHON")
+        .map(PathBuf::from)
+        .unwrap_or(default_python);
+    assert!(
+        python.exists(),
+        "engine Python {} is missing: run scripts/setup-python.sh",
+        python.display()
+    );
+    EngineCommand {
+        python,
+        engines_dir,
+        task_timeout: Duration::from_secs(60),
+        start_timeout: Duration::from_secs(60),
+    }
+}
+
+/// A float32 `.npy` file of `h`×`w` metres, constant depth.
+fn write_depth(path: &Path, w: usize, h: usize, depth: f32) {
+    let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({h}, {w}), }}");
+    while (10 + header.len() + 1) % 64 != 0 {
+        header.push(' ');
+    }
+    header.push('\n');
+    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    bytes.extend_from_slice(header.as_bytes());
+    for _ in 0..w * h {
+        bytes.extend_from_slice(&depth.to_le_bytes());
+    }
+    std::fs::write(path, bytes).unwrap();
+}
+
+fn noise_task(dir: &Path) -> (serde_json::Value, Vec<EngineInput>, PathBuf) {
+    let depth = dir.join("v00_depth.npy");
+    write_depth(&depth, 32, 24, 0.6);
+    let out = dir.join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    let params = json!({
+        "noise": {"sigma_base_m": 0.0005, "sigma_per_m": 0.001, "min_range_m": 0.25, "max_range_m": 3.86,
+                  "edge_hole_jump_m": 0.05, "dropout": 0.01},
+        "views": [{"view_index": 0, "seed": 42}],
+    });
+    let inputs = vec![EngineInput {
+        name: "v00_depth.npy".into(),
+        task_key: "render/x".into(),
+        path: depth,
+    }];
+    (params, inputs, out)
+}
+
+#[tokio::test]
+async fn one_engine_process_serves_many_tasks() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut engine = Engine::start(Stage::Noise, &command()).await.unwrap();
+    assert_eq!(engine.identity["name"], "vint-noise");
+    let pid = engine.pid();
+    let (params, inputs, out) = noise_task(dir.path());
+    let mut hashes = Vec::new();
+    for i in 0..3 {
+        let r = engine
+            .run(&format!("t{i}"), &params, &inputs, &out)
+            .await
+            .unwrap();
+        assert!(r.ok, "{}", r.error);
+        assert_eq!(r.outputs.len(), 1);
+        hashes.push(std::fs::read(&r.outputs[0].path).unwrap());
+    }
+    assert_eq!(engine.pid(), pid, "the same process served every task");
+    assert!(
+        hashes.windows(2).all(|w| w[0] == w[1]),
+        "same seed, same noisy depth"
+    );
+    engine.shutdown().await;
+}
+
+#[tokio::test]
+async fn impossible_parameters_are_a_permanent_task_failure_not_a_crash() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut engine = Engine::start(Stage::Noise, &command()).await.unwrap();
+    let (_, inputs, out) = noise_task(dir.path());
+    let r = engine
+        .run(
+            "bad",
+            &json!({"noise": {"dropout": "lots"}, "views": []}),
+            &inputs,
+            &out,
+        )
+        .await
+        .unwrap();
+    assert!(!r.ok);
+    assert!(!r.retryable, "bad parameters will fail again: {}", r.error);
+    // The engine survives a bad task.
+    let (params, inputs, out) = noise_task(dir.path());
+    assert!(engine.run("good", &params, &inputs, &out).await.unwrap().ok);
+}
+
+#[tokio::test]
+async fn a_killed_engine_is_reported_as_crashed() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut engine = Engine::start(Stage::Noise, &command()).await.unwrap();
+    let pid = engine.pid().unwrap() as i32;
+    nix::sys::signal::kill(
+        nix::unistd::Pid::from_raw(pid),
+        nix::sys::signal::Signal::SIGKILL,
+    )
+    .unwrap();
+    let (params, inputs, out) = noise_task(dir.path());
+    let err = engine.run("t", &params, &inputs, &out).await.unwrap_err();
+    assert!(
+        matches!(
+            err,
+            EngineError::Crashed {
+                stage: Stage::Noise,
+                ..
+            }
+        ),
+        "{err}"
+    );
+}
+
+#[tokio::test]
+async fn a_missing_interpreter_is_a_clear_spawn_error() {
+    let mut cmd = command();
+    cmd.python = PathBuf::from("/nonexistent/python3.13");
+    let err = Engine::start(Stage::Grasp, &cmd)
+        .await
+        .err()
+        .expect("must fail");
+    assert!(matches!(err, EngineError::Spawn { .. }));
+    assert!(err.to_string().contains("/nonexistent/python3.13"));
+}
