@@ -163,8 +163,16 @@ pub fn start_coordinator(database: &str, port: u16, logs: &Path, name: &str) -> 
 }
 
 /// Starts `vint-worker` with a short lease so that a dead worker's task returns quickly.
-pub fn start_worker(coordinator: &str, store: &str, id: &str, logs: &Path, scratch: &Path) -> Proc {
+pub fn start_worker(
+    coordinator: &str,
+    store: &str,
+    id: &str,
+    logs: &Path,
+    scratch: &Path,
+    env: &[(String, String)],
+) -> Proc {
     let child = Command::new(bin("vint-worker"))
+        .envs(env.iter().map(|(k, v)| (k, v)))
         .args([
             "--coordinator",
             coordinator,
@@ -191,8 +199,13 @@ pub fn start_worker(coordinator: &str, store: &str, id: &str, logs: &Path, scrat
 
 /// Runs vintctl to completion.
 pub fn vintctl(args: &[&str]) -> Output {
+    vintctl_with_env(args, &[])
+}
+
+pub fn vintctl_with_env(args: &[&str], env: &[(String, String)]) -> Output {
     Command::new(bin("vintctl"))
         .args(args)
+        .envs(env.iter().map(|(k, v)| (k, v)))
         .env("VINT_PYTHON", python())
         .output()
         .expect("run vintctl")
@@ -267,4 +280,56 @@ pub fn children_of(pid: i32) -> Vec<i32> {
         }
     }
     out
+}
+
+/// An S3-compatible server for tests: `moto_server` from the engines' venv on a free port, with a
+/// bucket `vint`. Returns the process and the `AWS_*` environment that points clients at it.
+pub fn start_s3(logs: &Path) -> (Proc, Vec<(String, String)>) {
+    let moto = python().with_file_name("moto_server");
+    assert!(
+        moto.exists(),
+        "{} is missing: run scripts/setup-python.sh (dev tools)",
+        moto.display()
+    );
+    let port = free_port();
+    let child = Command::new(&moto)
+        .args(["-H", "127.0.0.1", "-p", &port.to_string()])
+        .stdout(Stdio::null())
+        .stderr(log_file(logs, "s3"))
+        .spawn()
+        .expect("start moto_server");
+    let proc = Proc {
+        child,
+        name: "s3".into(),
+    };
+    let endpoint = format!("http://127.0.0.1:{port}");
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+        assert!(Instant::now() < deadline, "moto_server did not start");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let env: Vec<(String, String)> = [
+        ("AWS_ENDPOINT_URL", endpoint.as_str()),
+        ("AWS_ALLOW_HTTP", "true"),
+        ("AWS_ACCESS_KEY_ID", "vint-test"),
+        ("AWS_SECRET_ACCESS_KEY", "vint-test"),
+        ("AWS_REGION", "us-east-1"),
+    ]
+    .iter()
+    .map(|(k, v)| (k.to_string(), v.to_string()))
+    .collect();
+    let made = Command::new(python())
+        .args([
+            "-c",
+            "import boto3; boto3.client('s3').create_bucket(Bucket='vint')",
+        ])
+        .envs(env.iter().map(|(k, v)| (k, v)))
+        .output()
+        .expect("create bucket");
+    assert!(
+        made.status.success(),
+        "creating the test bucket: {}",
+        String::from_utf8_lossy(&made.stderr)
+    );
+    (proc, env)
 }

@@ -36,6 +36,8 @@ fn reference_manifest() -> &'static str {
 
 struct Cluster {
     database: String,
+    /// Environment for workers and vintctl (S3 credentials and endpoint when storing in S3).
+    env: Vec<(String, String)>,
     store_url: String,
     coordinator: String,
     port: u16,
@@ -48,6 +50,7 @@ impl Cluster {
         let store_url = format!("file://{}", dir.path().join("objects").display());
         let port = free_port();
         Cluster {
+            env: Vec::new(),
             database: postgres_database(tag).await,
             store_url,
             coordinator: format!("http://127.0.0.1:{port}"),
@@ -68,6 +71,7 @@ impl Cluster {
             id,
             &self.logs(),
             &self.dir.path().join("scratch"),
+            &self.env,
         )
     }
     fn submit(&self) -> String {
@@ -91,16 +95,19 @@ impl Cluster {
     }
     fn export(&self, job: &str) -> std::path::PathBuf {
         let out = self.dir.path().join("dataset");
-        let o = vintctl(&[
-            "export",
-            job,
-            "--out",
-            out.to_str().unwrap(),
-            "--store",
-            &self.store_url,
-            "--coordinator",
-            &self.coordinator,
-        ]);
+        let o = vintctl_with_env(
+            &[
+                "export",
+                job,
+                "--out",
+                out.to_str().unwrap(),
+                "--store",
+                &self.store_url,
+                "--coordinator",
+                &self.coordinator,
+            ],
+            &self.env,
+        );
         assert!(o.status.success(), "export: {}", stderr(&o));
         verify_dataset(&out);
         out
@@ -419,4 +426,19 @@ async fn a_crashed_engine_fails_its_task_as_retryable_and_is_restarted() {
         "the crash must have failed some attempt as retryable"
     );
     assert_same_as_embedded(&c.export(&job));
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn artifacts_in_s3_give_the_same_dataset() {
+    let mut c = Cluster::new("s3").await;
+    let (_s3, env) = start_s3(&c.logs());
+    c.env = env;
+    c.store_url = "s3://vint/datasets/tiny".into();
+    let _coordinator = c.coordinator_proc("coordinator");
+    let job = c.submit();
+    let _w1 = c.worker("w1");
+    let _w2 = c.worker("w2");
+    c.watch(&job);
+    let out = c.export(&job);
+    assert_same_as_embedded(&out);
 }
