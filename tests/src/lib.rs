@@ -50,6 +50,30 @@ pub fn tiny_spec() -> PathBuf {
     repo_root().join("examples/tiny.toml")
 }
 
+/// `vintctl run examples/tiny.toml` into `dir/out` with state in `dir/state`, summary as JSON.
+pub fn run_tiny(dir: &Path, workers: u32) -> Output {
+    let out = dir.join("out");
+    let state = dir.join("state");
+    let spec = tiny_spec();
+    let workers = workers.to_string();
+    let args = [
+        "run",
+        path_str(&spec),
+        "--out",
+        path_str(&out),
+        "--state",
+        path_str(&state),
+        "--workers",
+        &workers,
+        "--json",
+    ];
+    vintctl(&args)
+}
+
+fn path_str(p: &Path) -> &str {
+    p.to_str().expect("test paths are UTF-8")
+}
+
 pub fn free_port() -> u16 {
     TcpListener::bind("127.0.0.1:0")
         .expect("bind")

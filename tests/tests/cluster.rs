@@ -17,20 +17,9 @@ fn reference_manifest() -> &'static str {
     static HASH: OnceLock<String> = OnceLock::new();
     HASH.get_or_init(|| {
         let tmp = tempfile::tempdir().unwrap();
-        let out = tmp.path().join("out");
-        let state = tmp.path().join("state");
-        let o = vintctl(&[
-            "run",
-            tiny_spec().to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--state",
-            state.to_str().unwrap(),
-            "--workers",
-            "1",
-        ]);
+        let o = run_tiny(tmp.path(), 1);
         assert!(o.status.success(), "reference run failed: {}", stderr(&o));
-        manifest_sha256(&out)
+        manifest_sha256(&tmp.path().join("out"))
     })
 }
 

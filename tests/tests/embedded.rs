@@ -1,24 +1,6 @@
 //! `vintctl run` on the embedded default, as a researcher uses it.
 
-use std::path::Path;
-
 use vint_tests::*;
-
-fn run_tiny(dir: &Path, workers: u32) -> std::process::Output {
-    let out = dir.join("out");
-    let state = dir.join("state");
-    vintctl(&[
-        "run",
-        tiny_spec().to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--state",
-        state.to_str().unwrap(),
-        "--workers",
-        &workers.to_string(),
-        "--json",
-    ])
-}
 
 #[test]
 fn tiny_spec_produces_verified_samples_identical_for_any_worker_count() {

@@ -25,6 +25,14 @@ struct Cli {
     /// Print machine-readable JSON instead of text.
     #[arg(long, global = true)]
     json: bool,
+    /// Coordinator URL for the commands that talk to one (all but validate, run and catalog).
+    #[arg(
+        long,
+        global = true,
+        env = "VINT_COORDINATOR",
+        default_value = "http://127.0.0.1:7700"
+    )]
+    coordinator: String,
     #[command(subcommand)]
     command: Command,
 }
@@ -50,54 +58,18 @@ enum Command {
     /// Submit a spec to a coordinator and print the job id.
     Submit {
         spec: PathBuf,
-        #[arg(
-            long,
-            env = "VINT_COORDINATOR",
-            default_value = "http://127.0.0.1:7700"
-        )]
-        coordinator: String,
         /// Retrying with the same key returns the same job (default: the spec's content hash).
         #[arg(long)]
         idempotency_key: Option<String>,
     },
     /// Show a job's state and progress.
-    Status {
-        job: String,
-        #[arg(
-            long,
-            env = "VINT_COORDINATOR",
-            default_value = "http://127.0.0.1:7700"
-        )]
-        coordinator: String,
-    },
+    Status { job: String },
     /// Follow a job's progress until it ends.
-    Watch {
-        job: String,
-        #[arg(
-            long,
-            env = "VINT_COORDINATOR",
-            default_value = "http://127.0.0.1:7700"
-        )]
-        coordinator: String,
-    },
+    Watch { job: String },
     /// Cancel a job: nothing more of it is leased; running attempts are discarded.
-    Cancel {
-        job: String,
-        #[arg(
-            long,
-            env = "VINT_COORDINATOR",
-            default_value = "http://127.0.0.1:7700"
-        )]
-        coordinator: String,
-    },
+    Cancel { job: String },
     /// List recent jobs.
     Jobs {
-        #[arg(
-            long,
-            env = "VINT_COORDINATOR",
-            default_value = "http://127.0.0.1:7700"
-        )]
-        coordinator: String,
         #[arg(long, default_value_t = 20)]
         limit: u32,
     },
@@ -110,12 +82,6 @@ enum Command {
         job: Option<String>,
         #[arg(long)]
         artifact: bool,
-        #[arg(
-            long,
-            env = "VINT_COORDINATOR",
-            default_value = "http://127.0.0.1:7700"
-        )]
-        coordinator: String,
     },
     /// Write a finished job's samples and manifest.jsonl to a directory.
     Export {
@@ -125,12 +91,6 @@ enum Command {
         /// Artifact store URL the workers wrote to (file:///… or s3://…).
         #[arg(long, env = "VINT_STORE")]
         store: String,
-        #[arg(
-            long,
-            env = "VINT_COORDINATOR",
-            default_value = "http://127.0.0.1:7700"
-        )]
-        coordinator: String,
     },
     /// List the built-in hands and objects.
     Catalog,
@@ -181,6 +141,7 @@ fn main() -> ExitCode {
 
 async fn dispatch(cli: Cli) -> CliResult {
     let json = cli.json;
+    let coordinator = cli.coordinator;
     match cli.command {
         Command::Validate { spec } => client::validate(&spec, json),
         Command::Run {
@@ -191,25 +152,20 @@ async fn dispatch(cli: Cli) -> CliResult {
         } => embedded::run(&spec, &out, &state, workers, json).await,
         Command::Submit {
             spec,
-            coordinator,
             idempotency_key,
         } => client::submit(&coordinator, &spec, idempotency_key, json).await,
-        Command::Status { job, coordinator } => client::status(&coordinator, &job, json).await,
-        Command::Watch { job, coordinator } => client::watch(&coordinator, &job, json).await,
-        Command::Cancel { job, coordinator } => client::cancel(&coordinator, &job, json).await,
-        Command::Jobs { coordinator, limit } => client::jobs(&coordinator, limit, json).await,
+        Command::Status { job } => client::status(&coordinator, &job, json).await,
+        Command::Watch { job } => client::watch(&coordinator, &job, json).await,
+        Command::Cancel { job } => client::cancel(&coordinator, &job, json).await,
+        Command::Jobs { limit } => client::jobs(&coordinator, limit, json).await,
         Command::Lineage {
             subject,
             job,
             artifact,
-            coordinator,
         } => client::lineage(&coordinator, &subject, job, artifact, json).await,
-        Command::Export {
-            job,
-            out,
-            store,
-            coordinator,
-        } => client::export(&coordinator, &job, &out, &store, json).await,
+        Command::Export { job, out, store } => {
+            client::export(&coordinator, &job, &out, &store, json).await
+        }
         Command::Catalog => {
             report::catalog(json);
             Ok(())

@@ -36,7 +36,7 @@ struct Args {
 #[tokio::main]
 async fn main() -> anyhow::Result<()> {
     let args = Args::parse();
-    vint_coordinator::init_tracing(args.log_json);
+    vint_telemetry::init_tracing(args.log_json);
     let retry = RetryPolicy {
         max_attempts: args.max_attempts,
         backoff_base_ms: args.backoff_ms,
