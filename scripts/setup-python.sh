@@ -2,7 +2,7 @@
 # Creates (or refreshes) the Python environment of the engines at <repo>/.venv.
 #
 # bpy 5.2.x wheels exist only for Python 3.13, so the engines need a Python 3.13 interpreter:
-# $VINT_PYTHON if set, else python3.13 on PATH, else a pyenv 3.13 install, else python3 if it is 3.13.
+# $VINT_BASE_PYTHON if set, else python3.13 on PATH, else a pyenv 3.13 install, else python3 if it is 3.13.
 # Installs workers/engines/requirements.lock and requirements-dev.lock (exact pins). Idempotent: a
 # stamp in .venv holds the locks' sha256, and a matching stamp skips the install.
 set -euo pipefail
@@ -24,12 +24,12 @@ is_py313() {
 
 find_python() {
     local candidate
-    if [[ -n "${VINT_PYTHON:-}" ]]; then
-        if is_py313 "$VINT_PYTHON"; then
-            echo "$VINT_PYTHON"
+    if [[ -n "${VINT_BASE_PYTHON:-}" ]]; then
+        if is_py313 "$VINT_BASE_PYTHON"; then
+            echo "$VINT_BASE_PYTHON"
             return 0
         fi
-        log "VINT_PYTHON=$VINT_PYTHON is not a working Python 3.13 interpreter"
+        log "VINT_BASE_PYTHON=$VINT_BASE_PYTHON is not a working Python 3.13 interpreter"
         return 1
     fi
     candidate="$(command -v python3.13 || true)"
@@ -56,7 +56,7 @@ if ! PYTHON="$(find_python)"; then
 setup-python: no Python 3.13 interpreter found.
   The engines need Python 3.13: bpy 5.2.x (Blender as a Python module) publishes wheels for
   Python 3.13 only. Install Python 3.13 (e.g. `pyenv install 3.13`) and either put python3.13 on
-  PATH or point VINT_PYTHON at it, then run this script again.
+  PATH or point VINT_BASE_PYTHON at it, then run this script again.
 EOF
     exit 1
 fi

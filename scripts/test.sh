@@ -1,11 +1,12 @@
 #!/usr/bin/env bash
 # The test command: every check the project has, against a real Postgres and real engines.
 #
-#   scripts/test.sh [ARGS...]     ARGS go to `cargo test` (e.g. a test name filter)
+#   scripts/test.sh [ARGS...]     ARGS go to `cargo test --workspace` (e.g. a test-name filter)
 #
 # Sets up the engines' Python environment (scripts/setup-python.sh), finds a Postgres, then runs
-# cargo fmt, ruff, clippy, cargo test and pytest, stopping at the first failure. Nothing is
-# skipped: a missing Postgres, Rust tool or engine library is a failure.
+# cargo fmt, ruff, clippy, cargo build (the end-to-end tests start the built binaries), cargo test
+# and pytest, stopping at the first failure. Nothing is skipped: a missing Postgres, Rust tool or
+# engine library is a failure.
 #
 # Postgres, first that applies:
 #   1. $VINT_TEST_POSTGRES_URL, if set (an admin URL: the tests create databases through it);
@@ -194,7 +195,7 @@ drop_stale_test_databases() {
 # --- steps ---------------------------------------------------------------------------------------
 
 STEP=0
-STEPS=6
+STEPS=7
 
 # Runs one check with a banner and its elapsed time; the first failure ends the script.
 step() {
@@ -229,6 +230,7 @@ step "cargo fmt --check" cargo fmt --all -- --check
 step "ruff check" .venv/bin/ruff check workers/engines
 step "ruff format --check" .venv/bin/ruff format --check workers/engines
 step "cargo clippy" cargo clippy --workspace --all-targets -- -D warnings
+step "cargo build --bins" cargo build --workspace --bins
 step "cargo test" cargo test --workspace "$@"
 step "pytest (engines)" .venv/bin/python -m pytest workers/engines/tests -q
 printf '\ntest.sh: all %d checks passed in %ds\n' "$STEPS" $((SECONDS - total)) >&2
