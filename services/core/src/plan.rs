@@ -115,6 +115,14 @@ fn grasp_params(spec: &DatasetSpec, c: &GraspChunk) -> Value {
         "object": catalog::object(&c.object),
         "hand": {"name": c.hand},
         "trials": trials,
+        "touch": {
+            "sensing_depth_m": spec.touch.sensing_depth_m,
+            "response_depth_m": spec.touch.response_depth_m,
+            "gain_sigma": spec.touch.gain_sigma,
+            "aging": spec.touch.aging,
+            "min_active_taxels": spec.touch.min_active_taxels,
+            "gain_seed": seed::taxel_gains(spec.dataset.seed, &c.hand),
+        },
         "physics": {
             "timestep": spec.grasp.timestep_s,
             "lift_height": spec.grasp.lift_height_m,

@@ -15,6 +15,7 @@ pub enum Stream {
     GraspTrial,
     RenderView,
     NoiseView,
+    TaxelGain,
 }
 
 impl Stream {
@@ -23,6 +24,7 @@ impl Stream {
             Stream::GraspTrial => "grasp-trial",
             Stream::RenderView => "render-view",
             Stream::NoiseView => "noise-view",
+            Stream::TaxelGain => "taxel-gain",
         }
     }
 }
@@ -91,6 +93,12 @@ pub fn noise_view(
             &view_index.to_string(),
         ],
     )
+}
+
+/// Seed of a hand's per-taxel gains: a property of the (simulated) sensor, so it depends on the
+/// hand alone, not on the grasp.
+pub fn taxel_gains(job_seed: u64, hand: &str) -> u64 {
+    derive(job_seed, Stream::TaxelGain, &[hand])
 }
 
 #[cfg(test)]

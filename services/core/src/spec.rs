@@ -19,6 +19,7 @@ pub struct DatasetSpec {
     pub hands: Vec<String>,
     pub objects: Vec<String>,
     pub grasp: GraspSettings,
+    pub touch: TouchSettings,
     pub render: RenderSettings,
     pub noise: NoiseSettings,
     pub outputs: Outputs,
@@ -42,6 +43,21 @@ pub struct GraspSettings {
     pub hold_s: f64,
     /// A grasp holds when the object moves less than this relative to the palm while lifted.
     pub max_drop_m: f64,
+}
+
+/// The tactile sensor model (see `vint_engines/grasp/touch.py`).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct TouchSettings {
+    /// A taxel is active when the object surface is within this distance of it.
+    pub sensing_depth_m: f64,
+    /// Indentation scale of the saturating response.
+    pub response_depth_m: f64,
+    /// Log-normal spread of per-taxel gains (a property of the sensor, fixed per hand).
+    pub gain_sigma: f64,
+    /// Sensitivity left after aging: 1 is a new sensor.
+    pub aging: f64,
+    /// A grasp needs at least this many active taxels to be accepted.
+    pub min_active_taxels: u32,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -232,6 +248,50 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
         ],
     );
 
+    let mut t = r.section(root, "touch");
+    let touch = TouchSettings {
+        sensing_depth_m: r.float(
+            &mut t,
+            "touch.sensing_depth_m",
+            "sensing_depth_m",
+            (0.0001, 0.02),
+            Some(0.003),
+        ),
+        response_depth_m: r.float(
+            &mut t,
+            "touch.response_depth_m",
+            "response_depth_m",
+            (0.0001, 0.02),
+            Some(0.002),
+        ),
+        gain_sigma: r.float(
+            &mut t,
+            "touch.gain_sigma",
+            "gain_sigma",
+            (0.0, 1.0),
+            Some(0.1),
+        ),
+        aging: r.float(&mut t, "touch.aging", "aging", (0.01, 1.0), Some(1.0)),
+        min_active_taxels: r.int(
+            &mut t,
+            "touch.min_active_taxels",
+            "min_active_taxels",
+            0..=10_000,
+            Some(3),
+        ) as u32,
+    };
+    r.finish(
+        t,
+        "touch",
+        &[
+            "sensing_depth_m",
+            "response_depth_m",
+            "gain_sigma",
+            "aging",
+            "min_active_taxels",
+        ],
+    );
+
     let mut rd = r.section(root, "render");
     let resolution = r.int_pair(&mut rd, "render", "resolution", 16..=8192, [128, 128]);
     let render = RenderSettings {
@@ -343,7 +403,7 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
         std::mem::take(root),
         "",
         &[
-            "dataset", "hands", "objects", "grasp", "render", "noise", "outputs",
+            "dataset", "hands", "objects", "grasp", "touch", "render", "noise", "outputs",
         ],
     );
     DatasetSpec {
@@ -351,6 +411,7 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
         hands,
         objects,
         grasp,
+        touch,
         render,
         noise,
         outputs,

@@ -235,3 +235,20 @@ fn oversized_specs_are_refused() {
     assert_eq!(errs.len(), 1);
     assert!(errs[0].contains("larger than"));
 }
+
+#[test]
+fn touch_settings_have_defaults_and_ranges() {
+    let spec = DatasetSpec::parse(TINY).unwrap();
+    assert_eq!(spec.touch.sensing_depth_m, 0.003);
+    let text =
+        format!("{TINY}\n[touch]\nsensing_depth_m = 0.0\naging = 1.5\nmin_active_taxels = -1\n");
+    let errs = errors(&text);
+    assert_eq!(
+        errs,
+        vec![
+            "touch.sensing_depth_m: must be in [0.0001, 0.02], got 0.0",
+            "touch.aging: must be in [0.01, 1], got 1.5",
+            "touch.min_active_taxels: must be 0..=10000, got -1",
+        ]
+    );
+}
