@@ -83,11 +83,11 @@ fn wrong_types_are_errors() {
         "render.resolution: must be an array of two numbers, got 128",
     );
     assert_single_error(
-        &tiny_with("hands = [\"trx3\"]", "hands = \"trx3\""),
+        &tiny_with("hands = [\"trx3\", \"allegro\"]", "hands = \"trx3\""),
         "hands: must be an array of strings, got \"trx3\"",
     );
     assert_single_error(
-        "grasp = 3\nobjects = [\"tomato_soup_can\"]\n[dataset]\nname = \"t\"\nseed = 1\n",
+        "grasp = 3\nobjects = [\"tomato_soup_can\", \"mustard_bottle\", \"mug\"]\n[dataset]\nname = \"t\"\nseed = 1\n",
         "grasp: must be a table, got 3",
     );
 }
@@ -123,7 +123,7 @@ fn negative_and_absurd_values_are_rejected() {
         "render.views_per_grasp: must be 1..=256, got 100000",
     );
     assert_single_error(
-        &tiny_with("trials_per_pair = 4", "trials_per_pair = 0"),
+        &tiny_with("trials_per_pair = 2", "trials_per_pair = 0"),
         "grasp.trials_per_pair: must be 1..=1000000, got 0",
     );
     assert_single_error(
@@ -175,17 +175,23 @@ fn ranges_must_be_ordered_and_bounded() {
 fn names_must_be_known_identifiers() {
     assert_single_error(
         &tiny_with(
-            "objects = [\"tomato_soup_can\"]",
+            "objects = [\"tomato_soup_can\", \"mustard_bottle\", \"mug\"]",
             "objects = [\"unobtainium\"]",
         ),
         "objects[0]: must be an object in the built-in catalog, got \"unobtainium\"",
     );
     assert_single_error(
-        &tiny_with("hands = [\"trx3\"]", "hands = [\"trx3\", \"trx3\"]"),
+        &tiny_with(
+            "hands = [\"trx3\", \"allegro\"]",
+            "hands = [\"trx3\", \"trx3\"]",
+        ),
         "hands[1]: must not repeat an earlier entry, got \"trx3\"",
     );
     assert_single_error(
-        &tiny_with("objects = [\"tomato_soup_can\"]", "objects = []"),
+        &tiny_with(
+            "objects = [\"tomato_soup_can\", \"mustard_bottle\", \"mug\"]",
+            "objects = []",
+        ),
         "objects: must name at least one, got []",
     );
     assert_single_error(
@@ -238,10 +244,12 @@ fn oversized_specs_are_refused() {
 
 #[test]
 fn touch_settings_have_defaults_and_ranges() {
-    let spec = DatasetSpec::parse(TINY).unwrap();
-    assert_eq!(spec.touch.sensing_depth_m, 0.003);
-    let text =
-        format!("{TINY}\n[touch]\nsensing_depth_m = 0.0\naging = 1.5\nmin_active_taxels = -1\n");
+    let spec =
+        DatasetSpec::parse("objects = [\"mug\"]\n[dataset]\nname = \"t\"\nseed = 1\n").unwrap();
+    assert_eq!(spec.touch.sensing_depth_m, 0.003, "default");
+    let text = tiny_with("sensing_depth_m = 0.003", "sensing_depth_m = 0.0")
+        .replace("aging = 1.0", "aging = 1.5")
+        .replace("min_active_taxels = 3", "min_active_taxels = -1");
     let errs = errors(&text);
     assert_eq!(
         errs,

@@ -25,7 +25,7 @@ struct Cli {
     /// Print machine-readable JSON instead of text.
     #[arg(long, global = true)]
     json: bool,
-    /// Coordinator URL for the commands that talk to one (all but validate, run and catalog).
+    /// Coordinator URL for the commands that talk to one (all but validate, run, hands and objects).
     #[arg(
         long,
         global = true,
@@ -92,8 +92,10 @@ enum Command {
         #[arg(long, env = "VINT_STORE")]
         store: String,
     },
-    /// List the built-in hands and objects.
-    Catalog,
+    /// List the built-in hands with their DoF and taxel counts per region.
+    Hands,
+    /// List the built-in objects with their mass, material and symmetry tags.
+    Objects,
 }
 
 /// A failure and the exit code it deserves.
@@ -166,8 +168,12 @@ async fn dispatch(cli: Cli) -> CliResult {
         Command::Export { job, out, store } => {
             client::export(&coordinator, &job, &out, &store, json).await
         }
-        Command::Catalog => {
-            report::catalog(json);
+        Command::Hands => {
+            report::hands(json);
+            Ok(())
+        }
+        Command::Objects => {
+            report::objects(json);
             Ok(())
         }
     }

@@ -216,22 +216,49 @@ pub fn export(s: &ExportSummary, json: bool) {
     }
 }
 
-pub fn catalog(json: bool) {
+/// `vintctl hands`: each built-in hand with its DoF and taxels per region.
+pub fn hands(json: bool) {
+    let hands = vint_core::catalog::hands();
     if json {
-        print_json(
-            &json!({"hands": vint_core::catalog::HANDS, "objects": vint_core::catalog::OBJECTS}),
-        );
+        print_json(&serde_json::to_value(hands).unwrap_or(Value::Null));
         return;
     }
-    println!("hands:");
-    for h in vint_core::catalog::HANDS {
-        println!("  {:<10} {} fingers, {} DoF", h.name, h.fingers, h.dof);
-    }
-    println!("objects:");
-    for o in vint_core::catalog::OBJECTS {
+    println!(
+        "{:<10} {:>7} {:>4} {:>7} {:>5} {:>5} {:>5}  description",
+        "hand", "fingers", "dof", "taxels", "tip", "pulp", "palm"
+    );
+    for h in hands {
+        let region = |r: &str| h.taxels_per_region.get(r).copied().unwrap_or(0);
         println!(
-            "  {:<18} {} r={} m h={} m {} kg {}",
-            o.name, o.shape, o.radius, o.height, o.mass, o.material
+            "{:<10} {:>7} {:>4} {:>7} {:>5} {:>5} {:>5}  {}",
+            h.entry.name,
+            h.entry.fingers,
+            h.entry.dof,
+            h.taxel_count(),
+            region("tip"),
+            region("pulp"),
+            region("palm"),
+            h.entry.description
+        );
+    }
+}
+
+/// `vintctl objects`: the built-in object catalog.
+pub fn objects(json: bool) {
+    let objects = vint_core::catalog::objects();
+    if json {
+        print_json(&serde_json::to_value(objects).unwrap_or(Value::Null));
+        return;
+    }
+    println!(
+        "{:<22} {:>5} {:>8} {:<10} {:<13} {:<9}  description",
+        "object", "ycb", "mass kg", "material", "symmetry", "shape"
+    );
+    for o in objects {
+        let shape = o.shape.get("type").and_then(Value::as_str).unwrap_or("?");
+        println!(
+            "{:<22} {:>5} {:>8.3} {:<10} {:<13} {:<9}  {}",
+            o.name, o.ycb_id, o.mass_kg, o.material, o.symmetry, shape, o.description
         );
     }
 }

@@ -12,7 +12,7 @@ import pytest
 from conftest import new_dir
 
 from vint_engines.grasp.engine import GraspEngine
-from vint_engines.grasp.hand import TRX3
+from vint_engines.grasp.hands import TRX3
 from vint_engines.grasp.scene import ObjectSpec, build_scene
 from vint_engines.grasp.trial import Physics, Rollout, TrialRejected
 from vint_engines.protocol import BadInput, TaskRequest
@@ -33,7 +33,7 @@ def grasp_params(seeds: list[int], **physics: float) -> dict[str, Any]:
 
 def run_grasp(engine: GraspEngine, params: dict[str, Any], out_dir: Path) -> tuple[str, dict[str, Any]]:
     result = engine.run(TaskRequest("t", params, (), out_dir))
-    assert [o.name for o in result.outputs] == ["grasps.json"]
+    assert [o.name for o in result.outputs] == ["grasps.json", "object.ply"]
     text = result.outputs[0].path.read_text()
     return text, json.loads(text)
 
@@ -65,7 +65,7 @@ def test_accepted_trials_hold_the_object_with_finger_contacts(
         assert trial["object_pose"]["p"][2] > CAN["height"] / 2 + 0.5 * PHYSICS["lift_height"]  # lifted
         assert {c["link"] for c in trial["contacts"]} & (links - {"palm"})
         assert set(trial["link_poses"]) == links
-        assert len(trial["joints"]) == doc["hand"]["dof"] == 9
+        assert len(trial["joints"]) == doc["hand"]["dof"] == 8
         for contact in trial["contacts"]:
             assert contact["force"] >= 0 and math.isclose(math.hypot(*contact["normal"]), 1.0, rel_tol=1e-6)
 

@@ -211,6 +211,7 @@ fn sample_meta(id: &Sid, grasps: &Value, camera: &Value) -> Result<Value, Packag
             "joints": trial["joints"],
             "contacts": trial["contacts"],
             "hold": trial["hold"],
+            "touch": trial["touch"],
         },
         "physics": grasps["physics"],
         "conventions": {

@@ -401,7 +401,7 @@ impl Worker {
 /// Which staged inputs a stage's engine reads: nothing else is downloaded.
 fn stage_reads(stage: Stage, name: &str) -> bool {
     match stage {
-        Stage::Render => name == "grasps.json",
+        Stage::Render => name == "grasps.json" || name == "object.ply",
         Stage::Noise => name.ends_with("_depth.npy"),
         Stage::Grasp | Stage::Package => false,
     }

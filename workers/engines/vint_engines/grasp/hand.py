@@ -1,107 +1,55 @@
-"""The hands vint models, built into an `MjSpec` from named dimensions.
+"""Builds a hand (`hands/`) into an `MjSpec`: palm, fingers, actuators, the arm weld, a touch probe.
 
-`trx3` is a three-finger hand (our own model, loosely Barrett-like): a palm box with two fingers on
-one edge and an opposing thumb on the other. Each finger is three hinge links (capsules) ending in a
-round fingertip; all three hinges of a finger curl in one plane, so a closing hand wraps around an
-upright cylinder. The palm is a free body welded to a mocap target (the "arm"), and hand bodies are
-gravity-compensated, as a real arm controller would do.
+The palm is a free body welded to a mocap target (the "arm"), and hand bodies are
+gravity-compensated, as a real arm controller would do. Each link is a capsule with an explicit
+mass (MuJoCo infers its inertia from the shape); the last link of a finger also carries the round
+fingertip (`f{i}_tip_pad`). Every joint has armature, damping, a limited range and a position
+actuator with a force limit (`forcerange`) and a control range equal to the joint range.
 
-Palm frame: +z is the palm normal (fingers grow along it), +y is "up" across the palm, +x points
-from the two-finger edge to the thumb edge. Links are named `palm`, `f{i}_prox`, `f{i}_mid`,
-`f{i}_tip`; joints `f{i}_j{k}` (k = 0 proximal … 2 distal).
+Frames and names are defined in `hands/model.py` (palm frame: +z palm normal, +y up across the
+palm, +x finger edge → thumb edge).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import Any
 
 import mujoco
 import numpy as np
 
-from vint_engines.protocol import BadInput
+from vint_engines.grasp.hands import ALLEGRO, TRX3, HandDims, hand_dims
+from vint_engines.grasp.hands.model import Finger, Vec3
+
+__all__ = ["ALLEGRO", "TRX3", "HandDims", "add_hand", "hand_dims", "palm_frame_facing"]
 
 # Collision filtering: hand geoms collide with the object and the ground but never with each other.
 HAND_CONTYPE, HAND_CONAFFINITY = 2, 1
 WORLD_CONTYPE, WORLD_CONAFFINITY = 1, 1
 
-FINGER_LINKS = ("prox", "mid", "tip")
+# A collision-free sphere that the touch model (`touch.py`) moves onto each taxel to measure its
+# distance to the object with `mj_geomDistance`; it takes part in no contact and carries no mass.
+TOUCH_PROBE = "touch_probe"
+TOUCH_PROBE_RADIUS = 1e-5
 
+# Every hand geom is covered by the tactile skin, whose contact parameters govern the hand's
+# contacts (priority 1 over the object's and the ground's): rubber-like friction and a stiff contact
+# (time constant 5 ms, at least 2 timesteps), so a squeezed can sinks < 1 mm into the palm (MuJoCo's
+# default 20 ms let it sink 6 mm under the fingers' 60 N). The skin's softness is the touch model's
+# sensing depth instead (`touch.py`).
+SKIN: dict[str, Any] = {
+    "contype": HAND_CONTYPE,
+    "conaffinity": HAND_CONAFFINITY,
+    "priority": 1,
+    "friction": [1.0, 0.005, 0.0001],
+    "solref": [0.005, 1.0],
+}
 
-@dataclass(frozen=True)
-class FingerBase:
-    """Where a finger leaves the palm face (palm frame) and which way it curls (+1: towards +x)."""
-
-    x: float
-    y: float
-    curl: float
-    strength: float  # scales the actuator force limits (the thumb opposes two fingers)
-
-
-@dataclass(frozen=True)
-class HandDims:
-    name: str
-    palm_half: tuple[float, float, float]
-    palm_mass: float
-    link_lengths: tuple[float, float, float]
-    link_masses: tuple[float, float, float]
-    link_radius: float
-    tip_radius: float
-    tip_mass: float
-    fingers: tuple[FingerBase, ...]
-    joint_ranges: tuple[tuple[float, float], tuple[float, float], tuple[float, float]]
-    armature: float
-    damping: float
-    kp: float
-    torque_limits: tuple[float, float, float]  # N·m per joint of a strength-1 finger
-    open_pose: tuple[float, float, float]
-    closed_pose: tuple[float, float, float]  # position targets while grasping (beyond contact)
-
-    @property
-    def dof(self) -> int:
-        return 3 * len(self.fingers)
-
-    def joint_names(self) -> list[str]:
-        return [f"f{i}_j{k}" for i in range(len(self.fingers)) for k in range(3)]
-
-    def link_names(self) -> list[str]:
-        return ["palm", *(f"f{i}_{link}" for i in range(len(self.fingers)) for link in FINGER_LINKS)]
-
-
-TRX3 = HandDims(
-    name="trx3",
-    palm_half=(0.055, 0.035, 0.012),
-    palm_mass=0.30,
-    link_lengths=(0.045, 0.035, 0.025),
-    link_masses=(0.045, 0.030, 0.020),
-    link_radius=0.009,
-    tip_radius=0.010,
-    tip_mass=0.008,
-    fingers=(
-        FingerBase(x=-0.047, y=0.022, curl=1.0, strength=1.0),
-        FingerBase(x=-0.047, y=-0.022, curl=1.0, strength=1.0),
-        FingerBase(x=0.047, y=0.0, curl=-1.0, strength=2.0),
-    ),
-    joint_ranges=((-0.5, 1.6), (0.0, 1.9), (0.0, 1.7)),
-    armature=0.002,
-    damping=0.08,
-    kp=6.0,
-    torque_limits=(0.8, 0.6, 0.4),
-    open_pose=(-0.25, 0.1, 0.1),
-    closed_pose=(1.5, 1.8, 1.6),
-)
-
-HANDS: dict[str, HandDims] = {TRX3.name: TRX3}
-
-
-def hand_dims(name: str) -> HandDims:
-    try:
-        return HANDS[name]
-    except KeyError:
-        raise BadInput(f"params.hand.name: unknown hand {name!r} (known: {sorted(HANDS)})") from None
+JOINT_AXES: dict[str, list[float]] = {"flex": [0.0, 1.0, 0.0], "abduct": [1.0, 0.0, 0.0]}
 
 
 def add_hand(spec: mujoco.MjSpec, dims: HandDims) -> None:
-    """Add the mocap target `hand_target`, the welded palm and the fingers with their actuators."""
+    """Add the mocap target `hand_target`, the welded palm, the fingers with their actuators and
+    the touch probe."""
     spec.worldbody.add_body(name="hand_target", mocap=True)
     palm = spec.worldbody.add_body(name="palm", gravcomp=1.0)
     palm.add_freejoint(name="hand_free")
@@ -110,11 +58,10 @@ def add_hand(spec: mujoco.MjSpec, dims: HandDims) -> None:
         type=mujoco.mjtGeom.mjGEOM_BOX,
         size=list(dims.palm_half),
         mass=dims.palm_mass,
-        contype=HAND_CONTYPE,
-        conaffinity=HAND_CONAFFINITY,
+        **SKIN,
     )
-    for i, base in enumerate(dims.fingers):
-        _add_finger(spec, palm, dims, i, base)
+    for i, finger in enumerate(dims.fingers):
+        _add_finger(spec, palm, dims, i, finger)
     spec.add_equality(
         type=mujoco.mjtEq.mjEQ_WELD,
         name="arm",
@@ -123,54 +70,67 @@ def add_hand(spec: mujoco.MjSpec, dims: HandDims) -> None:
         objtype=mujoco.mjtObj.mjOBJ_BODY,
         solref=[0.01, 1.0],
     )
+    spec.worldbody.add_geom(
+        name=TOUCH_PROBE,
+        type=mujoco.mjtGeom.mjGEOM_SPHERE,
+        size=[TOUCH_PROBE_RADIUS, 0.0, 0.0],
+        contype=0,
+        conaffinity=0,
+        group=5,
+        mass=0.0,
+    )
 
 
-def _add_finger(spec: mujoco.MjSpec, palm: mujoco.MjsBody, dims: HandDims, i: int, base: FingerBase) -> None:
+def _add_finger(spec: mujoco.MjSpec, palm: mujoco.MjsBody, dims: HandDims, i: int, finger: Finger) -> None:
     parent = palm
-    pos = [base.x, base.y, dims.palm_half[2]]
-    axis = [0.0, base.curl, 0.0]  # rotating +z about +y moves a fingertip towards +x
-    for k, link in enumerate(FINGER_LINKS):
-        length = dims.link_lengths[k]
-        body = parent.add_body(name=f"f{i}_{link}", pos=pos, gravcomp=1.0)
+    pos, quat = list(finger.base), finger_quat(finger.grow, finger.palmar)
+    for k, link in enumerate(finger.links):
+        body = parent.add_body(name=f"f{i}_{link.name}", pos=pos, quat=quat, gravcomp=1.0)
+        joint = link.joint
         body.add_joint(
             name=f"f{i}_j{k}",
             type=mujoco.mjtJoint.mjJNT_HINGE,
-            axis=axis,
-            range=list(dims.joint_ranges[k]),
+            axis=JOINT_AXES[joint.kind],
+            range=list(joint.range),
             limited=mujoco.mjtLimited.mjLIMITED_TRUE,
             armature=dims.armature,
             damping=dims.damping,
         )
         body.add_geom(
-            name=f"f{i}_{link}",
+            name=f"f{i}_{link.name}",
             type=mujoco.mjtGeom.mjGEOM_CAPSULE,
-            size=[dims.link_radius, length / 2, 0.0],
-            pos=[0.0, 0.0, length / 2],
-            mass=dims.link_masses[k],
-            contype=HAND_CONTYPE,
-            conaffinity=HAND_CONAFFINITY,
+            size=[link.radius, link.length / 2, 0.0],
+            pos=[0.0, 0.0, link.length / 2],
+            mass=link.mass,
+            **SKIN,
         )
-        torque = dims.torque_limits[k] * base.strength
         actuator = spec.add_actuator(
             name=f"f{i}_a{k}",
             target=f"f{i}_j{k}",
             trntype=mujoco.mjtTrn.mjTRN_JOINT,
             forcelimited=mujoco.mjtLimited.mjLIMITED_TRUE,
-            forcerange=[-torque, torque],
+            forcerange=[-joint.torque, joint.torque],
             ctrllimited=mujoco.mjtLimited.mjLIMITED_TRUE,
-            ctrlrange=list(dims.joint_ranges[k]),
+            ctrlrange=list(joint.range),
         )
-        actuator.set_to_position(kp=dims.kp * base.strength)
-        parent, pos = body, [0.0, 0.0, length]
+        actuator.set_to_position(kp=joint.kp)
+        parent, pos, quat = body, [0.0, 0.0, link.length], [1.0, 0.0, 0.0, 0.0]
     parent.add_geom(
         name=f"f{i}_tip_pad",
         type=mujoco.mjtGeom.mjGEOM_SPHERE,
-        size=[dims.tip_radius, 0.0, 0.0],
-        pos=[0.0, 0.0, dims.link_lengths[2]],
-        mass=dims.tip_mass,
-        contype=HAND_CONTYPE,
-        conaffinity=HAND_CONAFFINITY,
+        size=[finger.tip_radius, 0.0, 0.0],
+        pos=[0.0, 0.0, finger.links[-1].length],
+        mass=finger.tip_mass,
+        **SKIN,
     )
+
+
+def finger_quat(grow: Vec3, palmar: Vec3) -> list[float]:
+    """Orientation (palm frame) of a finger's first link: +z along `grow`, +x along `palmar`."""
+    z, x = np.asarray(grow, dtype=float), np.asarray(palmar, dtype=float)
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, np.column_stack([x, np.cross(z, x), z]).flatten())
+    return [float(v) for v in quat]
 
 
 def palm_frame_facing(direction: np.ndarray, up: np.ndarray) -> np.ndarray:

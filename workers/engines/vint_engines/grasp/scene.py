@@ -1,51 +1,69 @@
 """The physics scene of a grasp: ground plane, one object, one hand, compiled once and cached.
 
-Object frame convention (shared with the renderer): the body origin is the object's centre; a
-`cylinder` has its axis along the body's +z.
+Object frame convention (shared with the renderer and the model PLY; see `vint_engines.objects`):
+the body origin is the centre of the object's bounding box, cylinders and revolved shapes have
+their axis along the body's +z. The object collides through its convex pieces (MuJoCo primitives
+or mesh hulls) and carries its catalog mass with the inertia of its uniform-density mesh.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import mujoco
 import numpy as np
 
-from vint_engines import params as P
 from vint_engines.grasp.hand import WORLD_CONAFFINITY, WORLD_CONTYPE, HandDims, add_hand
-from vint_engines.protocol import BadInput
+from vint_engines.objects import MODEL_FILE, ObjectModel, ObjectSpec, build_model
+from vint_engines.poses import matrix_to_quat
 
-SHAPES = ("cylinder",)
+__all__ = [
+    "GraspScene",
+    "ObjectSpec",
+    "SceneObject",
+    "build_scene",
+    "hand_geometry",
+    "object_record",
+    "write_object_model",
+]
 
 
-@dataclass(frozen=True)
-class ObjectSpec:
-    name: str
-    shape: str
-    radius: float
-    height: float
-    mass: float
+@dataclass(frozen=True, eq=False)
+class SceneObject:
+    """The object as a trial sees it: its model, resting on the ground at the world origin."""
 
-    @staticmethod
-    def parse(obj: Mapping[str, Any]) -> ObjectSpec:
-        where = "params.object"
-        shape = P.string(obj, "shape", where)
-        if shape not in SHAPES:
-            raise BadInput(f"{where}.shape: unsupported shape {shape!r} (supported: {list(SHAPES)})")
-        return ObjectSpec(
-            name=P.string(obj, "name", where),
-            shape=shape,
-            radius=P.number(obj, "radius", where, low=0.005, high=0.2),
-            height=P.number(obj, "height", where, low=0.01, high=0.5),
-            mass=P.number(obj, "mass", where, low=0.001, high=5.0),
-        )
+    model: ObjectModel
+
+    @property
+    def spec(self) -> ObjectSpec:
+        return self.model.spec
+
+    @property
+    def name(self) -> str:
+        return self.model.spec.name
+
+    @property
+    def radius(self) -> float:
+        """Largest horizontal distance of the resting object from its origin's vertical."""
+        return self.model.rest.radius
+
+    @property
+    def height(self) -> float:
+        """Height of the resting object's top above the ground."""
+        return self.model.rest.top
 
     @property
     def rest_height(self) -> float:
-        """Height of the object's centre when it stands upright on the ground."""
-        return self.height / 2
+        """Height of the object's origin when it rests on the ground."""
+        return self.model.rest.height
+
+    @property
+    def rest_quat(self) -> tuple[float, float, float, float]:
+        """Orientation (w, x, y, z) of the resting object."""
+        return self.model.rest.quat
 
 
 @dataclass(frozen=True)
@@ -54,8 +72,9 @@ class GraspScene:
 
     model: mujoco.MjModel
     hand: HandDims
-    obj: ObjectSpec
+    obj: SceneObject
     object_body: int
+    object_geoms: tuple[int, ...]
     object_qpos: int
     palm_body: int
     palm_qpos: int
@@ -71,7 +90,9 @@ class GraspScene:
         return name if name in self.link_bodies else None
 
 
-def build_scene(hand: HandDims, obj: ObjectSpec) -> GraspScene:
+def build_scene(hand: HandDims, obj: ObjectSpec, object_model: ObjectModel | None = None) -> GraspScene:
+    """Compile the scene; `object_model` is the object's built model when the caller caches them."""
+    placed = SceneObject(object_model if object_model is not None else build_model(obj))
     spec = mujoco.MjSpec()
     spec.modelname = f"{hand.name}_{obj.name}"
     spec.compiler.degree = False  # MjSpec defaults to degrees; every angle here is in radians
@@ -87,16 +108,7 @@ def build_scene(hand: HandDims, obj: ObjectSpec) -> GraspScene:
         contype=WORLD_CONTYPE,
         conaffinity=WORLD_CONAFFINITY,
     )
-    body = spec.worldbody.add_body(name="object", pos=[0.0, 0.0, obj.rest_height])
-    body.add_freejoint(name="object_free")
-    body.add_geom(
-        name="object",
-        type=mujoco.mjtGeom.mjGEOM_CYLINDER,
-        size=[obj.radius, obj.height / 2, 0.0],
-        mass=obj.mass,
-        contype=WORLD_CONTYPE,
-        conaffinity=WORLD_CONAFFINITY,
-    )
+    add_object(spec, placed.model)
     add_hand(spec, hand)
     model = spec.compile()
 
@@ -106,8 +118,9 @@ def build_scene(hand: HandDims, obj: ObjectSpec) -> GraspScene:
     return GraspScene(
         model=model,
         hand=hand,
-        obj=obj,
+        obj=placed,
         object_body=model.body("object").id,
+        object_geoms=tuple(int(g) for g in np.flatnonzero(model.geom_bodyid == model.body("object").id)),
         object_qpos=qpos_of("object_free"),
         palm_body=model.body("palm").id,
         palm_qpos=qpos_of("hand_free"),
@@ -116,6 +129,46 @@ def build_scene(hand: HandDims, obj: ObjectSpec) -> GraspScene:
         joint_qpos={name: qpos_of(name) for name in hand.joint_names()},
         joint_ctrl={name: model.actuator(name.replace("_j", "_a")).id for name in hand.joint_names()},
     )
+
+
+def add_object(spec: mujoco.MjSpec, model: ObjectModel) -> None:
+    """The free body `object`, resting on the ground: one geom per convex piece (`object_{i}`;
+    hulls are meshes `object_piece_{i}`), the catalog mass and the mesh's inertia."""
+    rest = model.rest
+    body = spec.worldbody.add_body(name="object", pos=[0.0, 0.0, rest.height], quat=list(rest.quat))
+    body.add_freejoint(name="object_free")
+    body.explicitinertial = True
+    body.mass = model.spec.mass
+    body.ipos = [float(v) for v in model.centroid]
+    inertia = model.inertia
+    body.fullinertia = [float(v) for v in (*np.diag(inertia), inertia[0, 1], inertia[0, 2], inertia[1, 2])]
+    for i, piece in enumerate(model.pieces):
+        collision = {"name": f"object_{i}", "contype": WORLD_CONTYPE, "conaffinity": WORLD_CONAFFINITY}
+        if piece.kind == "hull":
+            mesh = spec.add_mesh(name=f"object_piece_{i}", uservert=piece.points.ravel().tolist())
+            mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL  # unused: the body's is explicit
+            body.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname=mesh.name, **collision)
+            continue
+        kind = mujoco.mjtGeom.mjGEOM_BOX if piece.kind == "box" else mujoco.mjtGeom.mjGEOM_CYLINDER
+        body.add_geom(
+            type=kind,
+            size=[*piece.size, 0.0][:3],
+            pos=[float(v) for v in piece.pose[:3, 3]],
+            quat=[float(v) for v in matrix_to_quat(piece.pose[:3, :3])],
+            **collision,
+        )
+
+
+def object_record(scene: GraspScene, entry: Mapping[str, Any]) -> dict[str, Any]:
+    """grasps.json's `object`: the entry as the task gave it, plus its model file's description."""
+    return {**entry, "model": scene.obj.model.record()}
+
+
+def write_object_model(scene: GraspScene, out_dir: Path) -> Path:
+    """Write the object's model mesh (`object.ply`, millimetres) into `out_dir`."""
+    path = out_dir / MODEL_FILE
+    path.write_bytes(scene.obj.model.ply())
+    return path
 
 
 def hand_geometry(scene: GraspScene) -> list[dict[str, Any]]:

@@ -1,7 +1,9 @@
 """One grasp trial: place the open hand beside the object, close, lift, hold, judge, read out.
 
-A trial depends only on the scene, the physics parameters and its seed; `data` is reset fully at
-the start, so trials can run in any order on one `MjData`.
+A trial depends only on the scene, the physics parameters, the hand's skin and its seed; `data` is
+reset fully at the start, so trials can run in any order on one `MjData`. A grasp is kept when the
+hand lifted and held the object (it slid less than `max_drop_m` relative to the palm) with
+tactile contact: at least `touch.min_active_taxels` taxels active on the captured state.
 """
 
 from __future__ import annotations
@@ -17,17 +19,20 @@ import numpy as np
 from vint_engines import params as P
 from vint_engines.grasp.hand import palm_frame_facing
 from vint_engines.grasp.scene import GraspScene
+from vint_engines.grasp.touch import Skin
 from vint_engines.poses import matrix_to_quat, pose_json
 
 # Phase durations (s) before the hold; the hold itself comes from params.
 SETTLE_S = 0.05
 CLOSE_S = 0.40
 SQUEEZE_S = 0.20
+STAGGER = 0.5
 LIFT_S = 0.60
 
 # Approach sampling: where along the object the palm centre sits, and the gap to its surface.
 HEIGHT_FRACTION = (0.45, 0.62)
 STANDOFF_M = (0.003, 0.012)
+GROUND_CLEARANCE_M = 0.004
 
 
 @dataclass(frozen=True)
@@ -61,9 +66,12 @@ class Approach:
 
     @staticmethod
     def sample(rng: np.random.Generator, scene: GraspScene) -> Approach:
+        # The palm's lower edge must clear the ground: a wide palm holds a short object higher up.
+        floor = scene.hand.palm_half[1] + GROUND_CLEARANCE_M + scene.hand.grasp_centre[1]
+        low, high = (max(fraction * scene.obj.height, floor) for fraction in HEIGHT_FRACTION)
         return Approach(
             azimuth=float(rng.uniform(0.0, 2.0 * math.pi)),
-            height=float(rng.uniform(*HEIGHT_FRACTION) * scene.obj.height),
+            height=float(rng.uniform(low, high)),
             standoff=float(rng.uniform(*STANDOFF_M)),
         )
 
@@ -76,7 +84,9 @@ class TrialRejected(Exception):
         self.reason = reason
 
 
-def run_trial(scene: GraspScene, data: mujoco.MjData, physics: Physics, grasp_index: int, seed: int) -> dict:
+def run_trial(
+    scene: GraspScene, data: mujoco.MjData, physics: Physics, skin: Skin, grasp_index: int, seed: int
+) -> dict:
     """Simulate one trial and return its JSON record (accepted or with a rejection reason)."""
     approach = Approach.sample(np.random.default_rng(seed), scene)
     record: dict[str, Any] = {
@@ -98,11 +108,14 @@ def run_trial(scene: GraspScene, data: mujoco.MjData, physics: Physics, grasp_in
             raise TrialRejected("dropped")
         if not contacts:
             raise TrialRejected("no_contact")
+        touch = skin.read(data, {contact["link"] for contact in contacts})
+        if touch["active_count"] < skin.params.min_active_taxels:
+            raise TrialRejected("no_touch")
     except TrialRejected as rejection:
         record["reason"] = rejection.reason
         record["steps"] = rollout.steps
         return record
-    record.update(accepted=True, **readout(scene, data), contacts=contacts, hold=hold)
+    record.update(accepted=True, **readout(scene, data), contacts=contacts, hold=hold, touch=touch)
     return record
 
 
@@ -115,19 +128,20 @@ class Rollout:
         self.dims = scene.hand
         self.ctrl = np.array([scene.joint_ctrl[j] for j in self.dims.joint_names()])
         self.qadr = np.array([scene.joint_qpos[j] for j in self.dims.joint_names()])
-        self.open = np.tile(self.dims.open_pose, len(self.dims.fingers))
-        self.closed = np.tile(self.dims.closed_pose, len(self.dims.fingers))
+        self.open = np.array(self.dims.open_pose())
+        self.closed = np.array(self.dims.closed_pose())
 
     def place(self, approach: Approach) -> None:
         scene, data, model = self.scene, self.data, self.scene.model
         model.opt.timestep = self.physics.timestep
         mujoco.mj_resetData(model, data)
         obj = scene.obj
-        data.qpos[scene.object_qpos : scene.object_qpos + 7] = [0, 0, obj.rest_height, 1, 0, 0, 0]
+        data.qpos[scene.object_qpos : scene.object_qpos + 7] = [0, 0, obj.rest_height, *obj.rest_quat]
         toward_axis = -np.array([math.cos(approach.azimuth), math.sin(approach.azimuth), 0.0])
         rot = palm_frame_facing(toward_axis, np.array([0.0, 0.0, 1.0]))
         back_off = obj.radius + approach.standoff + self.dims.palm_half[2]
-        palm_pos = np.array([0.0, 0.0, approach.height]) - back_off * toward_axis
+        centre = rot @ np.array([*self.dims.grasp_centre, 0.0])
+        palm_pos = np.array([0.0, 0.0, approach.height]) - back_off * toward_axis - centre
         palm_quat = matrix_to_quat(rot)
         data.qpos[scene.palm_qpos : scene.palm_qpos + 7] = [*palm_pos, *palm_quat]
         data.mocap_pos[scene.mocap] = palm_pos
@@ -138,8 +152,15 @@ class Rollout:
         self.run(SETTLE_S)
 
     def close_fingers(self) -> None:
+        # Proximal joints lead and distal ones follow, so a finger wraps the object instead of
+        # hooking it with its tip: joint k of a finger ramps over [start_k, start_k + 1 - STAGGER].
+        start = np.array(
+            [STAGGER * k / max(1, len(f.links) - 1) for f in self.dims.fingers for k in range(len(f.links))]
+        )
+
         def close(s: float) -> None:
-            self.data.ctrl[self.ctrl] = self.open + s * (self.closed - self.open)
+            progress = np.clip((s - start) / (1.0 - STAGGER), 0.0, 1.0)
+            self.data.ctrl[self.ctrl] = self.open + progress * (self.closed - self.open)
 
         self.ramp(CLOSE_S, close)
         self.run(SQUEEZE_S)

@@ -1,7 +1,8 @@
 """The render engine: for each view of a grasp, render RGB/depth/mask and write the camera.
 
 Builds the Blender scene once (and renders a tiny warm-up frame so the first task does not pay
-for kernel loading); per task it reads `grasps.json`, poses the hand and the object, then renders
+for kernel loading); per task it reads `grasps.json` (and the object's model mesh `object.ply`
+when the worker staged it), poses the hand and the object, then renders
 each view under its own environment (`render.environment` unless the view names one) from a
 camera sampled with the view's seed.
 """
@@ -24,6 +25,7 @@ import numpy as np
 
 from vint_engines import __version__
 from vint_engines import params as P
+from vint_engines.objects import MODEL_FILE
 from vint_engines.poses import quat_to_matrix, read_pose
 from vint_engines.protocol import BadInput, Json, TaskRequest, TaskResult
 from vint_engines.render.camera import Intrinsics, look_at, sample_on_hemisphere
@@ -121,7 +123,7 @@ class RenderEngine:
 
         trial = find_trial(grasps, grasp_index)
         self.scene.set_hand(grasps["hand"])
-        self.scene.set_object(grasps["object"])
+        self.scene.set_object(grasps["object"], staged_input(task, MODEL_FILE))
         object_pose = read_pose(trial["object_pose"], f"grasps.json trial {grasp_index} object_pose")
         links = {name: read_pose(pose, f"link_poses.{name}") for name, pose in trial["link_poses"].items()}
         self.scene.pose(object_pose, links)
@@ -189,6 +191,11 @@ def write_png(path: Path, image: np.ndarray) -> Path:
     if not cv2.imwrite(str(path), image):
         raise OSError(f"cannot write {path}")
     return path
+
+
+def staged_input(task: TaskRequest, name: str) -> Path | None:
+    """The path of an optional input, or None when the worker did not stage it."""
+    return next((ref.path for ref in task.inputs if ref.name == name), None)
 
 
 def load_grasps(path: Path) -> dict[str, Any]:

@@ -1,14 +1,17 @@
-"""Triangle meshes of MuJoCo's primitive geoms (box, sphere, capsule, cylinder), built with bmesh.
+"""Blender meshes: MuJoCo's primitive geoms (box, sphere, capsule, cylinder) built with bmesh, and
+triangle meshes from vertex and face arrays (the object's model mesh).
 
 Sizes follow MuJoCo: box half extents, sphere [r], capsule and cylinder [r, half length] along +z.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import bmesh
 import bpy
+import numpy as np
 from mathutils import Matrix, Quaternion, Vector
 
 from vint_engines.protocol import BadInput
@@ -77,4 +80,15 @@ def new_mesh(name: str, geoms: Sequence[tuple[str, Sequence[float], Matrix]]) ->
         bm.to_mesh(mesh)
     finally:
         bm.free()
+    return mesh
+
+
+def triangle_mesh(name: str, vertices: np.ndarray, faces: np.ndarray, sharp_deg: float) -> bpy.types.Mesh:
+    """A mesh of the given triangles, shaded smooth except across edges sharper than `sharp_deg`."""
+    mesh = bpy.data.meshes.new(name)
+    mesh.from_pydata(np.asarray(vertices, dtype=np.float64).tolist(), [], np.asarray(faces).tolist())
+    if mesh.validate():
+        raise BadInput(f"mesh {name!r} has invalid geometry")
+    mesh.shade_smooth()
+    mesh.set_sharp_from_angle(angle=math.radians(sharp_deg))
     return mesh

@@ -2,12 +2,15 @@
 
 Owns all Blender datablocks: render settings, the world (one environment texture node whose image
 is swapped between bundled HDRIs, each loaded once), one camera, the hand's link objects (rebuilt
-only when the hand geometry changes) and the object (rebuilt only when its shape changes). Knows
-nothing about tasks or files beyond the pass scratch directory.
+only when the hand geometry changes) and the object: one Blender object whose mesh is swapped
+between object meshes, each made once per object name (with its material) from the grasp engine's
+model PLY or, without one, from the shape in the catalog entry. Knows nothing about tasks or files
+beyond the pass scratch directory and the model PLY it is handed.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from collections.abc import Mapping, Sequence
@@ -19,9 +22,11 @@ import bpy
 import numpy as np
 from mathutils import Matrix
 
+from vint_engines.objects import ObjectSpec, build_model
+from vint_engines.objects.meshio import read_ply_m
 from vint_engines.poses import pose_matrix
 from vint_engines.protocol import BadInput
-from vint_engines.render import meshes
+from vint_engines.render import materials, meshes
 from vint_engines.render.camera import CameraPose, Intrinsics
 from vint_engines.render.passes import Passes, add_pass_outputs, read_passes
 
@@ -29,15 +34,8 @@ OBJECT_PASS_INDEX = 1
 HAND_PASS_INDEX = 2
 RGB_FILE = "rgb.png"
 ENVIRONMENT_MAP_RESOLUTION = 256  # importance map for the HDRI: 0.3 s to build instead of ~2 s
-
-# Principled BSDF inputs per object material; unknown materials render as plastic.
-MATERIALS: dict[str, dict[str, Any]] = {
-    "metal": {"Base Color": (0.62, 0.09, 0.07, 1.0), "Metallic": 0.9, "Roughness": 0.3},
-    "plastic": {"Base Color": (0.2, 0.35, 0.7, 1.0), "Metallic": 0.0, "Roughness": 0.4},
-    "wood": {"Base Color": (0.55, 0.37, 0.2, 1.0), "Metallic": 0.0, "Roughness": 0.7},
-    "paper": {"Base Color": (0.85, 0.82, 0.75, 1.0), "Metallic": 0.0, "Roughness": 0.9},
-}
-HAND_MATERIAL = {"Base Color": (0.08, 0.08, 0.09, 1.0), "Metallic": 0.0, "Roughness": 0.55}
+OBJECT_MESH_CAPACITY = 64  # object meshes kept for reuse (the catalog has fewer objects)
+SHARP_EDGE_DEG = 30.0  # model meshes shade smooth except across edges sharper than this
 
 
 def environment_dir() -> Path:
@@ -68,10 +66,9 @@ class BlenderScene:
         add_pass_outputs(self.scene, scratch)
         self._hand_key: str | None = None
         self._links: dict[str, bpy.types.Object] = {}
-        self._object_key: str | None = None
         self._object: bpy.types.Object | None = None
-        self._hand_material = _material("vint_hand", HAND_MATERIAL)
-        self._object_materials: dict[str, bpy.types.Material] = {}
+        self._object_meshes: dict[str, tuple[str, bpy.types.Mesh]] = {}  # name → (content key, mesh)
+        self._hand_material = materials.principled("vint_hand", materials.HAND)
 
     def _configure_render(self) -> None:
         scene = self.scene
@@ -142,23 +139,36 @@ class BlenderScene:
             raise BadInput(f"grasps.json: malformed hand geometry ({exc!r})") from exc
         self._hand_key = key
 
-    def set_object(self, obj: Mapping[str, Any]) -> None:
-        """Create the object, unless this exact shape is already loaded (frame: centre, axis +z)."""
-        key = json.dumps(obj, sort_keys=True)
-        if key == self._object_key:
-            return
-        if self._object is not None:
-            _remove_object(self._object)
-            self._object, self._object_key = None, None
-        if obj.get("shape") != "cylinder":
-            raise BadInput(f"grasps.json: object shape {obj.get('shape')!r} cannot be rendered")
-        try:
-            size = [float(obj["radius"]), float(obj["height"]) / 2]
-        except (KeyError, TypeError, ValueError) as exc:
-            raise BadInput(f"grasps.json: object needs radius and height ({exc!r})") from exc
-        material = self._object_material(str(obj.get("material", "plastic")))
-        self._object = self._add_object("object", [("cylinder", size, Matrix())], material, OBJECT_PASS_INDEX)
-        self._object_key = key
+    def set_object(self, obj: Mapping[str, Any], model_ply: Path | None = None) -> None:
+        """Show the object of a grasps.json entry: its model mesh `model_ply` (the grasp engine's
+        object.ply, millimetres) when given, else its shape rebuilt from the entry — the same mesh
+        either way. Each object name keeps its mesh and material; they are remade only when the
+        mesh bytes or the entry's shape or material change."""
+        spec = ObjectSpec.parse(obj, "grasps.json object")
+        source = hashlib.sha256(model_ply.read_bytes()).hexdigest() if model_ply else spec.to_json()
+        key = json.dumps({"mesh": source, "material": spec.material}, sort_keys=True)
+        cached = self._object_meshes.pop(spec.name, None)  # re-inserted last: least recently used first
+        if cached is not None and cached[0] == key:
+            mesh = cached[1]
+        else:
+            vertices, faces = read_ply_m(model_ply) if model_ply else _rebuilt_mesh(spec)
+            mesh = meshes.triangle_mesh(f"object_{spec.name}", vertices, faces, SHARP_EDGE_DEG)
+            mesh.materials.append(materials.object_material(spec.name, spec.material))
+        self._object_meshes[spec.name] = (key, mesh)
+        if self._object is None:
+            self._object = bpy.data.objects.new("object", mesh)
+            self._object.pass_index = OBJECT_PASS_INDEX
+            self.scene.collection.objects.link(self._object)
+        else:
+            self._object.data = mesh
+        if cached is not None and cached[1] is not mesh:
+            _remove_mesh(cached[1])
+        self._evict_object_meshes()
+
+    def _evict_object_meshes(self) -> None:
+        while len(self._object_meshes) > OBJECT_MESH_CAPACITY:
+            name = next(iter(self._object_meshes))
+            _remove_mesh(self._object_meshes.pop(name)[1])
 
     def pose(self, object_pose: tuple[np.ndarray, np.ndarray], links: Mapping[str, tuple]) -> None:
         """Place the object and every link ((p, q) world poses); links must all be present."""
@@ -199,20 +209,20 @@ class BlenderScene:
         self.scene.collection.objects.link(obj)
         return obj
 
-    def _object_material(self, name: str) -> bpy.types.Material:
-        kind = name if name in MATERIALS else "plastic"
-        if kind not in self._object_materials:
-            self._object_materials[kind] = _material(f"vint_{kind}", MATERIALS[kind])
-        return self._object_materials[kind]
+
+def _rebuilt_mesh(spec: ObjectSpec) -> tuple[np.ndarray, np.ndarray]:
+    mesh = build_model(spec, where="grasps.json object").mesh
+    return mesh.vertices, mesh.faces
 
 
-def _material(name: str, inputs: Mapping[str, Any]) -> bpy.types.Material:
-    material = bpy.data.materials.new(name)
-    material.use_nodes = True
-    bsdf = material.node_tree.nodes["Principled BSDF"]
-    for key, value in inputs.items():
-        bsdf.inputs[key].default_value = value
-    return material
+def _remove_mesh(mesh: bpy.types.Mesh) -> None:
+    """Free an object mesh (and its material) once nothing shows it."""
+    if mesh.users == 0:
+        used = [m for m in mesh.materials if m is not None]
+        bpy.data.meshes.remove(mesh)
+        for material in used:
+            if material.users == 0:
+                bpy.data.materials.remove(material)
 
 
 def _remove_object(obj: bpy.types.Object) -> None:

@@ -1,0 +1,220 @@
+"""Lays a hand's taxels out on its collision surfaces: the generator of the built-in layouts.
+
+`scripts/gen_taxels.py` writes `generate_layout(hand)` to `catalog/hands/<hand>/taxels.csv`; the
+engine only ever reads those files (`taxels.py`), so a scanned layout of a real sensor can replace
+one. The layout follows the compiled model's geometry: each link's geoms are read back from MuJoCo
+(pose in the link frame, MuJoCo sizes) and sampled where a tactile skin covers a real hand
+(VinT-6D, sec. "Simulating Touch": fingertips, pulps and palm):
+
+- `palm`: the palmar face of the palm box (+z of the palm frame);
+- `pulp`: the palmar half (link +x side) of the cylindrical part of every finger link but the last;
+- `tip`: the last link of each finger: the palmar half of its capsule and the fingertip dome (the
+  sphere's half towards the finger's end plus a palmar band down to 120° from the finger axis).
+
+Candidates are dense grids (0.5 mm) on each patch, kept 1.5 mm inside the patch's edges and 1 mm
+clear of every other hand geom with the hand open (where links overlap at joints, a fingertip
+sphere swallows the end of its capsule or the thumb's base lies on the palm). The sensor's taxel
+count (620 for `trx3`, 679 for `allegro`, as on the real sensors) is shared out between patches in
+proportion to their area (largest remainder), and each patch's taxels are picked by farthest-point
+sampling, which spreads them evenly. No randomness: the result depends on the model alone.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+import numpy.typing as npt
+
+from vint_engines.grasp.hand import add_hand
+from vint_engines.grasp.hands import HandDims
+from vint_engines.grasp.taxels import TaxelLayout
+
+Array = npt.NDArray[np.float64]
+
+SENSOR_TAXELS = {"trx3": 620, "allegro": 679}  # taxels of the real sensors (VinT-6D)
+SPACING = 0.0005  # m between candidates
+EDGE_MARGIN = 0.0015  # m
+CLEARANCE = 0.001  # m
+TIP_PALMAR_POLAR = math.radians(120.0)
+
+
+@dataclass(frozen=True)
+class Patch:
+    """Candidate taxel sites on one geom of one link (link frame) and the area they cover."""
+
+    link: str
+    region: str
+    points: Array
+    normals: Array
+    area: float
+
+
+def generate_layout(dims: HandDims) -> TaxelLayout:
+    patches = hand_patches(dims)
+    counts = share_out(SENSOR_TAXELS[dims.name], np.array([patch.area for patch in patches]))
+    links: list[str] = []
+    positions, normals, regions = [], [], []
+    for patch, count in zip(patches, counts, strict=True):
+        chosen = farthest_points(patch.points, int(count))
+        p = np.round(patch.points[chosen], 6)
+        chosen = chosen[np.lexsort((p[:, 0], p[:, 1], p[:, 2]))]  # a readable, stable order
+        links += [patch.link] * len(chosen)
+        regions += [patch.region] * len(chosen)
+        positions.append(patch.points[chosen])
+        normals.append(patch.normals[chosen])
+    return TaxelLayout(tuple(links), np.vstack(positions), np.vstack(normals), tuple(regions))
+
+
+def compile_hand(dims: HandDims) -> mujoco.MjModel:
+    spec = mujoco.MjSpec()
+    spec.compiler.degree = False
+    add_hand(spec, dims)
+    return spec.compile()
+
+
+def hand_patches(dims: HandDims) -> list[Patch]:
+    model = compile_hand(dims)
+    data = mujoco.MjData(model)
+    for (name, _), angle in zip(dims.joints(), dims.open_pose(), strict=True):
+        data.qpos[model.joint(name).qposadr[0]] = angle
+    mujoco.mj_kinematics(model, data)  # the open hand; the palm sits at the world origin
+    solid = [g for g in range(model.ngeom) if model.geom_contype[g]]  # not the touch probe
+    last_links = {f"f{i}_tip" for i in range(len(dims.fingers))}
+    patches = []
+    for link in dims.link_names():
+        body = model.body(link).id
+        for geom in (g for g in solid if model.geom_bodyid[g] == body):
+            region = "palm" if link == "palm" else "tip" if link in last_links else "pulp"
+            points, normals, cell = _candidates(model, geom, palm=link == "palm")
+            to_link = _geom_in_link(model, geom)
+            points, normals = points @ to_link[:3, :3].T + to_link[:3, 3], normals @ to_link[:3, :3].T
+            keep = _clear_of_others(model, data, body, geom, solid, points)
+            if keep.any():
+                patches.append(Patch(link, region, points[keep], normals[keep], cell * int(keep.sum())))
+    return patches
+
+
+def share_out(total: int, areas: Array) -> npt.NDArray[np.int64]:
+    """`total` split in proportion to `areas`, rounded by largest remainder (ties: first patch)."""
+    exact = total * areas / areas.sum()
+    counts = np.floor(exact).astype(np.int64)
+    order = np.argsort(-(exact - counts), kind="stable")
+    counts[order[: total - int(counts.sum())]] += 1
+    return counts
+
+
+def farthest_points(points: Array, count: int) -> npt.NDArray[np.intp]:
+    """`count` indices of `points`, greedily each farthest from those already picked, starting
+    from the point nearest the centroid."""
+    if count <= 0:
+        return np.zeros(0, dtype=np.intp)
+    first = int(np.argmin(((points - points.mean(axis=0)) ** 2).sum(axis=1)))
+    chosen = [first]
+    nearest = ((points - points[first]) ** 2).sum(axis=1)
+    for _ in range(count - 1):
+        pick = int(np.argmax(nearest))
+        chosen.append(pick)
+        nearest = np.minimum(nearest, ((points - points[pick]) ** 2).sum(axis=1))
+    return np.array(chosen, dtype=np.intp)
+
+
+def _candidates(model: mujoco.MjModel, geom: int, palm: bool) -> tuple[Array, Array, float]:
+    """Candidate points and outward normals in the geom's frame, and the area of one candidate."""
+    kind, size = model.geom_type[geom], model.geom_size[geom]
+    palmar = np.array([0.0, 0.0, 1.0]) if palm else np.array([1.0, 0.0, 0.0])
+    palmar = _geom_in_link(model, geom)[:3, :3].T @ palmar  # the palmar direction, geom frame
+    if kind == mujoco.mjtGeom.mjGEOM_BOX:
+        return _box_face(size, palmar)
+    if kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
+        return _capsule_side(size[0], size[1], palmar)
+    if kind == mujoco.mjtGeom.mjGEOM_SPHERE:
+        return _dome(size[0], palmar)
+    raise ValueError(f"no taxel sampling for geom type {kind}")
+
+
+def _box_face(half: Array, outward: Array) -> tuple[Array, Array, float]:
+    axis = int(np.argmax(np.abs(outward)))
+    u, v = (a for a in range(3) if a != axis)
+    grid_u = _grid(-half[u] + EDGE_MARGIN, half[u] - EDGE_MARGIN)
+    grid_v = _grid(-half[v] + EDGE_MARGIN, half[v] - EDGE_MARGIN)
+    gu, gv = np.meshgrid(grid_u, grid_v, indexing="ij")
+    points = np.zeros((gu.size, 3))
+    points[:, u], points[:, v] = gu.ravel(), gv.ravel()
+    points[:, axis] = math.copysign(half[axis], outward[axis])
+    normals = np.zeros_like(points)
+    normals[:, axis] = math.copysign(1.0, outward[axis])
+    return points, normals, SPACING**2
+
+
+def _capsule_side(radius: float, half_length: float, palmar: Array) -> tuple[Array, Array, float]:
+    """The half of the cylindrical side facing `palmar` (perpendicular to the capsule's +z)."""
+    reach = math.pi / 2 - EDGE_MARGIN / radius
+    angles = _grid(-reach * radius, reach * radius) / radius
+    heights = _grid(-half_length + EDGE_MARGIN, half_length - EDGE_MARGIN)
+    ga, gz = np.meshgrid(angles, heights, indexing="ij")
+    base = palmar / np.linalg.norm(palmar)
+    side = np.cross([0.0, 0.0, 1.0], base)
+    normals = np.cos(ga.ravel())[:, None] * base + np.sin(ga.ravel())[:, None] * side
+    points = radius * normals + gz.ravel()[:, None] * np.array([0.0, 0.0, 1.0])
+    return points, normals, SPACING**2
+
+
+def _dome(radius: float, palmar: Array) -> tuple[Array, Array, float]:
+    """Fingertip sphere: the half towards the finger's end (+z) and a palmar band below it."""
+    count = max(1, round(4 * math.pi * radius**2 / SPACING**2))
+    k = np.arange(count) + 0.5
+    polar = np.arccos(1.0 - 2.0 * k / count)  # Fibonacci lattice: even area per point
+    azimuth = math.pi * (1.0 + math.sqrt(5.0)) * k
+    normals = np.column_stack(
+        [np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), np.cos(polar)]
+    )
+    margin = EDGE_MARGIN / radius
+    palmar_side = normals @ palmar > math.sin(margin)
+    keep = (polar <= math.pi / 2 - margin) | (palmar_side & (polar <= TIP_PALMAR_POLAR - margin))
+    return radius * normals[keep], normals[keep], 4 * math.pi * radius**2 / count
+
+
+def _grid(low: float, high: float) -> Array:
+    steps = max(0, math.floor((high - low) / SPACING))
+    centre = (low + high) / 2
+    return centre + (np.arange(steps + 1) - steps / 2) * SPACING
+
+
+def _geom_in_link(model: mujoco.MjModel, geom: int) -> Array:
+    """4×4 pose of a geom in its body's frame."""
+    rotation = np.zeros(9)
+    mujoco.mju_quat2Mat(rotation, model.geom_quat[geom])
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = rotation.reshape(3, 3), model.geom_pos[geom]
+    return pose
+
+
+def _clear_of_others(
+    model: mujoco.MjModel, data: mujoco.MjData, body: int, geom: int, solid: list[int], points: Array
+) -> npt.NDArray[np.bool_]:
+    """Which link-frame `points` lie at least CLEARANCE outside every other hand geom."""
+    rotation, origin = data.xmat[body].reshape(3, 3), data.xpos[body]
+    world = points @ rotation.T + origin
+    keep = np.ones(len(points), dtype=bool)
+    for other in solid:
+        if other == geom:
+            continue
+        local = (world - data.geom_xpos[other]) @ data.geom_xmat[other].reshape(3, 3)
+        keep &= signed_distance(int(model.geom_type[other]), model.geom_size[other], local) >= CLEARANCE
+    return keep
+
+
+def signed_distance(kind: int, size: Array, local: Array) -> Array:
+    """Signed distance of geom-frame points to a box, sphere or capsule (negative inside)."""
+    if kind == mujoco.mjtGeom.mjGEOM_SPHERE:
+        return np.linalg.norm(local, axis=1) - size[0]
+    if kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
+        along = np.clip(local[:, 2], -size[1], size[1])
+        return np.linalg.norm(local - along[:, None] * np.array([0.0, 0.0, 1.0]), axis=1) - size[0]
+    if kind == mujoco.mjtGeom.mjGEOM_BOX:
+        q = np.abs(local) - size[:3]
+        return np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0)
+    raise ValueError(f"no signed distance for geom type {kind}")
