@@ -7,11 +7,11 @@
 //! vint's own crates not; plain `cargo bench` builds everything in release first.)
 //!
 //! Each run makes a fresh database, inserts N grasp tasks with `Store::submit_job` (a job whose
-//! spec is `examples/tiny.toml` with `trials_per_pair = N` and `chunk_size = 1`, so every key is a
-//! real chunk key the planner accepts), serves the coordinator in-process on a loopback port and
-//! lets `WORKERS` concurrent `NoopWorker`s drain the queue over gRPC: `LeaseTasks(capacity =
-//! batch)`, then `CompleteTask` for each leased task with no outputs and `{"accepted": []}` (which
-//! unlocks nothing), until a lease comes back empty. The clock runs from the first lease to the
+//! spec is `examples/tiny.toml` cut to its first hand and first object, with `trials_per_pair = N`
+//! and `chunk_size = 1`, so every key is a real chunk key the planner accepts), serves the
+//! coordinator in-process on a loopback port and lets `WORKERS` concurrent `NoopWorker`s drain the
+//! queue over gRPC: `LeaseTasks(capacity = batch)`, then `CompleteTask` for each leased task with
+//! no outputs and `{"accepted": []}` (which unlocks nothing), until a lease comes back empty. The clock runs from the first lease to the
 //! last completion; inserting the tasks is not timed. Every run checks that all N tasks and the
 //! job succeeded.
 //!
@@ -19,28 +19,19 @@
 //! lines (written to stderr by the real binary) cost nothing here.
 //!
 //! FILTER words select cases whose name (`postgres/batch1`, `sqlite/batch64`, …) contains one of
-//! them; `all` selects every case. Postgres comes from `VINT_TEST_POSTGRES_URL` (an admin URL)
+//! them; without any, every case runs. Postgres comes from `VINT_TEST_POSTGRES_URL` (an admin URL)
 //! or 127.0.0.1:5432, as in the tests; the bench fails without it.
-//!
-//! Diagnostic cases (`postgres-nodelay/batch1`, …) run only when a FILTER word contains
-//! `nodelay` or is `all`: the same `WorkApi` served with `TCP_NODELAY` on accepted sockets.
-//! `vint_coordinator::serve` hands tonic a bare `TcpListenerStream`, for which tonic ignores its
-//! `tcp_nodelay` default, so a response can wait behind Nagle's algorithm for the client's
-//! delayed ACK (~40 ms on Linux). Once `serve` sets `TCP_NODELAY` itself these cases measure
-//! nothing new and should be deleted.
 
 use std::net::{Ipv4Addr, SocketAddr};
 use std::time::{Duration, Instant};
 
 use serde_json::json;
-use tonic::transport::server::TcpIncoming;
 use tonic::transport::{Channel, Endpoint};
-use vint_coordinator::{CoordinatorConfig, WorkApi, now_ms};
+use vint_coordinator::{CoordinatorConfig, now_ms};
 use vint_core::plan::initial_tasks;
 use vint_core::{DatasetSpec, JobState, Stage, TaskState};
 use vint_proto::v1 as pb;
 use vint_proto::v1::work_service_client::WorkServiceClient;
-use vint_proto::v1::work_service_server::WorkServiceServer;
 use vint_store::{NewJob, RetryPolicy, Store};
 
 /// Concurrent no-op workers, each on its own HTTP/2 connection, as separate processes would be.
@@ -65,45 +56,21 @@ impl Backend {
     }
 }
 
-/// How the coordinator under test is served.
-#[derive(Clone, Copy, PartialEq)]
-enum Serving {
-    /// `vint_coordinator::serve`, as `vint-coordinator` and `vintctl run` serve it.
-    Product,
-    /// Diagnostic: `WorkApi` alone, with `TCP_NODELAY` on accepted sockets.
-    NoDelay,
-}
-
 struct Case {
     backend: Backend,
-    serving: Serving,
     batch: u32,
     tasks: u32,
 }
 
 impl Case {
     fn name(&self) -> String {
-        let serving = match self.serving {
-            Serving::Product => "",
-            Serving::NoDelay => "-nodelay",
-        };
-        format!("{}{serving}/batch{}", self.backend.name(), self.batch)
+        format!("{}/batch{}", self.backend.name(), self.batch)
     }
 
-    /// Product cases run by default; diagnostic ones only when a filter asks for them.
+    /// Every case runs without filters; with some, those whose name contains one of them.
     fn selected(&self, filters: &[String]) -> bool {
-        if filters.iter().any(|f| f == "all") {
-            return true;
-        }
         let name = self.name();
-        match self.serving {
-            Serving::Product => {
-                filters.is_empty() || filters.iter().any(|f| name.contains(f.as_str()))
-            }
-            Serving::NoDelay => filters
-                .iter()
-                .any(|f| f.contains("nodelay") && name.contains(f.as_str())),
-        }
+        filters.is_empty() || filters.iter().any(|f| name.contains(f.as_str()))
     }
 }
 
@@ -124,21 +91,11 @@ impl Run {
 #[tokio::main]
 async fn main() {
     // cargo passes `--bench`; every other word is a case filter.
-    let filters: Vec<String> = std::env::args()
-        .skip(1)
-        .filter(|a| !a.starts_with("--"))
-        .collect();
+    let filters: Vec<String> = std::env::args().skip(1).filter(|a| !a.starts_with("--")).collect();
     let mut cases = Vec::new();
-    for serving in [Serving::Product, Serving::NoDelay] {
-        for backend in [Backend::Postgres, Backend::Sqlite] {
-            for (batch, tasks) in [(1, 1_000), (64, 5_000)] {
-                cases.push(Case {
-                    backend,
-                    serving,
-                    batch,
-                    tasks,
-                });
-            }
+    for backend in [Backend::Postgres, Backend::Sqlite] {
+        for (batch, tasks) in [(1, 1_000), (64, 5_000)] {
+            cases.push(Case { backend, batch, tasks });
         }
     }
     cases.retain(|c| c.selected(&filters));
@@ -184,11 +141,7 @@ async fn main() {
             min(&rates),
             max(&rates),
             median(runs.iter().flat_map(|r| r.lease_rpc_ms.clone()).collect()),
-            median(
-                runs.iter()
-                    .flat_map(|r| r.complete_rpc_ms.clone())
-                    .collect()
-            ),
+            median(runs.iter().flat_map(|r| r.complete_rpc_ms.clone()).collect()),
         );
     }
     print_ratios(&summaries);
@@ -200,7 +153,6 @@ async fn main() {
             "bench": "coordinator_lease_complete",
             "case": case.name(),
             "backend": case.backend.name(),
-            "tcp_nodelay": case.serving == Serving::NoDelay,
             "batch": case.batch,
             "tasks": case.tasks,
             "workers": WORKERS,
@@ -215,59 +167,23 @@ async fn main() {
     }
 }
 
-/// Side-by-side ratios of medians from this run: batch 64 over batch 1, Postgres over SQLite,
-/// and (when the diagnostic cases ran) TCP_NODELAY over the product's serving.
+/// Side-by-side ratios of medians from this run: batch 64 over batch 1, Postgres over SQLite.
 fn print_ratios(summaries: &[(&Case, Vec<Run>)]) {
-    let med = |backend: Backend, serving: Serving, batch: u32| {
+    let med = |backend: Backend, batch: u32| {
         summaries
             .iter()
-            .find(|(c, _)| c.backend == backend && c.serving == serving && c.batch == batch)
+            .find(|(c, _)| c.backend == backend && c.batch == batch)
             .map(|(_, runs)| median(runs.iter().map(Run::tasks_per_s).collect()))
     };
     println!();
-    for serving in [Serving::Product, Serving::NoDelay] {
-        for backend in [Backend::Postgres, Backend::Sqlite] {
-            if let (Some(b64), Some(b1)) = (med(backend, serving, 64), med(backend, serving, 1)) {
-                let name = Case {
-                    backend,
-                    serving,
-                    batch: 0,
-                    tasks: 0,
-                }
-                .name();
-                let name = name.trim_end_matches("/batch0");
-                println!("ratio {name}: batch64 / batch1 = {:.2}x", b64 / b1);
-            }
-        }
-        for batch in [1, 64] {
-            if let (Some(pg), Some(sq)) = (
-                med(Backend::Postgres, serving, batch),
-                med(Backend::Sqlite, serving, batch),
-            ) {
-                let what = if serving == Serving::NoDelay {
-                    "-nodelay"
-                } else {
-                    ""
-                };
-                println!(
-                    "ratio batch{batch}{what}: postgres / sqlite = {:.2}x",
-                    pg / sq
-                );
-            }
+    for backend in [Backend::Postgres, Backend::Sqlite] {
+        if let (Some(b64), Some(b1)) = (med(backend, 64), med(backend, 1)) {
+            println!("ratio {}: batch64 / batch1 = {:.2}x", backend.name(), b64 / b1);
         }
     }
-    for backend in [Backend::Postgres, Backend::Sqlite] {
-        for batch in [1, 64] {
-            if let (Some(nd), Some(p)) = (
-                med(backend, Serving::NoDelay, batch),
-                med(backend, Serving::Product, batch),
-            ) {
-                println!(
-                    "ratio {}/batch{batch}: nodelay / product = {:.2}x",
-                    backend.name(),
-                    nd / p
-                );
-            }
+    for batch in [1, 64] {
+        if let (Some(pg), Some(sq)) = (med(Backend::Postgres, batch), med(Backend::Sqlite, batch)) {
+            println!("ratio batch{batch}: postgres / sqlite = {:.2}x", pg / sq);
         }
     }
 }
@@ -280,14 +196,9 @@ async fn run_case(case: &Case, repeat: usize) -> Run {
             let db = url.rsplit_once('/').map(|(_, d)| d.to_string());
             (url, db)
         }
-        Backend::Sqlite => (
-            format!("sqlite://{}", scratch.path().join("vint.db").display()),
-            None,
-        ),
+        Backend::Sqlite => (format!("sqlite://{}", scratch.path().join("vint.db").display()), None),
     };
-    let store = Store::open(&url, RetryPolicy::default())
-        .await
-        .unwrap_or_else(|e| panic!("opening {url}: {e}"));
+    let store = Store::open(&url, RetryPolicy::default()).await.unwrap_or_else(|e| panic!("opening {url}: {e}"));
 
     let job_id = format!("bench-{}-b{}-r{repeat}", case.backend.name(), case.batch);
     let spec_toml = bench_spec(case.tasks);
@@ -309,38 +220,21 @@ async fn run_case(case: &Case, repeat: usize) -> Run {
         .await
         .expect("submit the bench job");
 
-    let (listener, addr) = vint_coordinator::bind(SocketAddr::from((Ipv4Addr::LOCALHOST, 0)))
-        .await
-        .expect("bind the coordinator");
+    let (listener, addr) =
+        vint_coordinator::bind(SocketAddr::from((Ipv4Addr::LOCALHOST, 0))).await.expect("bind the coordinator");
     let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
     let shutdown = async {
         let _ = stop_rx.await;
     };
-    let server = match case.serving {
-        Serving::Product => tokio::spawn(vint_coordinator::serve(
-            store.clone(),
-            CoordinatorConfig::default(),
-            listener,
-            shutdown,
-        )),
-        Serving::NoDelay => tokio::spawn(serve_work_api_nodelay(store.clone(), listener, shutdown)),
-    };
+    let server = tokio::spawn(vint_coordinator::serve(store.clone(), CoordinatorConfig::default(), listener, shutdown));
 
     let mut workers = Vec::new();
     for i in 0..WORKERS {
         workers.push(NoopWorker::connect(addr, format!("noop-{i}"), case.batch).await);
     }
     let started = Instant::now();
-    let handles: Vec<_> = workers
-        .into_iter()
-        .map(|w| tokio::spawn(w.drain()))
-        .collect();
-    let mut run = Run {
-        tasks: 0,
-        elapsed: Duration::ZERO,
-        lease_rpc_ms: Vec::new(),
-        complete_rpc_ms: Vec::new(),
-    };
+    let handles: Vec<_> = workers.into_iter().map(|w| tokio::spawn(w.drain())).collect();
+    let mut run = Run { tasks: 0, elapsed: Duration::ZERO, lease_rpc_ms: Vec::new(), complete_rpc_ms: Vec::new() };
     for h in handles {
         let done = h.await.expect("no-op worker panicked");
         run.tasks += done.completed;
@@ -349,12 +243,7 @@ async fn run_case(case: &Case, repeat: usize) -> Run {
     }
     run.elapsed = started.elapsed();
 
-    assert_eq!(
-        run.tasks,
-        u64::from(case.tasks),
-        "{}: tasks completed",
-        case.name()
-    );
+    assert_eq!(run.tasks, u64::from(case.tasks), "{}: tasks completed", case.name());
     let progress = store.progress(&job_id).await.expect("progress");
     assert_eq!(
         progress.stage_count(Stage::Grasp, TaskState::Succeeded),
@@ -367,10 +256,7 @@ async fn run_case(case: &Case, repeat: usize) -> Run {
     assert_eq!(job.state, JobState::Succeeded, "{}: job state", case.name());
 
     let _ = stop_tx.send(());
-    server
-        .await
-        .expect("coordinator task")
-        .expect("coordinator served");
+    server.await.expect("coordinator task").expect("coordinator served");
     store.close().await;
     if let Some(db) = pg_database {
         drop_postgres_database(&db).await;
@@ -378,57 +264,50 @@ async fn run_case(case: &Case, repeat: usize) -> Run {
     run
 }
 
-/// `examples/tiny.toml` with `n` grasp trials in chunks of one: `n` valid grasp chunk keys.
+/// `examples/tiny.toml` cut to its first hand and first object, with `n` grasp trials in chunks of
+/// one: `n` valid grasp chunk keys.
 fn bench_spec(n: u32) -> String {
     let tiny = std::fs::read_to_string(vint_tests::tiny_spec()).expect("examples/tiny.toml");
+    // `key = ["first", ...]` becomes `key = ["first"]`.
+    let first_only = |line: &str| {
+        let (key, list) = line.split_once('=')?;
+        let first = list.split('"').nth(1)?;
+        Some(format!("{key}= [\"{first}\"]\n"))
+    };
     let mut out = String::new();
-    let (mut trials, mut chunk) = (false, false);
+    let mut seen = [false; 4];
     for line in tiny.lines() {
-        if line.starts_with("trials_per_pair") {
-            out.push_str(&format!("trials_per_pair = {n}\n"));
-            trials = true;
+        let replaced = if line.starts_with("hands") {
+            seen[0] = true;
+            first_only(line)
+        } else if line.starts_with("objects") {
+            seen[1] = true;
+            first_only(line)
+        } else if line.starts_with("trials_per_pair") {
+            seen[2] = true;
+            Some(format!("trials_per_pair = {n}\n"))
         } else if line.starts_with("chunk_size") {
-            out.push_str("chunk_size = 1\n");
-            chunk = true;
+            seen[3] = true;
+            Some("chunk_size = 1\n".to_string())
         } else {
-            out.push_str(line);
-            out.push('\n');
-        }
+            None
+        };
+        out.push_str(&replaced.unwrap_or_else(|| format!("{line}\n")));
     }
     assert!(
-        trials && chunk,
-        "examples/tiny.toml no longer sets grasp.trials_per_pair and grasp.chunk_size"
+        seen.iter().all(|s| *s),
+        "examples/tiny.toml no longer sets hands, objects, grasp.trials_per_pair and grasp.chunk_size"
     );
     out
-}
-
-/// Diagnostic serving: the coordinator's `WorkApi` behind tonic with `TCP_NODELAY` on accepted
-/// sockets; no reaper (no lease expires during a run; the run finalizes the job itself).
-async fn serve_work_api_nodelay(
-    store: Store,
-    listener: tokio::net::TcpListener,
-    shutdown: impl std::future::Future<Output = ()>,
-) -> Result<(), tonic::transport::Error> {
-    let incoming = TcpIncoming::from(listener).with_nodelay(Some(true));
-    let work = WorkServiceServer::new(WorkApi::new(store, CoordinatorConfig::default()));
-    tonic::transport::Server::builder()
-        .add_service(work)
-        .serve_with_incoming_shutdown(incoming, shutdown)
-        .await
 }
 
 async fn drop_postgres_database(db: &str) {
     let admin = std::env::var("VINT_TEST_POSTGRES_URL")
         .unwrap_or_else(|_| "postgres://postgres@127.0.0.1:5432/postgres".to_string());
-    let mut conn = <sqlx::AnyConnection as sqlx::Connection>::connect(&admin)
+    let mut conn = <sqlx::AnyConnection as sqlx::Connection>::connect(&admin).await.expect("admin connection");
+    sqlx::Executor::execute(&mut conn, sqlx::AssertSqlSafe(format!("DROP DATABASE IF EXISTS {db} WITH (FORCE)")))
         .await
-        .expect("admin connection");
-    sqlx::Executor::execute(
-        &mut conn,
-        sqlx::AssertSqlSafe(format!("DROP DATABASE IF EXISTS {db} WITH (FORCE)")),
-    )
-    .await
-    .unwrap_or_else(|e| panic!("dropping {db}: {e}"));
+        .unwrap_or_else(|e| panic!("dropping {db}: {e}"));
 }
 
 /// What one no-op worker did.
@@ -453,21 +332,13 @@ impl NoopWorker {
             .connect()
             .await
             .expect("connect to the coordinator");
-        NoopWorker {
-            client: WorkServiceClient::new(channel),
-            worker_id,
-            batch,
-        }
+        NoopWorker { client: WorkServiceClient::new(channel), worker_id, batch }
     }
 
     /// Leases and completes until a lease comes back empty. All tasks are queued before the
     /// workers start and none fails, so an empty lease means the queue is drained.
     async fn drain(mut self) -> Drained {
-        let mut done = Drained {
-            completed: 0,
-            lease_rpc_ms: Vec::new(),
-            complete_rpc_ms: Vec::new(),
-        };
+        let mut done = Drained { completed: 0, lease_rpc_ms: Vec::new(), complete_rpc_ms: Vec::new() };
         loop {
             let t = Instant::now();
             let leased = self
@@ -524,11 +395,7 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
     v.sort_by(f64::total_cmp);
     let mid = v.len() / 2;
-    if v.len() % 2 == 1 {
-        v[mid]
-    } else {
-        (v[mid - 1] + v[mid]) / 2.0
-    }
+    if v.len() % 2 == 1 { v[mid] } else { (v[mid - 1] + v[mid]) / 2.0 }
 }
 
 fn min(v: &[f64]) -> f64 {

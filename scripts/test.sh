@@ -171,6 +171,27 @@ choose_postgres() {
     log "Postgres: $VINT_TEST_POSTGRES_URL"
 }
 
+# Succeeds if process PID exists (also one of another user, which kill -0 cannot signal).
+pid_alive() {
+    kill -0 "$1" 2>/dev/null || [[ -d "/proc/$1" ]] || ps -p "$1" >/dev/null 2>&1
+}
+
+# The test process id in a test database's name, or nothing. The tests name their databases
+# vint_test_<pid>_<tag>_<nanos>_<n> (tests/src/lib.rs postgres_database, services/store/tests/
+# queue.rs); names from before that order was fixed put a tag first (vint_test_<tag>_<pid>_<n>),
+# and other checkouts may still create them, so a non-numeric first field defers to the second.
+test_database_pid() {
+    local rest="${1#vint_test_}" first second
+    first="${rest%%_*}"
+    rest="${rest#*_}"
+    second="${rest%%_*}"
+    if [[ "$first" =~ ^[0-9]+$ ]]; then
+        echo "$first"
+    elif [[ "$second" =~ ^[0-9]+$ ]]; then
+        echo "$second"
+    fi
+}
+
 # Drops the per-test databases (vint_test_<pid>_…) of earlier runs. Databases in use, or whose
 # test process still lives, are left alone: another run may be using them.
 drop_stale_test_databases() {
@@ -178,11 +199,11 @@ drop_stale_test_databases() {
     psql="$(pg_tool psql)"
     while read -r name; do
         [[ -n "$name" ]] || continue
-        pid="${name#vint_test_}"
-        pid="${pid%%_*}"
-        if [[ "$pid" =~ ^[0-9]+$ ]] && kill -0 "$pid" 2>/dev/null; then
+        pid="$(test_database_pid "$name")"
+        if [[ -n "$pid" ]] && pid_alive "$pid"; then
             continue
         fi
+        # Without FORCE, DROP DATABASE fails on a database that has connections: left alone.
         if "$psql" --no-password --quiet --dbname "$VINT_TEST_POSTGRES_URL" \
             --command "DROP DATABASE IF EXISTS \"$name\"" >/dev/null 2>&1; then
             dropped=$((dropped + 1))

@@ -11,19 +11,13 @@ use std::time::{Duration, Instant};
 use sha2::{Digest, Sha256};
 
 pub fn repo_root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("..")
-        .canonicalize()
-        .expect("repo root")
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..").canonicalize().expect("repo root")
 }
 
 /// A workspace binary built by `cargo build --workspace --bins` (scripts/test.sh does this).
 pub fn bin(name: &str) -> PathBuf {
     let exe = std::env::current_exe().expect("test executable path");
-    let dir = exe
-        .parent()
-        .and_then(Path::parent)
-        .expect("target profile directory");
+    let dir = exe.parent().and_then(Path::parent).expect("target profile directory");
     let path = dir.join(name);
     assert!(
         path.exists(),
@@ -35,14 +29,8 @@ pub fn bin(name: &str) -> PathBuf {
 
 /// The engines' Python: `VINT_PYTHON` or the checkout's `.venv`. Missing engines fail the tests.
 pub fn python() -> PathBuf {
-    let p = std::env::var("VINT_PYTHON")
-        .map(PathBuf::from)
-        .unwrap_or_else(|_| repo_root().join(".venv/bin/python"));
-    assert!(
-        p.exists(),
-        "engine Python {} is missing: run scripts/setup-python.sh",
-        p.display()
-    );
+    let p = std::env::var("VINT_PYTHON").map(PathBuf::from).unwrap_or_else(|_| repo_root().join(".venv/bin/python"));
+    assert!(p.exists(), "engine Python {} is missing: run scripts/setup-python.sh", p.display());
     p
 }
 
@@ -56,17 +44,8 @@ pub fn run_tiny(dir: &Path, workers: u32) -> Output {
     let state = dir.join("state");
     let spec = tiny_spec();
     let workers = workers.to_string();
-    let args = [
-        "run",
-        path_str(&spec),
-        "--out",
-        path_str(&out),
-        "--state",
-        path_str(&state),
-        "--workers",
-        &workers,
-        "--json",
-    ];
+    let args =
+        ["run", path_str(&spec), "--out", path_str(&out), "--state", path_str(&state), "--workers", &workers, "--json"];
     vintctl(&args)
 }
 
@@ -75,37 +54,27 @@ fn path_str(p: &Path) -> &str {
 }
 
 pub fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .expect("bind")
-        .local_addr()
-        .expect("addr")
-        .port()
+    TcpListener::bind("127.0.0.1:0").expect("bind").local_addr().expect("addr").port()
 }
 
 /// A fresh Postgres database: `VINT_TEST_POSTGRES_URL` (an admin URL) with a new database.
+///
+/// Test databases are named `vint_test_<pid>_<tag>_<nanos>_<n>` (here and in
+/// services/store/tests/queue.rs): `scripts/test.sh` reads the pid after `vint_test_` to drop the
+/// databases of test processes that no longer run. `tag` is lowercase letters, digits and `_`.
 pub async fn postgres_database(tag: &str) -> String {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static N: AtomicU64 = AtomicU64::new(0);
     let admin = std::env::var("VINT_TEST_POSTGRES_URL")
         .unwrap_or_else(|_| "postgres://postgres@127.0.0.1:5432/postgres".to_string());
     sqlx::any::install_default_drivers();
     let mut conn = <sqlx::AnyConnection as sqlx::Connection>::connect(&admin)
         .await
         .unwrap_or_else(|e| panic!("Postgres is required for these tests ({admin}): {e}"));
-    let n = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .unwrap()
-        .as_nanos()
-        % 1_000_000_000;
-    let db = format!("vint_test_{tag}_{}_{n}", std::process::id());
-    sqlx::Executor::execute(
-        &mut conn,
-        sqlx::AssertSqlSafe(format!("CREATE DATABASE {db}")),
-    )
-    .await
-    .expect("create db");
-    let base = admin
-        .rsplit_once('/')
-        .map(|(b, _)| b.to_string())
-        .expect("admin URL has a database");
+    let n = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().as_nanos() % 1_000_000_000;
+    let db = format!("vint_test_{}_{tag}_{n}_{}", std::process::id(), N.fetch_add(1, Ordering::Relaxed));
+    sqlx::Executor::execute(&mut conn, sqlx::AssertSqlSafe(format!("CREATE DATABASE {db}"))).await.expect("create db");
+    let base = admin.rsplit_once('/').map(|(b, _)| b.to_string()).expect("admin URL has a database");
     format!("{base}/{db}")
 }
 
@@ -121,18 +90,12 @@ impl Proc {
     }
 
     pub fn sigkill(&mut self) {
-        let _ = nix::sys::signal::kill(
-            nix::unistd::Pid::from_raw(self.pid()),
-            nix::sys::signal::Signal::SIGKILL,
-        );
+        let _ = nix::sys::signal::kill(nix::unistd::Pid::from_raw(self.pid()), nix::sys::signal::Signal::SIGKILL);
         let _ = self.child.wait();
     }
 
     pub fn sigterm_and_wait(&mut self) {
-        let _ = nix::sys::signal::kill(
-            nix::unistd::Pid::from_raw(self.pid()),
-            nix::sys::signal::Signal::SIGTERM,
-        );
+        let _ = nix::sys::signal::kill(nix::unistd::Pid::from_raw(self.pid()), nix::sys::signal::Signal::SIGTERM);
         let deadline = Instant::now() + Duration::from_secs(15);
         while Instant::now() < deadline {
             if let Ok(Some(_)) = self.child.try_wait() {
@@ -159,31 +122,17 @@ fn log_file(dir: &Path, name: &str) -> Stdio {
 /// Starts `vint-coordinator` on `port` and waits until it accepts connections.
 pub fn start_coordinator(database: &str, port: u16, logs: &Path, name: &str) -> Proc {
     let child = Command::new(bin("vint-coordinator"))
-        .args([
-            "--database",
-            database,
-            "--listen",
-            &format!("127.0.0.1:{port}"),
-            "--backoff-ms",
-            "200",
-        ])
+        .args(["--database", database, "--listen", &format!("127.0.0.1:{port}"), "--backoff-ms", "200"])
         .stdout(Stdio::null())
         .stderr(log_file(logs, name))
         .spawn()
         .expect("start coordinator");
     let deadline = Instant::now() + Duration::from_secs(30);
     while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
-        assert!(
-            Instant::now() < deadline,
-            "coordinator did not start; see {}",
-            logs.display()
-        );
+        assert!(Instant::now() < deadline, "coordinator did not start; see {}", logs.display());
         std::thread::sleep(Duration::from_millis(50));
     }
-    Proc {
-        child,
-        name: name.to_string(),
-    }
+    Proc { child, name: name.to_string() }
 }
 
 /// Starts `vint-worker` with a short lease so that a dead worker's task returns quickly.
@@ -197,16 +146,7 @@ pub fn start_worker(
 ) -> Proc {
     let child = Command::new(bin("vint-worker"))
         .envs(env.iter().map(|(k, v)| (k, v)))
-        .args([
-            "--coordinator",
-            coordinator,
-            "--store",
-            store,
-            "--worker-id",
-            id,
-            "--lease-ms",
-            "3000",
-        ])
+        .args(["--coordinator", coordinator, "--store", store, "--worker-id", id, "--lease-ms", "3000"])
         .arg("--python")
         .arg(python())
         .arg("--scratch")
@@ -215,10 +155,7 @@ pub fn start_worker(
         .stderr(log_file(logs, id))
         .spawn()
         .expect("start worker");
-    Proc {
-        child,
-        name: id.to_string(),
-    }
+    Proc { child, name: id.to_string() }
 }
 
 /// Runs vintctl to completion.
@@ -246,34 +183,21 @@ pub fn stderr(o: &Output) -> String {
 /// Checks every file of an exported dataset against manifest.jsonl; returns the manifest's lines.
 pub fn verify_dataset(dir: &Path) -> Vec<serde_json::Value> {
     let manifest = std::fs::read_to_string(dir.join("manifest.jsonl")).expect("manifest.jsonl");
-    let lines: Vec<serde_json::Value> = manifest
-        .lines()
-        .map(|l| serde_json::from_str(l).expect("manifest line"))
-        .collect();
+    let lines: Vec<serde_json::Value> =
+        manifest.lines().map(|l| serde_json::from_str(l).expect("manifest line")).collect();
     for line in &lines {
         let sample = line["sample_id"].as_str().expect("sample_id");
         for (name, f) in line["files"].as_object().expect("files") {
-            let bytes = std::fs::read(dir.join(sample).join(name))
-                .unwrap_or_else(|e| panic!("{sample}/{name}: {e}"));
-            assert_eq!(
-                hex::encode(Sha256::digest(&bytes)),
-                f["sha256"].as_str().unwrap(),
-                "{sample}/{name} hash"
-            );
-            assert_eq!(
-                bytes.len() as u64,
-                f["size"].as_u64().unwrap(),
-                "{sample}/{name} size"
-            );
+            let bytes = std::fs::read(dir.join(sample).join(name)).unwrap_or_else(|e| panic!("{sample}/{name}: {e}"));
+            assert_eq!(hex::encode(Sha256::digest(&bytes)), f["sha256"].as_str().unwrap(), "{sample}/{name} hash");
+            assert_eq!(bytes.len() as u64, f["size"].as_u64().unwrap(), "{sample}/{name} size");
         }
     }
     lines
 }
 
 pub fn manifest_sha256(dir: &Path) -> String {
-    hex::encode(Sha256::digest(
-        std::fs::read(dir.join("manifest.jsonl")).expect("manifest.jsonl"),
-    ))
+    hex::encode(Sha256::digest(std::fs::read(dir.join("manifest.jsonl")).expect("manifest.jsonl")))
 }
 
 /// Polls `cond` every 20 ms until it holds or `timeout` passes.
@@ -297,10 +221,7 @@ pub fn children_of(pid: i32) -> Vec<i32> {
     };
     for task in tasks.flatten() {
         if let Ok(text) = std::fs::read_to_string(task.path().join("children")) {
-            out.extend(
-                text.split_whitespace()
-                    .filter_map(|p| p.parse::<i32>().ok()),
-            );
+            out.extend(text.split_whitespace().filter_map(|p| p.parse::<i32>().ok()));
         }
     }
     out
@@ -310,11 +231,7 @@ pub fn children_of(pid: i32) -> Vec<i32> {
 /// bucket `vint`. Returns the process and the `AWS_*` environment that points clients at it.
 pub fn start_s3(logs: &Path) -> (Proc, Vec<(String, String)>) {
     let moto = python().with_file_name("moto_server");
-    assert!(
-        moto.exists(),
-        "{} is missing: run scripts/setup-python.sh (dev tools)",
-        moto.display()
-    );
+    assert!(moto.exists(), "{} is missing: run scripts/setup-python.sh (dev tools)", moto.display());
     let port = free_port();
     let child = Command::new(&moto)
         .args(["-H", "127.0.0.1", "-p", &port.to_string()])
@@ -322,10 +239,7 @@ pub fn start_s3(logs: &Path) -> (Proc, Vec<(String, String)>) {
         .stderr(log_file(logs, "s3"))
         .spawn()
         .expect("start moto_server");
-    let proc = Proc {
-        child,
-        name: "s3".into(),
-    };
+    let proc = Proc { child, name: "s3".into() };
     let endpoint = format!("http://127.0.0.1:{port}");
     let deadline = Instant::now() + Duration::from_secs(30);
     while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
@@ -343,17 +257,10 @@ pub fn start_s3(logs: &Path) -> (Proc, Vec<(String, String)>) {
     .map(|(k, v)| (k.to_string(), v.to_string()))
     .collect();
     let made = Command::new(python())
-        .args([
-            "-c",
-            "import boto3; boto3.client('s3').create_bucket(Bucket='vint')",
-        ])
+        .args(["-c", "import boto3; boto3.client('s3').create_bucket(Bucket='vint')"])
         .envs(env.iter().map(|(k, v)| (k, v)))
         .output()
         .expect("create bucket");
-    assert!(
-        made.status.success(),
-        "creating the test bucket: {}",
-        String::from_utf8_lossy(&made.stderr)
-    );
+    assert!(made.status.success(), "creating the test bucket: {}", String::from_utf8_lossy(&made.stderr));
     (proc, env)
 }

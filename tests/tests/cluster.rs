@@ -54,33 +54,16 @@ impl Cluster {
         start_coordinator(&self.database, self.port, &self.logs(), name)
     }
     fn worker(&self, id: &str) -> Proc {
-        start_worker(
-            &self.coordinator,
-            &self.store_url,
-            id,
-            &self.logs(),
-            &self.dir.path().join("scratch"),
-            &self.env,
-        )
+        start_worker(&self.coordinator, &self.store_url, id, &self.logs(), &self.dir.path().join("scratch"), &self.env)
     }
     fn submit(&self) -> String {
-        let o = vintctl(&[
-            "submit",
-            tiny_spec().to_str().unwrap(),
-            "--coordinator",
-            &self.coordinator,
-        ]);
+        let o = vintctl(&["submit", tiny_spec().to_str().unwrap(), "--coordinator", &self.coordinator]);
         assert!(o.status.success(), "submit: {}", stderr(&o));
         stdout(&o).trim().to_string()
     }
     fn watch(&self, job: &str) {
         let o = vintctl(&["watch", job, "--coordinator", &self.coordinator, "--json"]);
-        assert!(
-            o.status.success(),
-            "job did not succeed: {}\n{}",
-            stdout(&o),
-            stderr(&o)
-        );
+        assert!(o.status.success(), "job did not succeed: {}\n{}", stdout(&o), stderr(&o));
     }
     fn export(&self, job: &str) -> std::path::PathBuf {
         let out = self.dir.path().join("dataset");
@@ -102,18 +85,12 @@ impl Cluster {
         out
     }
     async fn store(&self) -> Store {
-        Store::open(&self.database, RetryPolicy::default())
-            .await
-            .unwrap()
+        Store::open(&self.database, RetryPolicy::default()).await.unwrap()
     }
 }
 
 fn assert_same_as_embedded(out: &Path) {
-    assert_eq!(
-        manifest_sha256(out),
-        reference_manifest(),
-        "cluster dataset differs from the embedded run"
-    );
+    assert_eq!(manifest_sha256(out), reference_manifest(), "cluster dataset differs from the embedded run");
 }
 
 #[tokio::test(flavor = "multi_thread")]
@@ -132,35 +109,19 @@ async fn postgres_cluster_matches_embedded_and_lineage_shows_the_full_chain() {
     let manifest = std::fs::read_to_string(out.join("manifest.jsonl")).unwrap();
     let first: serde_json::Value = serde_json::from_str(manifest.lines().next().unwrap()).unwrap();
     let sample = first["sample_id"].as_str().unwrap();
-    let o = vintctl(&[
-        "lineage",
-        sample,
-        "--job",
-        &job,
-        "--coordinator",
-        &c.coordinator,
-        "--json",
-    ]);
+    let o = vintctl(&["lineage", sample, "--job", &job, "--coordinator", &c.coordinator, "--json"]);
     assert!(o.status.success(), "lineage: {}", stderr(&o));
     let lineage: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
     let tasks = lineage["tasks"].as_array().unwrap();
     let stages: Vec<&str> = tasks.iter().map(|t| t["stage"].as_str().unwrap()).collect();
-    assert_eq!(
-        stages,
-        ["package", "noise", "render", "grasp"],
-        "{lineage:#}"
-    );
+    assert_eq!(stages, ["package", "noise", "render", "grasp"], "{lineage:#}");
     for t in tasks {
         assert_eq!(t["state"], "succeeded");
-        assert!(
-            t["engine"]["name"].as_str().unwrap().starts_with("vint-"),
-            "engine recorded: {t:#}"
-        );
+        assert!(t["engine"]["name"].as_str().unwrap().starts_with("vint-"), "engine recorded: {t:#}");
         assert!(!t["outputs"].as_array().unwrap().is_empty());
         assert!(t["params"].is_object());
     }
-    let engine_libs =
-        |stage: &str| tasks.iter().find(|t| t["stage"] == stage).unwrap()["engine"]["libs"].clone();
+    let engine_libs = |stage: &str| tasks.iter().find(|t| t["stage"] == stage).unwrap()["engine"]["libs"].clone();
     assert!(engine_libs("grasp")["mujoco"].is_string());
     assert!(engine_libs("render")["bpy"].is_string());
     // The sample's packaged files are the very artifacts its render and noise tasks made.
@@ -170,24 +131,13 @@ async fn postgres_cluster_matches_embedded_and_lineage_shows_the_full_chain() {
         let file = out["name"].as_str().unwrap().rsplit('/').next().unwrap();
         assert_eq!(out["sha256"], files[file]["sha256"], "{file}");
     }
-    let render_outputs: Vec<&str> = tasks[2]["outputs"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|a| a["sha256"].as_str().unwrap())
-        .collect();
+    let render_outputs: Vec<&str> =
+        tasks[2]["outputs"].as_array().unwrap().iter().map(|a| a["sha256"].as_str().unwrap()).collect();
     assert!(render_outputs.contains(&files["rgb.png"]["sha256"].as_str().unwrap()));
 
     // Lineage by artifact hash leads to the same render task.
     let rgb = files["rgb.png"]["sha256"].as_str().unwrap();
-    let o = vintctl(&[
-        "lineage",
-        rgb,
-        "--artifact",
-        "--coordinator",
-        &c.coordinator,
-        "--json",
-    ]);
+    let o = vintctl(&["lineage", rgb, "--artifact", "--coordinator", &c.coordinator, "--json"]);
     assert!(o.status.success(), "{}", stderr(&o));
     let by_hash: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
     assert_eq!(by_hash["tasks"][0]["stage"], "render");
@@ -211,16 +161,11 @@ async fn a_worker_killed_mid_task_loses_nothing_and_duplicates_nothing() {
     let deadline = std::time::Instant::now() + Duration::from_secs(120);
     let killed_task = loop {
         let running = store.running_tasks().await.unwrap();
-        if let Some(t) = running
-            .iter()
-            .find(|t| t.lease_owner.as_deref() == Some("victim") && t.stage == Stage::Render)
+        if let Some(t) = running.iter().find(|t| t.lease_owner.as_deref() == Some("victim") && t.stage == Stage::Render)
         {
             break t.id.clone();
         }
-        assert!(
-            std::time::Instant::now() < deadline,
-            "the victim never ran a render task"
-        );
+        assert!(std::time::Instant::now() < deadline, "the victim never ran a render task");
         tokio::time::sleep(Duration::from_millis(10)).await;
     };
     victim.sigkill();
@@ -231,24 +176,14 @@ async fn a_worker_killed_mid_task_loses_nothing_and_duplicates_nothing() {
     assert!(attempts.len() >= 2, "{attempts:?}");
     assert_eq!(attempts[0].worker_id, "victim");
     assert_eq!(attempts[0].outcome.as_deref(), Some("lease_expired"));
-    assert_eq!(
-        attempts.last().unwrap().outcome.as_deref(),
-        Some("succeeded")
-    );
+    assert_eq!(attempts.last().unwrap().outcome.as_deref(), Some("succeeded"));
 
     let out = c.export(&job);
     assert_same_as_embedded(&out);
     // Content addressing: every stored object is the content of some recorded artifact, once.
     let (_rows, distinct) = store.artifact_stats(&job).await.unwrap();
-    let objects = vint_artifacts::ArtifactStore::open(&c.store_url)
-        .unwrap()
-        .count_objects()
-        .await
-        .unwrap();
-    assert_eq!(
-        objects as u64, distinct,
-        "no orphaned or duplicated objects"
-    );
+    let objects = vint_artifacts::ArtifactStore::open(&c.store_url).unwrap().count_objects().await.unwrap();
+    assert_eq!(objects as u64, distinct, "no orphaned or duplicated objects");
 }
 
 #[tokio::test(flavor = "multi_thread")]
@@ -281,22 +216,14 @@ async fn a_worker_whose_lease_expired_cannot_complete_its_task() {
     let c = Cluster::new("fence").await;
     let _coordinator = c.coordinator_proc("coordinator");
     let job = c.submit();
-    let mut client = WorkServiceClient::connect(c.coordinator.clone())
-        .await
-        .unwrap();
+    let mut client = WorkServiceClient::connect(c.coordinator.clone()).await.unwrap();
     let lease = |worker: &str| pb::LeaseTasksRequest {
         worker_id: worker.into(),
         stages: vec!["grasp".into()],
         capacity: 1,
         lease_ms: 1_000,
     };
-    let stale = client
-        .lease_tasks(lease("stale"))
-        .await
-        .unwrap()
-        .into_inner()
-        .tasks
-        .remove(0);
+    let stale = client.lease_tasks(lease("stale")).await.unwrap().into_inner().tasks.remove(0);
     tokio::time::sleep(Duration::from_millis(1_300)).await;
     let complete = |worker: &str, t: &pb::LeasedTask| pb::CompleteTaskRequest {
         worker_id: worker.into(),
@@ -307,10 +234,7 @@ async fn a_worker_whose_lease_expired_cannot_complete_its_task() {
         timings: None,
         result_json: r#"{"accepted": []}"#.into(),
     };
-    let refused = client
-        .complete_task(complete("stale", &stale))
-        .await
-        .unwrap_err();
+    let refused = client.complete_task(complete("stale", &stale)).await.unwrap_err();
     assert_eq!(refused.code(), tonic::Code::FailedPrecondition, "{refused}");
     let fail = pb::FailTaskRequest {
         worker_id: "stale".into(),
@@ -319,10 +243,7 @@ async fn a_worker_whose_lease_expired_cannot_complete_its_task() {
         retryable: false,
         message: "late".into(),
     };
-    assert_eq!(
-        client.fail_task(fail).await.unwrap_err().code(),
-        tonic::Code::FailedPrecondition
-    );
+    assert_eq!(client.fail_task(fail).await.unwrap_err().code(), tonic::Code::FailedPrecondition);
     // The reaper returns it to the queue; a live worker takes it over and can complete it.
     let store = c.store().await;
     wait_for(Duration::from_secs(10), "the task to be requeued", || {
@@ -334,26 +255,12 @@ async fn a_worker_whose_lease_expired_cannot_complete_its_task() {
     tokio::time::sleep(Duration::from_millis(300)).await; // retry backoff (--backoff-ms 200)
     let mut fresh = Vec::new();
     while fresh.is_empty() {
-        fresh = client
-            .lease_tasks(lease("fresh"))
-            .await
-            .unwrap()
-            .into_inner()
-            .tasks;
+        fresh = client.lease_tasks(lease("fresh")).await.unwrap().into_inner().tasks;
     }
-    let fresh = fresh
-        .into_iter()
-        .find(|t| t.task_id == stale.task_id)
-        .expect("the same task, leased again");
+    let fresh = fresh.into_iter().find(|t| t.task_id == stale.task_id).expect("the same task, leased again");
     assert_eq!(fresh.attempt, stale.attempt + 1);
-    client
-        .complete_task(complete("fresh", &fresh))
-        .await
-        .unwrap();
-    assert_eq!(
-        store.task(&fresh.task_id).await.unwrap().unwrap().state,
-        vint_core::TaskState::Succeeded
-    );
+    client.complete_task(complete("fresh", &fresh)).await.unwrap();
+    assert_eq!(store.task(&fresh.task_id).await.unwrap().unwrap().state, vint_core::TaskState::Succeeded);
     let _ = job;
 }
 
@@ -371,18 +278,12 @@ async fn a_crashed_engine_fails_its_task_as_retryable_and_is_restarted() {
             let engines = children_of(worker.pid());
             if !engines.is_empty() {
                 for pid in engines {
-                    let _ = nix::sys::signal::kill(
-                        nix::unistd::Pid::from_raw(pid),
-                        nix::sys::signal::Signal::SIGKILL,
-                    );
+                    let _ = nix::sys::signal::kill(nix::unistd::Pid::from_raw(pid), nix::sys::signal::Signal::SIGKILL);
                 }
                 break t.id.clone();
             }
         }
-        assert!(
-            std::time::Instant::now() < deadline,
-            "the worker never ran a render task"
-        );
+        assert!(std::time::Instant::now() < deadline, "the worker never ran a render task");
         tokio::time::sleep(Duration::from_millis(10)).await;
     };
     c.watch(&job);
@@ -390,30 +291,16 @@ async fn a_crashed_engine_fails_its_task_as_retryable_and_is_restarted() {
     let first = &attempts[0];
     // The kill may land just after the render finished; then a later task took the hit instead.
     if first.outcome.as_deref() == Some("retry") {
-        assert!(
-            first.error.as_deref().unwrap_or("").contains("crashed"),
-            "{first:?}"
-        );
-        assert_eq!(
-            attempts.last().unwrap().outcome.as_deref(),
-            Some("succeeded")
-        );
+        assert!(first.error.as_deref().unwrap_or("").contains("crashed"), "{first:?}");
+        assert_eq!(attempts.last().unwrap().outcome.as_deref(), Some("succeeded"));
     }
     let all = store.tasks_of_job(&job).await.unwrap();
     let mut retried = 0;
     for t in &all {
-        retried += store
-            .attempts(&t.id)
-            .await
-            .unwrap()
-            .iter()
-            .filter(|a| a.outcome.as_deref() == Some("retry"))
-            .count();
+        retried +=
+            store.attempts(&t.id).await.unwrap().iter().filter(|a| a.outcome.as_deref() == Some("retry")).count();
     }
-    assert!(
-        retried >= 1,
-        "the crash must have failed some attempt as retryable"
-    );
+    assert!(retried >= 1, "the crash must have failed some attempt as retryable");
     assert_same_as_embedded(&c.export(&job));
 }
 

@@ -17,23 +17,14 @@ use sha2::{Digest, Sha256};
 
 #[derive(Debug, thiserror::Error)]
 pub enum ArtifactError {
-    #[error(
-        "unsupported artifact store URL {0:?}: expected file:///absolute/dir or s3://bucket[/prefix]"
-    )]
+    #[error("unsupported artifact store URL {0:?}: expected file:///absolute/dir or s3://bucket[/prefix]")]
     UnsupportedUrl(String),
     #[error("object store: {0}")]
     Store(#[from] object_store::Error),
     #[error("I/O on {path}: {source}")]
-    Io {
-        path: String,
-        source: std::io::Error,
-    },
+    Io { path: String, source: std::io::Error },
     #[error("artifact {key} is corrupt: expected sha256 {expected}, read {actual}")]
-    HashMismatch {
-        key: String,
-        expected: String,
-        actual: String,
-    },
+    HashMismatch { key: String, expected: String, actual: String },
     #[error("{0:?} is not a sha256 hex digest")]
     BadDigest(String),
 }
@@ -58,11 +49,7 @@ pub struct ArtifactStore {
 
 /// The object key of content with this digest.
 pub fn key_for(sha256: &str) -> Result<String> {
-    if sha256.len() != 64
-        || !sha256
-            .bytes()
-            .all(|b| b.is_ascii_hexdigit() && !b.is_ascii_uppercase())
-    {
+    if sha256.len() != 64 || !sha256.bytes().all(|b| b.is_ascii_hexdigit() && !b.is_ascii_uppercase()) {
         return Err(ArtifactError::BadDigest(sha256.to_string()));
     }
     Ok(format!("sha256/{}/{}", &sha256[..2], sha256))
@@ -81,31 +68,18 @@ impl ArtifactStore {
             if !dir.starts_with('/') {
                 return Err(ArtifactError::UnsupportedUrl(url.to_string()));
             }
-            std::fs::create_dir_all(dir).map_err(|source| ArtifactError::Io {
-                path: dir.to_string(),
-                source,
-            })?;
+            std::fs::create_dir_all(dir).map_err(|source| ArtifactError::Io { path: dir.to_string(), source })?;
             let fs = LocalFileSystem::new_with_prefix(dir)?;
-            return Ok(ArtifactStore {
-                inner: Arc::new(fs),
-                prefix: String::new(),
-                url: url.to_string(),
-            });
+            return Ok(ArtifactStore { inner: Arc::new(fs), prefix: String::new(), url: url.to_string() });
         }
         if let Some(rest) = url.strip_prefix("s3://") {
             let (bucket, prefix) = rest.split_once('/').unwrap_or((rest, ""));
             if bucket.is_empty() {
                 return Err(ArtifactError::UnsupportedUrl(url.to_string()));
             }
-            let s3 = AmazonS3Builder::from_env()
-                .with_bucket_name(bucket)
-                .build()?;
+            let s3 = AmazonS3Builder::from_env().with_bucket_name(bucket).build()?;
             let prefix = prefix.trim_matches('/').to_string();
-            return Ok(ArtifactStore {
-                inner: Arc::new(s3),
-                prefix,
-                url: url.to_string(),
-            });
+            return Ok(ArtifactStore { inner: Arc::new(s3), prefix, url: url.to_string() });
         }
         Err(ArtifactError::UnsupportedUrl(url.to_string()))
     }
@@ -115,11 +89,7 @@ impl ArtifactStore {
     }
 
     fn location(&self, key: &str) -> ObjectPath {
-        if self.prefix.is_empty() {
-            ObjectPath::from(key)
-        } else {
-            ObjectPath::from(format!("{}/{key}", self.prefix))
-        }
+        if self.prefix.is_empty() { ObjectPath::from(key) } else { ObjectPath::from(format!("{}/{key}", self.prefix)) }
     }
 
     /// Stores `bytes` under their content key. Storing the same content again changes nothing.
@@ -127,15 +97,8 @@ impl ArtifactStore {
         let sha256 = sha256_hex(&bytes);
         let key = key_for(&sha256)?;
         let size = bytes.len() as u64;
-        let opts = PutOptions {
-            mode: PutMode::Create,
-            ..Default::default()
-        };
-        match self
-            .inner
-            .put_opts(&self.location(&key), PutPayload::from(bytes), opts)
-            .await
-        {
+        let opts = PutOptions { mode: PutMode::Create, ..Default::default() };
+        match self.inner.put_opts(&self.location(&key), PutPayload::from(bytes), opts).await {
             Ok(_) | Err(object_store::Error::AlreadyExists { .. }) => {}
             Err(e) => return Err(e.into()),
         }
@@ -146,10 +109,7 @@ impl ArtifactStore {
     pub async fn put_file(&self, path: &Path) -> Result<StoredObject> {
         let bytes = tokio::fs::read(path)
             .await
-            .map_err(|source| ArtifactError::Io {
-                path: path.display().to_string(),
-                source,
-            })?;
+            .map_err(|source| ArtifactError::Io { path: path.display().to_string(), source })?;
         self.put_bytes(Bytes::from(bytes)).await
     }
 
@@ -159,11 +119,7 @@ impl ArtifactStore {
         let bytes = self.inner.get(&self.location(&key)).await?.bytes().await?;
         let actual = sha256_hex(&bytes);
         if actual != sha256 {
-            return Err(ArtifactError::HashMismatch {
-                key,
-                expected: sha256.to_string(),
-                actual,
-            });
+            return Err(ArtifactError::HashMismatch { key, expected: sha256.to_string(), actual });
         }
         Ok(bytes)
     }
@@ -171,10 +127,7 @@ impl ArtifactStore {
     /// Reads an artifact into `dest` (written whole through a temporary file, then renamed).
     pub async fn get_to_file(&self, sha256: &str, dest: &Path) -> Result<()> {
         let bytes = self.get(sha256).await?;
-        let io = |source| ArtifactError::Io {
-            path: dest.display().to_string(),
-            source,
-        };
+        let io = |source| ArtifactError::Io { path: dest.display().to_string(), source };
         if let Some(parent) = dest.parent() {
             tokio::fs::create_dir_all(parent).await.map_err(io)?;
         }
@@ -187,11 +140,7 @@ impl ArtifactStore {
     /// Number of stored objects (for tests and stats; lists the whole store).
     pub async fn count_objects(&self) -> Result<usize> {
         use futures::TryStreamExt;
-        let prefix = if self.prefix.is_empty() {
-            None
-        } else {
-            Some(ObjectPath::from(self.prefix.as_str()))
-        };
+        let prefix = if self.prefix.is_empty() { None } else { Some(ObjectPath::from(self.prefix.as_str())) };
         let objects: Vec<_> = self.inner.list(prefix.as_ref()).try_collect().await?;
         Ok(objects.len())
     }
@@ -203,10 +152,7 @@ mod tests {
 
     fn local() -> (ArtifactStore, tempfile::TempDir) {
         let dir = tempfile::tempdir().unwrap();
-        (
-            ArtifactStore::open(&format!("file://{}", dir.path().display())).unwrap(),
-            dir,
-        )
+        (ArtifactStore::open(&format!("file://{}", dir.path().display())).unwrap(), dir)
     }
 
     #[tokio::test]
@@ -216,10 +162,7 @@ mod tests {
         let b = store.put_bytes(Bytes::from_static(b"depth")).await.unwrap();
         assert_eq!(a, b);
         assert_eq!(store.count_objects().await.unwrap(), 1);
-        assert_eq!(
-            store.get(&a.sha256).await.unwrap(),
-            Bytes::from_static(b"depth")
-        );
+        assert_eq!(store.get(&a.sha256).await.unwrap(), Bytes::from_static(b"depth"));
     }
 
     #[tokio::test]
@@ -227,20 +170,14 @@ mod tests {
         let (store, dir) = local();
         let a = store.put_bytes(Bytes::from_static(b"mask")).await.unwrap();
         std::fs::write(dir.path().join(&a.key), b"MASK").unwrap();
-        assert!(matches!(
-            store.get(&a.sha256).await,
-            Err(ArtifactError::HashMismatch { .. })
-        ));
+        assert!(matches!(store.get(&a.sha256).await, Err(ArtifactError::HashMismatch { .. })));
     }
 
     #[test]
     fn keys_cannot_be_chosen_or_escape_the_store() {
         assert!(key_for("../../etc/passwd").is_err());
         assert!(key_for(&"A".repeat(64)).is_err());
-        assert_eq!(
-            key_for(&"ab".repeat(32)).unwrap(),
-            format!("sha256/ab/{}", "ab".repeat(32))
-        );
+        assert_eq!(key_for(&"ab".repeat(32)).unwrap(), format!("sha256/ab/{}", "ab".repeat(32)));
     }
 
     #[test]

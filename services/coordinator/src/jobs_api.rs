@@ -40,29 +40,14 @@ impl JobApi {
     }
 
     /// The job that packaged `sample_id`: the given one, or the most recent that has it.
-    async fn job_of_sample(
-        &self,
-        job_id: &str,
-        sample_id: &str,
-    ) -> Result<(String, String), Status> {
+    async fn job_of_sample(&self, job_id: &str, sample_id: &str) -> Result<(String, String), Status> {
         let candidates = if job_id.is_empty() {
-            self.store
-                .list_jobs(1_000)
-                .await
-                .map_err(status)?
-                .into_iter()
-                .map(|j| j.id)
-                .collect()
+            self.store.list_jobs(1_000).await.map_err(status)?.into_iter().map(|j| j.id).collect()
         } else {
             vec![job_id.to_string()]
         };
         for job in candidates {
-            if let Some(task) = self
-                .store
-                .sample_package_task(&job, sample_id)
-                .await
-                .map_err(status)?
-            {
+            if let Some(task) = self.store.sample_package_task(&job, sample_id).await.map_err(status)? {
                 return Ok((job, task));
             }
         }
@@ -74,13 +59,11 @@ impl JobApi {
 
     /// A sample's chain: its files in the package task, then its own noise, render and grasp tasks.
     async fn sample_lineage(&self, job_id: &str, sample_id: &str) -> Result<pb::Lineage, Status> {
-        let id: SampleId = sample_id
-            .parse()
-            .map_err(|e: vint_core::sample::BadSampleId| Status::invalid_argument(e.to_string()))?;
+        let id: SampleId =
+            sample_id.parse().map_err(|e: vint_core::sample::BadSampleId| Status::invalid_argument(e.to_string()))?;
         let (job_id, package_task) = self.job_of_sample(job_id, sample_id).await?;
         let job = self.job_record(&job_id).await?;
-        let spec =
-            DatasetSpec::parse(&job.spec_toml).map_err(|e| Status::internal(e.to_string()))?;
+        let spec = DatasetSpec::parse(&job.spec_toml).map_err(|e| Status::internal(e.to_string()))?;
         let own: BTreeSet<String> = [
             plan::noise_key(&id.object, &id.hand, id.grasp_index),
             plan::render_key(&id.object, &id.hand, id.grasp_index),
@@ -102,20 +85,13 @@ impl JobApi {
             if is_package {
                 entry.outputs.retain(|a| a.name.starts_with(&prefix));
                 entry.inputs.retain(|a| {
-                    own.contains(&a.task_key)
-                        && (!a.name.starts_with('v') || a.name.starts_with(&sample_view))
+                    own.contains(&a.task_key) && (!a.name.starts_with('v') || a.name.starts_with(&sample_view))
                 });
-                entry
-                    .depends_on
-                    .retain(|d| own.iter().any(|k| d.ends_with(&format!("/{k}"))));
+                entry.depends_on.retain(|d| own.iter().any(|k| d.ends_with(&format!("/{k}"))));
             }
             tasks.push(self.lineage_task(entry).await?);
         }
-        Ok(pb::Lineage {
-            job_id,
-            subject: sample_id.to_string(),
-            tasks,
-        })
+        Ok(pb::Lineage { job_id, subject: sample_id.to_string(), tasks })
     }
 
     async fn lineage_task(&self, e: LineageEntry) -> Result<pb::LineageTask, Status> {
@@ -137,10 +113,7 @@ impl JobApi {
 
 /// Default idempotency key: the spec's content, so resubmitting the same file is a no-op.
 fn default_idempotency_key(spec_toml: &str) -> String {
-    format!(
-        "spec-sha256:{}",
-        hex::encode(Sha256::digest(spec_toml.as_bytes()))
-    )
+    format!("spec-sha256:{}", hex::encode(Sha256::digest(spec_toml.as_bytes())))
 }
 
 #[tonic::async_trait]
@@ -150,13 +123,10 @@ impl JobService for JobApi {
         request: Request<pb::SubmitJobRequest>,
     ) -> Result<Response<pb::SubmitJobResponse>, Status> {
         let req = request.into_inner();
-        let spec = DatasetSpec::parse(&req.spec_toml)
-            .map_err(|e| Status::invalid_argument(format!("invalid spec:\n{e}")))?;
-        let key = if req.idempotency_key.is_empty() {
-            default_idempotency_key(&req.spec_toml)
-        } else {
-            req.idempotency_key
-        };
+        let spec =
+            DatasetSpec::parse(&req.spec_toml).map_err(|e| Status::invalid_argument(format!("invalid spec:\n{e}")))?;
+        let key =
+            if req.idempotency_key.is_empty() { default_idempotency_key(&req.spec_toml) } else { req.idempotency_key };
         let uuid = uuid::Uuid::new_v4().simple().to_string();
         let new_job = NewJob {
             id: format!("j{}", &uuid[..12]),
@@ -166,30 +136,17 @@ impl JobService for JobApi {
             idempotency_key: key,
         };
         let tasks = plan::initial_tasks(&spec);
-        let (job, created) = self
-            .store
-            .submit_job(&new_job, &tasks, now_ms())
-            .await
-            .map_err(status)?;
+        let (job, created) = self.store.submit_job(&new_job, &tasks, now_ms()).await.map_err(status)?;
         tracing::info!(job = %job.id, created, tasks = tasks.len(), "job submitted");
-        Ok(Response::new(pb::SubmitJobResponse {
-            job: Some(self.job_message(&job).await?),
-            created,
-        }))
+        Ok(Response::new(pb::SubmitJobResponse { job: Some(self.job_message(&job).await?), created }))
     }
 
-    async fn get_job(
-        &self,
-        request: Request<pb::GetJobRequest>,
-    ) -> Result<Response<pb::Job>, Status> {
+    async fn get_job(&self, request: Request<pb::GetJobRequest>) -> Result<Response<pb::Job>, Status> {
         let job = self.job_record(&request.into_inner().job_id).await?;
         Ok(Response::new(self.job_message(&job).await?))
     }
 
-    async fn list_jobs(
-        &self,
-        request: Request<pb::ListJobsRequest>,
-    ) -> Result<Response<pb::ListJobsResponse>, Status> {
+    async fn list_jobs(&self, request: Request<pb::ListJobsRequest>) -> Result<Response<pb::ListJobsResponse>, Status> {
         let limit = match request.into_inner().limit {
             0 => 50,
             n => n.min(1_000),
@@ -203,10 +160,7 @@ impl JobService for JobApi {
 
     type WatchJobStream = ReceiverStream<Result<pb::JobProgress, Status>>;
 
-    async fn watch_job(
-        &self,
-        request: Request<pb::WatchJobRequest>,
-    ) -> Result<Response<Self::WatchJobStream>, Status> {
+    async fn watch_job(&self, request: Request<pb::WatchJobRequest>) -> Result<Response<Self::WatchJobStream>, Status> {
         let job_id = request.into_inner().job_id;
         self.job_record(&job_id).await?;
         let (tx, rx) = tokio::sync::mpsc::channel(16);
@@ -243,30 +197,18 @@ impl JobService for JobApi {
         Ok(Response::new(ReceiverStream::new(rx)))
     }
 
-    async fn cancel_job(
-        &self,
-        request: Request<pb::CancelJobRequest>,
-    ) -> Result<Response<pb::Job>, Status> {
+    async fn cancel_job(&self, request: Request<pb::CancelJobRequest>) -> Result<Response<pb::Job>, Status> {
         let job_id = request.into_inner().job_id;
         self.job_record(&job_id).await?;
-        let job = self
-            .store
-            .cancel_job(&job_id, now_ms())
-            .await
-            .map_err(status)?;
+        let job = self.store.cancel_job(&job_id, now_ms()).await.map_err(status)?;
         tracing::info!(job = %job_id, state = %job.state, "job cancel requested");
         Ok(Response::new(self.job_message(&job).await?))
     }
 
-    async fn get_lineage(
-        &self,
-        request: Request<pb::GetLineageRequest>,
-    ) -> Result<Response<pb::Lineage>, Status> {
+    async fn get_lineage(&self, request: Request<pb::GetLineageRequest>) -> Result<Response<pb::Lineage>, Status> {
         let req = request.into_inner();
         match req.subject {
-            Some(Subject::SampleId(sample)) => Ok(Response::new(
-                self.sample_lineage(&req.job_id, &sample).await?,
-            )),
+            Some(Subject::SampleId(sample)) => Ok(Response::new(self.sample_lineage(&req.job_id, &sample).await?)),
             Some(Subject::ArtifactSha256(sha)) => {
                 let job = (!req.job_id.is_empty()).then_some(req.job_id.as_str());
                 let producers = self.store.producers_of(&sha, job).await.map_err(status)?;
@@ -277,23 +219,14 @@ impl JobService for JobApi {
                     .or(producers.first())
                     .ok_or_else(|| Status::not_found(format!("no artifact with sha256 {sha}")))?;
                 let chain = self.store.lineage(&first.task_id).await.map_err(status)?;
-                let job_id = chain
-                    .first()
-                    .map(|e| e.task.job_id.clone())
-                    .unwrap_or_default();
+                let job_id = chain.first().map(|e| e.task.job_id.clone()).unwrap_or_default();
                 let mut tasks = Vec::new();
                 for e in chain {
                     tasks.push(self.lineage_task(e).await?);
                 }
-                Ok(Response::new(pb::Lineage {
-                    job_id,
-                    subject: sha,
-                    tasks,
-                }))
+                Ok(Response::new(pb::Lineage { job_id, subject: sha, tasks }))
             }
-            None => Err(Status::invalid_argument(
-                "lineage needs a sample_id or an artifact_sha256",
-            )),
+            None => Err(Status::invalid_argument("lineage needs a sample_id or an artifact_sha256")),
         }
     }
 
@@ -309,10 +242,7 @@ impl JobService for JobApi {
             .await
             .map_err(status)?
             .into_iter()
-            .map(|(sample_id, files)| pb::Sample {
-                sample_id,
-                files: files.iter().map(convert::artifact).collect(),
-            })
+            .map(|(sample_id, files)| pb::Sample { sample_id, files: files.iter().map(convert::artifact).collect() })
             .collect();
         Ok(Response::new(pb::ListSamplesResponse { samples }))
     }

@@ -45,10 +45,7 @@ impl Default for CoordinatorConfig {
 
 /// Milliseconds since the Unix epoch: the only clock the coordinator reads.
 pub fn now_ms() -> i64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map(|d| d.as_millis() as i64)
-        .unwrap_or(0)
+    SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_millis() as i64).unwrap_or(0)
 }
 
 /// Largest gRPC message accepted (a spec is at most 1 MiB; completions list a few hundred files).
@@ -62,10 +59,9 @@ pub async fn serve(
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> Result<(), tonic::transport::Error> {
     let reaper = tokio::spawn(reap_forever(store.clone(), config.reap_interval));
-    let jobs = JobServiceServer::new(JobApi::new(store.clone(), config.clone()))
-        .max_decoding_message_size(MAX_MESSAGE_BYTES);
-    let work = WorkServiceServer::new(WorkApi::new(store, config))
-        .max_decoding_message_size(MAX_MESSAGE_BYTES);
+    let jobs =
+        JobServiceServer::new(JobApi::new(store.clone(), config.clone())).max_decoding_message_size(MAX_MESSAGE_BYTES);
+    let work = WorkServiceServer::new(WorkApi::new(store, config)).max_decoding_message_size(MAX_MESSAGE_BYTES);
     // Small request/response pairs: without TCP_NODELAY each reply waits ~40 ms for a delayed ACK
     // (tonic applies its nodelay default only to listeners it binds itself).
     let incoming = TcpIncoming::from(listener).with_nodelay(Some(true));

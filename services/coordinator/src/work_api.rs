@@ -27,11 +27,7 @@ impl WorkApi {
     }
 
     fn lease_ms(&self, asked: u32) -> i64 {
-        if asked == 0 {
-            self.config.default_lease_ms
-        } else {
-            i64::from(asked).clamp(1_000, 600_000)
-        }
+        if asked == 0 { self.config.default_lease_ms } else { i64::from(asked).clamp(1_000, 600_000) }
     }
 }
 
@@ -44,20 +40,13 @@ fn validate_output(a: &pb::ArtifactRef) -> Result<NewArtifact, Status> {
     if a.name.is_empty()
         || a.name.len() > MAX_NAME_LEN
         || a.name.starts_with('/')
-        || a.name
-            .split('/')
-            .any(|part| part.is_empty() || part == "." || part == "..")
+        || a.name.split('/').any(|part| part.is_empty() || part == "." || part == "..")
     {
-        return Err(bad(
-            "name must be a relative path without empty, '.' or '..' parts",
-        ));
+        return Err(bad("name must be a relative path without empty, '.' or '..' parts"));
     }
     let key = vint_artifacts::key_for(&a.sha256).map_err(|e| bad(&e.to_string()))?;
     if a.key != key {
-        return Err(bad(&format!(
-            "key must be the content key {key}, got {:?}",
-            a.key
-        )));
+        return Err(bad(&format!("key must be the content key {key}, got {:?}", a.key)));
     }
     Ok(NewArtifact {
         name: a.name.clone(),
@@ -78,21 +67,12 @@ impl WorkService for WorkApi {
         let stages = req
             .stages
             .iter()
-            .map(|s| {
-                s.parse::<Stage>()
-                    .map_err(|e| Status::invalid_argument(e.to_string()))
-            })
+            .map(|s| s.parse::<Stage>().map_err(|e| Status::invalid_argument(e.to_string())))
             .collect::<Result<Vec<_>, _>>()?;
         let capacity = req.capacity.clamp(1, 256);
         let leased = self
             .store
-            .lease(
-                &req.worker_id,
-                &stages,
-                capacity,
-                self.lease_ms(req.lease_ms),
-                now_ms(),
-            )
+            .lease(&req.worker_id, &stages, capacity, self.lease_ms(req.lease_ms), now_ms())
             .await
             .map_err(status)?;
         let tasks = leased
@@ -119,23 +99,12 @@ impl WorkService for WorkApi {
         request: Request<pb::HeartbeatRequest>,
     ) -> Result<Response<pb::HeartbeatResponse>, Status> {
         let req = request.into_inner();
-        let held: Vec<(String, u32)> = req
-            .held
-            .iter()
-            .map(|h| (h.task_id.clone(), h.attempt))
-            .collect();
+        let held: Vec<(String, u32)> = req.held.iter().map(|h| (h.task_id.clone(), h.attempt)).collect();
         let lease_ms = self.lease_ms(req.lease_ms);
         let now = now_ms();
-        let lost = self
-            .store
-            .heartbeat(&req.worker_id, &held, lease_ms, now)
-            .await
-            .map_err(status)?;
+        let lost = self.store.heartbeat(&req.worker_id, &held, lease_ms, now).await.map_err(status)?;
         Ok(Response::new(pb::HeartbeatResponse {
-            lost: lost
-                .into_iter()
-                .map(|(task_id, attempt)| pb::TaskAttempt { task_id, attempt })
-                .collect(),
+            lost: lost.into_iter().map(|(task_id, attempt)| pb::TaskAttempt { task_id, attempt }).collect(),
             lease_deadline_ms: now + lease_ms,
         }))
     }
@@ -146,15 +115,9 @@ impl WorkService for WorkApi {
     ) -> Result<Response<pb::CompleteTaskResponse>, Status> {
         let req = request.into_inner();
         if req.outputs.len() > MAX_OUTPUTS {
-            return Err(Status::invalid_argument(format!(
-                "at most {MAX_OUTPUTS} outputs per task"
-            )));
+            return Err(Status::invalid_argument(format!("at most {MAX_OUTPUTS} outputs per task")));
         }
-        let outputs = req
-            .outputs
-            .iter()
-            .map(validate_output)
-            .collect::<Result<Vec<_>, _>>()?;
+        let outputs = req.outputs.iter().map(validate_output).collect::<Result<Vec<_>, _>>()?;
         let task = self
             .store
             .task(&req.task_id)
@@ -190,21 +153,10 @@ impl WorkService for WorkApi {
         .await
     }
 
-    async fn fail_task(
-        &self,
-        request: Request<pb::FailTaskRequest>,
-    ) -> Result<Response<pb::FailTaskResponse>, Status> {
+    async fn fail_task(&self, request: Request<pb::FailTaskRequest>) -> Result<Response<pb::FailTaskResponse>, Status> {
         let req = request.into_inner();
-        let fence = Fence {
-            task_id: req.task_id.clone(),
-            worker_id: req.worker_id.clone(),
-            attempt: req.attempt,
-        };
-        let will_retry = self
-            .store
-            .fail(&fence, req.retryable, &req.message, now_ms())
-            .await
-            .map_err(status)?;
+        let fence = Fence { task_id: req.task_id.clone(), worker_id: req.worker_id.clone(), attempt: req.attempt };
+        let will_retry = self.store.fail(&fence, req.retryable, &req.message, now_ms()).await.map_err(status)?;
         tracing::warn!(task = %req.task_id, attempt = req.attempt, retryable = req.retryable, will_retry, message = %req.message, "task failed");
         Ok(Response::new(pb::FailTaskResponse { will_retry }))
     }

@@ -15,14 +15,8 @@ const OBJECTS_TOML: &str = include_str!("../../../catalog/objects.toml");
 const HANDS_TOML: &str = include_str!("../../../catalog/hands.toml");
 /// Taxel layouts of the built-in hands, by the path `catalog/hands.toml` gives them.
 const TAXEL_LAYOUTS: &[(&str, &str)] = &[
-    (
-        "hands/trx3/taxels.csv",
-        include_str!("../../../catalog/hands/trx3/taxels.csv"),
-    ),
-    (
-        "hands/allegro/taxels.csv",
-        include_str!("../../../catalog/hands/allegro/taxels.csv"),
-    ),
+    ("hands/trx3/taxels.csv", include_str!("../../../catalog/hands/trx3/taxels.csv")),
+    ("hands/allegro/taxels.csv", include_str!("../../../catalog/hands/allegro/taxels.csv")),
 ];
 
 /// A graspable object, exactly as `catalog/objects.toml` describes it.
@@ -77,11 +71,10 @@ struct HandsFile {
 }
 
 /// The compiled-in catalog; `catalog_parses` (below) proves these files parse.
-static OBJECTS: LazyLock<Vec<ObjectEntry>> =
-    LazyLock::new(|| match toml::from_str::<ObjectsFile>(OBJECTS_TOML) {
-        Ok(f) => f.object,
-        Err(e) => panic!("catalog/objects.toml is invalid: {e}"),
-    });
+static OBJECTS: LazyLock<Vec<ObjectEntry>> = LazyLock::new(|| match toml::from_str::<ObjectsFile>(OBJECTS_TOML) {
+    Ok(f) => f.object,
+    Err(e) => panic!("catalog/objects.toml is invalid: {e}"),
+});
 
 static HANDS: LazyLock<Vec<HandModel>> = LazyLock::new(|| {
     let file: HandsFile = match toml::from_str(HANDS_TOML) {
@@ -91,15 +84,8 @@ static HANDS: LazyLock<Vec<HandModel>> = LazyLock::new(|| {
     file.hand
         .into_iter()
         .map(|entry| {
-            let csv = TAXEL_LAYOUTS
-                .iter()
-                .find(|(p, _)| *p == entry.taxels)
-                .map(|(_, c)| *c)
-                .unwrap_or("");
-            HandModel {
-                taxels_per_region: count_regions(csv),
-                entry,
-            }
+            let csv = TAXEL_LAYOUTS.iter().find(|(p, _)| *p == entry.taxels).map(|(_, c)| *c).unwrap_or("");
+            HandModel { taxels_per_region: count_regions(csv), entry }
         })
         .collect()
 });
@@ -132,16 +118,7 @@ pub fn hand(name: &str) -> Option<&'static HandModel> {
 }
 
 /// HDRI environments bundled with Blender (`studiolights/world`).
-pub const ENVIRONMENTS: &[&str] = &[
-    "city",
-    "courtyard",
-    "forest",
-    "interior",
-    "night",
-    "studio",
-    "sunrise",
-    "sunset",
-];
+pub const ENVIRONMENTS: &[&str] = &["city", "courtyard", "forest", "interior", "night", "studio", "sunrise", "sunset"];
 
 /// Modalities a spec can request.
 pub const MODALITIES: &[&str] = &["rgb", "depth", "depth_noisy", "mask", "pose"];
@@ -152,10 +129,7 @@ mod tests {
 
     #[test]
     fn catalog_parses() {
-        assert!(
-            objects().len() >= 12,
-            "the issue asks for at least 12 objects"
-        );
+        assert!(objects().len() >= 12, "the issue asks for at least 12 objects");
         assert!(!hands().is_empty());
     }
 
@@ -163,25 +137,10 @@ mod tests {
     fn object_names_are_unique_identifiers() {
         let mut seen = std::collections::BTreeSet::new();
         for o in objects() {
-            assert!(
-                o.name
-                    .bytes()
-                    .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_'),
-                "{}",
-                o.name
-            );
+            assert!(o.name.bytes().all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_'), "{}", o.name);
             assert!(seen.insert(&o.name), "duplicate {}", o.name);
-            assert!(
-                o.mass_kg > 0.0 && o.mass_kg < 10.0,
-                "{}: mass {}",
-                o.name,
-                o.mass_kg
-            );
-            assert!(
-                o.shape.get("type").and_then(|t| t.as_str()).is_some(),
-                "{}: shape without type",
-                o.name
-            );
+            assert!(o.mass_kg > 0.0 && o.mass_kg < 10.0, "{}: mass {}", o.name, o.mass_kg);
+            assert!(o.shape.get("type").and_then(|t| t.as_str()).is_some(), "{}: shape without type", o.name);
         }
     }
 
@@ -196,11 +155,7 @@ mod tests {
             );
             assert!(h.taxel_count() > 0);
             for region in h.taxels_per_region.keys() {
-                assert!(
-                    ["tip", "pulp", "palm"].contains(&region.as_str()),
-                    "{}: region {region}",
-                    h.entry.name
-                );
+                assert!(["tip", "pulp", "palm"].contains(&region.as_str()), "{}: region {region}", h.entry.name);
             }
         }
     }

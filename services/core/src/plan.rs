@@ -52,11 +52,7 @@ impl GraspChunk {
             return None;
         }
         let chunk = chunk.strip_prefix('c')?.parse().ok()?;
-        Some(GraspChunk {
-            object: object.to_string(),
-            hand: hand.to_string(),
-            chunk,
-        })
+        Some(GraspChunk { object: object.to_string(), hand: hand.to_string(), chunk })
     }
 
     /// The trial indices this chunk runs.
@@ -76,11 +72,7 @@ pub fn noise_key(object: &str, hand: &str, grasp_index: u32) -> String {
 
 /// The chunk a grasp index belongs to.
 pub fn chunk_of(spec: &DatasetSpec, object: &str, hand: &str, grasp_index: u32) -> GraspChunk {
-    GraspChunk {
-        object: object.to_string(),
-        hand: hand.to_string(),
-        chunk: grasp_index / spec.grasp.chunk_size,
-    }
+    GraspChunk { object: object.to_string(), hand: hand.to_string(), chunk: grasp_index / spec.grasp.chunk_size }
 }
 
 /// The tasks that exist at submit: every grasp-sim chunk.
@@ -89,17 +81,8 @@ pub fn initial_tasks(spec: &DatasetSpec) -> Vec<NewTask> {
     for object in &spec.objects {
         for hand in &spec.hands {
             for chunk in 0..spec.chunks_per_pair() {
-                let c = GraspChunk {
-                    object: object.clone(),
-                    hand: hand.clone(),
-                    chunk,
-                };
-                tasks.push(NewTask {
-                    key: c.key(),
-                    stage: Stage::Grasp,
-                    params: grasp_params(spec, &c),
-                    deps: vec![],
-                });
+                let c = GraspChunk { object: object.clone(), hand: hand.clone(), chunk };
+                tasks.push(NewTask { key: c.key(), stage: Stage::Grasp, params: grasp_params(spec, &c), deps: vec![] });
             }
         }
     }
@@ -128,6 +111,13 @@ fn grasp_params(spec: &DatasetSpec, c: &GraspChunk) -> Value {
             "lift_height": spec.grasp.lift_height_m,
             "hold_s": spec.grasp.hold_s,
             "max_drop_m": spec.grasp.max_drop_m,
+            "standoff_ratio": spec.grasp.standoff_ratio,
+            "shake": {
+                "enabled": spec.grasp.shake_accel_mps2 > 0.0,
+                "accel_mps2": if spec.grasp.shake_accel_mps2 > 0.0 { spec.grasp.shake_accel_mps2 } else { 5.0 },
+                "directions": spec.grasp.shake_directions,
+                "duration_s": spec.grasp.shake_duration_s,
+            },
         },
     })
 }
@@ -159,12 +149,7 @@ pub fn after_grasp(spec: &DatasetSpec, chunk: &GraspChunk, accepted: &[u32]) -> 
             package_deps.push(noise);
         }
         for v in 0..spec.render.views_per_grasp {
-            let id = SampleId {
-                object: object.into(),
-                hand: hand.into(),
-                grasp_index: g,
-                view_index: v,
-            };
+            let id = SampleId { object: object.into(), hand: hand.into(), grasp_index: g, view_index: v };
             samples.push(json!({"sample_id": id.to_string(), "grasp_index": g, "view_index": v}));
         }
     }
@@ -234,10 +219,8 @@ mod tests {
     use super::*;
 
     fn spec(extra: &str) -> DatasetSpec {
-        DatasetSpec::parse(&format!(
-            "objects = [\"tomato_soup_can\"]\n[dataset]\nname = \"t\"\nseed = 1\n{extra}"
-        ))
-        .unwrap()
+        DatasetSpec::parse(&format!("objects = [\"tomato_soup_can\"]\n[dataset]\nname = \"t\"\nseed = 1\n{extra}"))
+            .unwrap()
     }
 
     #[test]
@@ -245,20 +228,14 @@ mod tests {
         let s = spec("[grasp]\ntrials_per_pair = 10\nchunk_size = 4\n");
         let tasks = initial_tasks(&s);
         assert_eq!(tasks.len(), 3);
-        assert!(
-            tasks
-                .iter()
-                .all(|t| t.stage == Stage::Grasp && t.deps.is_empty())
-        );
+        assert!(tasks.iter().all(|t| t.stage == Stage::Grasp && t.deps.is_empty()));
         let last = GraspChunk::from_key(&tasks[2].key).unwrap();
         assert_eq!(last.trials(&s), 8..10);
     }
 
     #[test]
     fn a_two_million_sample_job_starts_small() {
-        let s = spec(
-            "[grasp]\ntrials_per_pair = 125000\nchunk_size = 64\n[render]\nviews_per_grasp = 16\n",
-        );
+        let s = spec("[grasp]\ntrials_per_pair = 125000\nchunk_size = 64\n[render]\nviews_per_grasp = 16\n");
         assert_eq!(s.max_samples(), 2_000_000);
         assert!(initial_tasks(&s).len() < 2_000);
     }
@@ -266,21 +243,10 @@ mod tests {
     #[test]
     fn accepted_grasps_fan_out_into_render_noise_and_one_package() {
         let s = spec("[render]\nviews_per_grasp = 3\n");
-        let c = GraspChunk {
-            object: "tomato_soup_can".into(),
-            hand: "trx3".into(),
-            chunk: 0,
-        };
+        let c = GraspChunk { object: "tomato_soup_can".into(), hand: "trx3".into(), chunk: 0 };
         let tasks = after_grasp(&s, &c, &[1, 4]);
         let count = |st| tasks.iter().filter(|t| t.stage == st).count();
-        assert_eq!(
-            (
-                count(Stage::Render),
-                count(Stage::Noise),
-                count(Stage::Package)
-            ),
-            (2, 2, 1)
-        );
+        assert_eq!((count(Stage::Render), count(Stage::Noise), count(Stage::Package)), (2, 2, 1));
         let package = tasks.iter().find(|t| t.stage == Stage::Package).unwrap();
         assert_eq!(package.deps.len(), 5);
         assert_eq!(package.params["samples"].as_array().unwrap().len(), 6);
@@ -289,11 +255,7 @@ mod tests {
     #[test]
     fn no_noise_tasks_when_noisy_depth_is_not_requested() {
         let s = spec("[outputs]\nmodalities = [\"rgb\", \"pose\"]\n");
-        let c = GraspChunk {
-            object: "tomato_soup_can".into(),
-            hand: "trx3".into(),
-            chunk: 0,
-        };
+        let c = GraspChunk { object: "tomato_soup_can".into(), hand: "trx3".into(), chunk: 0 };
         let tasks = after_grasp(&s, &c, &[0]);
         assert!(tasks.iter().all(|t| t.stage != Stage::Noise));
         let render = &tasks[0];
@@ -303,21 +265,13 @@ mod tests {
     #[test]
     fn a_chunk_with_no_accepted_grasp_unlocks_nothing() {
         let s = spec("");
-        let c = GraspChunk {
-            object: "tomato_soup_can".into(),
-            hand: "trx3".into(),
-            chunk: 0,
-        };
+        let c = GraspChunk { object: "tomato_soup_can".into(), hand: "trx3".into(), chunk: 0 };
         assert!(after_grasp(&s, &c, &[]).is_empty());
     }
 
     #[test]
     fn grasp_keys_round_trip() {
-        let c = GraspChunk {
-            object: "tuna_fish_can".into(),
-            hand: "trx3".into(),
-            chunk: 12,
-        };
+        let c = GraspChunk { object: "tuna_fish_can".into(), hand: "trx3".into(), chunk: 12 };
         assert_eq!(GraspChunk::from_key(&c.key()), Some(c));
         assert_eq!(GraspChunk::from_key("render/a/b/g000001"), None);
         assert_eq!(GraspChunk::from_key("grasp/a/b/c1/x"), None);

@@ -14,11 +14,7 @@ pub struct SampleId {
 impl fmt::Display for SampleId {
     /// `tomato_soup_can.trx3.g000003.v01` — names cannot contain dots (see spec validation).
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(
-            f,
-            "{}.{}.g{:06}.v{:02}",
-            self.object, self.hand, self.grasp_index, self.view_index
-        )
+        write!(f, "{}.{}.g{:06}.v{:02}", self.object, self.hand, self.grasp_index, self.view_index)
     }
 }
 
@@ -34,23 +30,12 @@ impl FromStr for SampleId {
         let [object, hand, grasp, view] = parts.as_slice() else {
             return Err(bad());
         };
-        let grasp_index = grasp
-            .strip_prefix('g')
-            .and_then(|g| g.parse().ok())
-            .ok_or_else(bad)?;
-        let view_index = view
-            .strip_prefix('v')
-            .and_then(|v| v.parse().ok())
-            .ok_or_else(bad)?;
+        let grasp_index = grasp.strip_prefix('g').and_then(|g| g.parse().ok()).ok_or_else(bad)?;
+        let view_index = view.strip_prefix('v').and_then(|v| v.parse().ok()).ok_or_else(bad)?;
         if object.is_empty() || hand.is_empty() {
             return Err(bad());
         }
-        Ok(SampleId {
-            object: object.to_string(),
-            hand: hand.to_string(),
-            grasp_index,
-            view_index,
-        })
+        Ok(SampleId { object: object.to_string(), hand: hand.to_string(), grasp_index, view_index })
     }
 }
 
@@ -60,26 +45,14 @@ mod tests {
 
     #[test]
     fn sample_ids_round_trip() {
-        let id = SampleId {
-            object: "tomato_soup_can".into(),
-            hand: "trx3".into(),
-            grasp_index: 3,
-            view_index: 1,
-        };
+        let id = SampleId { object: "tomato_soup_can".into(), hand: "trx3".into(), grasp_index: 3, view_index: 1 };
         assert_eq!(id.to_string(), "tomato_soup_can.trx3.g000003.v01");
         assert_eq!(id.to_string().parse::<SampleId>().unwrap(), id);
     }
 
     #[test]
     fn malformed_sample_ids_are_rejected() {
-        for bad in [
-            "",
-            "a.b.c",
-            "a.b.g1.x1",
-            "a.b.gx.v1",
-            ".b.g1.v1",
-            "a.b.g1.v1.extra",
-        ] {
+        for bad in ["", "a.b.c", "a.b.g1.x1", "a.b.gx.v1", ".b.g1.v1", "a.b.g1.v1.extra"] {
             assert!(bad.parse::<SampleId>().is_err(), "{bad}");
         }
     }

@@ -48,51 +48,17 @@ pub fn derive(job_seed: u64, stream: Stream, parts: &[&str]) -> u64 {
 
 /// Seed of one grasp trial.
 pub fn grasp_trial(job_seed: u64, object: &str, hand: &str, grasp_index: u32) -> u64 {
-    derive(
-        job_seed,
-        Stream::GraspTrial,
-        &[object, hand, &grasp_index.to_string()],
-    )
+    derive(job_seed, Stream::GraspTrial, &[object, hand, &grasp_index.to_string()])
 }
 
 /// Seed of one rendered view (camera placement and the renderer's sampling).
-pub fn render_view(
-    job_seed: u64,
-    object: &str,
-    hand: &str,
-    grasp_index: u32,
-    view_index: u32,
-) -> u64 {
-    derive(
-        job_seed,
-        Stream::RenderView,
-        &[
-            object,
-            hand,
-            &grasp_index.to_string(),
-            &view_index.to_string(),
-        ],
-    )
+pub fn render_view(job_seed: u64, object: &str, hand: &str, grasp_index: u32, view_index: u32) -> u64 {
+    derive(job_seed, Stream::RenderView, &[object, hand, &grasp_index.to_string(), &view_index.to_string()])
 }
 
 /// Seed of one view's depth noise.
-pub fn noise_view(
-    job_seed: u64,
-    object: &str,
-    hand: &str,
-    grasp_index: u32,
-    view_index: u32,
-) -> u64 {
-    derive(
-        job_seed,
-        Stream::NoiseView,
-        &[
-            object,
-            hand,
-            &grasp_index.to_string(),
-            &view_index.to_string(),
-        ],
-    )
+pub fn noise_view(job_seed: u64, object: &str, hand: &str, grasp_index: u32, view_index: u32) -> u64 {
+    derive(job_seed, Stream::NoiseView, &[object, hand, &grasp_index.to_string(), &view_index.to_string()])
 }
 
 /// Seed of a hand's per-taxel gains: a property of the (simulated) sensor, so it depends on the
@@ -107,10 +73,7 @@ mod tests {
 
     #[test]
     fn same_identity_same_seed() {
-        assert_eq!(
-            grasp_trial(7, "can", "trx3", 3),
-            grasp_trial(7, "can", "trx3", 3)
-        );
+        assert_eq!(grasp_trial(7, "can", "trx3", 3), grasp_trial(7, "can", "trx3", 3));
     }
 
     #[test]
@@ -126,10 +89,7 @@ mod tests {
 
     #[test]
     fn parts_are_length_prefixed() {
-        assert_ne!(
-            derive(1, Stream::GraspTrial, &["ab", "c"]),
-            derive(1, Stream::GraspTrial, &["a", "bc"])
-        );
+        assert_ne!(derive(1, Stream::GraspTrial, &["ab", "c"]), derive(1, Stream::GraspTrial, &["a", "bc"]));
     }
 
     #[test]
@@ -142,10 +102,7 @@ mod tests {
     #[test]
     fn derivation_is_stable_across_releases() {
         // Changing this value changes every dataset: bump the "v1" tag instead.
-        assert_eq!(
-            grasp_trial(0, "tomato_soup_can", "trx3", 0),
-            grasp_trial(0, "tomato_soup_can", "trx3", 0)
-        );
+        assert_eq!(grasp_trial(0, "tomato_soup_can", "trx3", 0), grasp_trial(0, "tomato_soup_can", "trx3", 0));
         let pinned = derive(42, Stream::GraspTrial, &["x"]);
         assert_eq!(pinned, derive(42, Stream::GraspTrial, &["x"]));
         assert_ne!(pinned, 0);

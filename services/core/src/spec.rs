@@ -43,6 +43,12 @@ pub struct GraspSettings {
     pub hold_s: f64,
     /// A grasp holds when the object moves less than this relative to the palm while lifted.
     pub max_drop_m: f64,
+    /// Palm standoff before closing, as [min, max] fractions of the hand's longest finger.
+    pub standoff_ratio: [f64; 2],
+    /// Shake test after the hold: peak acceleration (0 disables it), directions and duration.
+    pub shake_accel_mps2: f64,
+    pub shake_directions: u32,
+    pub shake_duration_s: f64,
 }
 
 /// The tactile sensor model (see `vint_engines/grasp/touch.py`).
@@ -157,11 +163,7 @@ impl DatasetSpec {
         })?;
         let mut r = Reader::default();
         let spec = read_spec(&mut r, &mut root);
-        if r.errors.is_empty() {
-            Ok(spec)
-        } else {
-            Err(SpecErrors(r.errors))
-        }
+        if r.errors.is_empty() { Ok(spec) } else { Err(SpecErrors(r.errors)) }
     }
 
     /// Number of grasp-sim tasks (chunks) per (object, hand) pair.
@@ -185,55 +187,22 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
     };
     r.finish(ds, "dataset", &["name", "seed"]);
 
-    let hands = r.name_list(
-        root,
-        "",
-        "hands",
-        &["trx3"],
-        |n| catalog::hand(n).is_some(),
-        "a hand in `vintctl hands`",
-    );
-    let objects = r.name_list(
-        root,
-        "",
-        "objects",
-        &[],
-        |n| catalog::object(n).is_some(),
-        "an object in the built-in catalog",
-    );
+    let hands = r.name_list(root, "", "hands", &["trx3"], |n| catalog::hand(n).is_some(), "a hand in `vintctl hands`");
+    let objects =
+        r.name_list(root, "", "objects", &[], |n| catalog::object(n).is_some(), "an object in the built-in catalog");
 
     let mut g = r.section(root, "grasp");
     let grasp = GraspSettings {
-        trials_per_pair: r.int(
-            &mut g,
-            "grasp.trials_per_pair",
-            "trials_per_pair",
-            1..=1_000_000,
-            Some(8),
-        ) as u32,
+        trials_per_pair: r.int(&mut g, "grasp.trials_per_pair", "trials_per_pair", 1..=1_000_000, Some(8)) as u32,
         chunk_size: r.int(&mut g, "grasp.chunk_size", "chunk_size", 1..=1024, Some(8)) as u32,
-        timestep_s: r.float(
-            &mut g,
-            "grasp.timestep_s",
-            "timestep_s",
-            (0.0001, 0.01),
-            Some(0.002),
-        ),
-        lift_height_m: r.float(
-            &mut g,
-            "grasp.lift_height_m",
-            "lift_height_m",
-            (0.0, 1.0),
-            Some(0.10),
-        ),
+        timestep_s: r.float(&mut g, "grasp.timestep_s", "timestep_s", (0.0001, 0.01), Some(0.002)),
+        lift_height_m: r.float(&mut g, "grasp.lift_height_m", "lift_height_m", (0.0, 1.0), Some(0.10)),
         hold_s: r.float(&mut g, "grasp.hold_s", "hold_s", (0.0, 60.0), Some(1.0)),
-        max_drop_m: r.float(
-            &mut g,
-            "grasp.max_drop_m",
-            "max_drop_m",
-            (0.001, 0.5),
-            Some(0.02),
-        ),
+        max_drop_m: r.float(&mut g, "grasp.max_drop_m", "max_drop_m", (0.001, 0.5), Some(0.02)),
+        standoff_ratio: r.float_range(&mut g, "grasp", "standoff_ratio", (-0.2, 1.0), [0.025, 0.10]),
+        shake_accel_mps2: r.float(&mut g, "grasp.shake_accel_mps2", "shake_accel_mps2", (0.0, 100.0), Some(0.0)),
+        shake_directions: r.int(&mut g, "grasp.shake_directions", "shake_directions", 1..=32, Some(4)) as u32,
+        shake_duration_s: r.float(&mut g, "grasp.shake_duration_s", "shake_duration_s", (0.01, 30.0), Some(1.0)),
     };
     r.finish(
         g,
@@ -245,52 +214,22 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
             "lift_height_m",
             "hold_s",
             "max_drop_m",
+            "standoff_ratio",
+            "shake_accel_mps2",
+            "shake_directions",
+            "shake_duration_s",
         ],
     );
 
     let mut t = r.section(root, "touch");
     let touch = TouchSettings {
-        sensing_depth_m: r.float(
-            &mut t,
-            "touch.sensing_depth_m",
-            "sensing_depth_m",
-            (0.0001, 0.02),
-            Some(0.003),
-        ),
-        response_depth_m: r.float(
-            &mut t,
-            "touch.response_depth_m",
-            "response_depth_m",
-            (0.0001, 0.02),
-            Some(0.002),
-        ),
-        gain_sigma: r.float(
-            &mut t,
-            "touch.gain_sigma",
-            "gain_sigma",
-            (0.0, 1.0),
-            Some(0.1),
-        ),
+        sensing_depth_m: r.float(&mut t, "touch.sensing_depth_m", "sensing_depth_m", (0.0001, 0.02), Some(0.003)),
+        response_depth_m: r.float(&mut t, "touch.response_depth_m", "response_depth_m", (0.0001, 0.02), Some(0.002)),
+        gain_sigma: r.float(&mut t, "touch.gain_sigma", "gain_sigma", (0.0, 1.0), Some(0.1)),
         aging: r.float(&mut t, "touch.aging", "aging", (0.01, 1.0), Some(1.0)),
-        min_active_taxels: r.int(
-            &mut t,
-            "touch.min_active_taxels",
-            "min_active_taxels",
-            0..=10_000,
-            Some(3),
-        ) as u32,
+        min_active_taxels: r.int(&mut t, "touch.min_active_taxels", "min_active_taxels", 0..=10_000, Some(3)) as u32,
     };
-    r.finish(
-        t,
-        "touch",
-        &[
-            "sensing_depth_m",
-            "response_depth_m",
-            "gain_sigma",
-            "aging",
-            "min_active_taxels",
-        ],
-    );
+    r.finish(t, "touch", &["sensing_depth_m", "response_depth_m", "gain_sigma", "aging", "min_active_taxels"]);
 
     let mut rd = r.section(root, "render");
     let resolution = r.int_pair(&mut rd, "render", "resolution", 16..=8192, [128, 128]);
@@ -313,78 +252,26 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
     r.finish(
         rd,
         "render",
-        &[
-            "resolution",
-            "samples",
-            "views_per_grasp",
-            "environments",
-            "fov_deg",
-            "radius_m",
-            "elevation_deg",
-        ],
+        &["resolution", "samples", "views_per_grasp", "environments", "fov_deg", "radius_m", "elevation_deg"],
     );
 
     let mut n = r.section(root, "noise");
     let noise = NoiseSettings {
-        sigma_base_m: r.float(
-            &mut n,
-            "noise.sigma_base_m",
-            "sigma_base_m",
-            (0.0, 0.1),
-            Some(0.0005),
-        ),
-        sigma_per_m: r.float(
-            &mut n,
-            "noise.sigma_per_m",
-            "sigma_per_m",
-            (0.0, 0.1),
-            Some(0.001),
-        ),
-        min_range_m: r.float(
-            &mut n,
-            "noise.min_range_m",
-            "min_range_m",
-            (0.0, 20.0),
-            Some(0.25),
-        ),
-        max_range_m: r.float(
-            &mut n,
-            "noise.max_range_m",
-            "max_range_m",
-            (0.0, 20.0),
-            Some(3.86),
-        ),
-        edge_hole_jump_m: r.float(
-            &mut n,
-            "noise.edge_hole_jump_m",
-            "edge_hole_jump_m",
-            (0.001, 10.0),
-            Some(0.05),
-        ),
+        sigma_base_m: r.float(&mut n, "noise.sigma_base_m", "sigma_base_m", (0.0, 0.1), Some(0.0005)),
+        sigma_per_m: r.float(&mut n, "noise.sigma_per_m", "sigma_per_m", (0.0, 0.1), Some(0.001)),
+        min_range_m: r.float(&mut n, "noise.min_range_m", "min_range_m", (0.0, 20.0), Some(0.25)),
+        max_range_m: r.float(&mut n, "noise.max_range_m", "max_range_m", (0.0, 20.0), Some(3.86)),
+        edge_hole_jump_m: r.float(&mut n, "noise.edge_hole_jump_m", "edge_hole_jump_m", (0.001, 10.0), Some(0.05)),
         dropout: r.float(&mut n, "noise.dropout", "dropout", (0.0, 1.0), Some(0.01)),
     };
     if noise.min_range_m >= noise.max_range_m {
         r.error(
             "noise.max_range_m",
             Value::Float(noise.max_range_m),
-            format!(
-                "must be greater than noise.min_range_m ({})",
-                noise.min_range_m
-            ),
+            format!("must be greater than noise.min_range_m ({})", noise.min_range_m),
         );
     }
-    r.finish(
-        n,
-        "noise",
-        &[
-            "sigma_base_m",
-            "sigma_per_m",
-            "min_range_m",
-            "max_range_m",
-            "edge_hole_jump_m",
-            "dropout",
-        ],
-    );
+    r.finish(n, "noise", &["sigma_base_m", "sigma_per_m", "min_range_m", "max_range_m", "edge_hole_jump_m", "dropout"]);
 
     let mut o = r.section(root, "outputs");
     let outputs = Outputs {
@@ -402,20 +289,9 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
     r.finish(
         std::mem::take(root),
         "",
-        &[
-            "dataset", "hands", "objects", "grasp", "touch", "render", "noise", "outputs",
-        ],
+        &["dataset", "hands", "objects", "grasp", "touch", "render", "noise", "outputs"],
     );
-    DatasetSpec {
-        dataset,
-        hands,
-        objects,
-        grasp,
-        touch,
-        render,
-        noise,
-        outputs,
-    }
+    DatasetSpec { dataset, hands, objects, grasp, touch, render, noise, outputs }
 }
 
 /// Collects errors while taking values out of TOML tables; what is left in a table at `finish` is
@@ -426,11 +302,7 @@ struct Reader {
 }
 
 fn join(parent: &str, key: &str) -> String {
-    if parent.is_empty() {
-        key.to_string()
-    } else {
-        format!("{parent}.{key}")
-    }
+    if parent.is_empty() { key.to_string() } else { format!("{parent}.{key}") }
 }
 
 fn shown(v: &Value) -> String {
@@ -443,19 +315,11 @@ fn shown(v: &Value) -> String {
 
 impl Reader {
     fn error(&mut self, path: &str, value: Value, rule: impl Into<String>) {
-        self.errors.push(SpecError {
-            path: path.to_string(),
-            value: shown(&value),
-            rule: rule.into(),
-        });
+        self.errors.push(SpecError { path: path.to_string(), value: shown(&value), rule: rule.into() });
     }
 
     fn missing(&mut self, path: &str) {
-        self.errors.push(SpecError {
-            path: path.to_string(),
-            value: "nothing".into(),
-            rule: "is required".into(),
-        });
+        self.errors.push(SpecError { path: path.to_string(), value: "nothing".into(), rule: "is required".into() });
     }
 
     /// Removes and returns a sub-table; a missing one is empty (all defaults).
@@ -475,11 +339,7 @@ impl Reader {
             if known.contains(&k.as_str()) {
                 continue; // already reported (e.g. wrong type) when taken
             }
-            self.error(
-                &join(parent, &k),
-                v,
-                format!("unknown key (known keys: {})", known.join(", ")),
-            );
+            self.error(&join(parent, &k), v, format!("unknown key (known keys: {})", known.join(", ")));
         }
     }
 
@@ -501,11 +361,7 @@ impl Reader {
             }
             Some(Value::Integer(i)) if range.contains(&i) => i,
             Some(v @ Value::Integer(_)) => {
-                self.error(
-                    path,
-                    v,
-                    format!("must be {}..={}", range.start(), range.end()),
-                );
+                self.error(path, v, format!("must be {}..={}", range.start(), range.end()));
                 fallback
             }
             Some(v) => {
@@ -535,14 +391,7 @@ impl Reader {
         }
     }
 
-    fn float(
-        &mut self,
-        t: &mut Table,
-        path: &str,
-        key: &str,
-        bounds: (f64, f64),
-        default: Option<f64>,
-    ) -> f64 {
+    fn float(&mut self, t: &mut Table, path: &str, key: &str, bounds: (f64, f64), default: Option<f64>) -> f64 {
         let fallback = default.unwrap_or(bounds.0);
         match t.remove(key) {
             None => {
@@ -569,12 +418,15 @@ impl Reader {
             return default;
         };
         let mut out = default;
+        let mut all_valid = true;
         for (i, v) in items.into_iter().enumerate() {
-            if let Some(x) = self.float_value(&format!("{path}[{i}]"), v, bounds) {
-                out[i] = x;
+            match self.float_value(&format!("{path}[{i}]"), v, bounds) {
+                Some(x) => out[i] = x,
+                None => all_valid = false,
             }
         }
-        if out[0] > out[1] {
+        // Order is only meaningful between two valid values (a rejected one was reported).
+        if all_valid && out[0] > out[1] {
             self.error(
                 &path,
                 Value::Array(vec![Value::Float(out[0]), Value::Float(out[1])]),
@@ -601,11 +453,7 @@ impl Reader {
             let p = format!("{path}[{i}]");
             match v {
                 Value::Integer(x) if range.contains(&x) => out[i] = x,
-                v @ Value::Integer(_) => self.error(
-                    &p,
-                    v,
-                    format!("must be {}..={}", range.start(), range.end()),
-                ),
+                v @ Value::Integer(_) => self.error(&p, v, format!("must be {}..={}", range.start(), range.end())),
                 v => self.error(&p, v, "must be an integer"),
             }
         }
@@ -628,8 +476,7 @@ impl Reader {
             Value::String(s)
                 if !s.is_empty()
                     && s.len() <= 64
-                    && s.bytes()
-                        .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_') =>
+                    && s.bytes().all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_') =>
             {
                 Some(s)
             }

@@ -54,10 +54,7 @@ impl TaskState {
     }
 
     pub fn is_terminal(self) -> bool {
-        matches!(
-            self,
-            TaskState::Succeeded | TaskState::Failed | TaskState::Cancelled
-        )
+        matches!(self, TaskState::Succeeded | TaskState::Failed | TaskState::Cancelled)
     }
 
     /// The legal transitions. Anything else is a bug in the store.
@@ -134,13 +131,7 @@ impl_state_text!(
     TaskState::Failed,
     TaskState::Cancelled
 );
-impl_state_text!(
-    JobState,
-    JobState::Running,
-    JobState::Succeeded,
-    JobState::Failed,
-    JobState::Cancelled
-);
+impl_state_text!(JobState, JobState::Running, JobState::Succeeded, JobState::Failed, JobState::Cancelled);
 
 /// Delay before the next attempt after `attempts` failed ones: `base · 2^(attempts−1)`, capped.
 pub fn retry_backoff_ms(attempts: u32, base_ms: i64, cap_ms: i64) -> i64 {
@@ -164,10 +155,7 @@ mod tests {
     #[test]
     fn only_a_lease_starts_running() {
         for from in TaskState::ALL {
-            assert_eq!(
-                from.can_transition(TaskState::Running),
-                from == TaskState::Queued
-            );
+            assert_eq!(from.can_transition(TaskState::Running), from == TaskState::Queued);
         }
     }
 
@@ -176,10 +164,7 @@ mod tests {
         for s in TaskState::ALL {
             assert_eq!(s.as_str().parse::<TaskState>().unwrap(), s);
         }
-        assert_eq!(
-            "cancelled".parse::<JobState>().unwrap(),
-            JobState::Cancelled
-        );
+        assert_eq!("cancelled".parse::<JobState>().unwrap(), JobState::Cancelled);
         assert!("done".parse::<TaskState>().is_err());
     }
 

@@ -57,23 +57,16 @@ fn every_problem_is_reported_at_once() {
 
 #[test]
 fn unknown_keys_are_errors_at_every_level() {
-    let text = tiny_with("samples = 16", "samples = 16\nsampels = 16")
-        .replace("hands = [", "handz = 1\nhands = [");
+    let text = tiny_with("samples = 16", "samples = 16\nsampels = 16").replace("hands = [", "handz = 1\nhands = [");
     let errs = errors(&text);
     assert_eq!(errs.len(), 2, "{errs:#?}");
-    assert!(
-        errs.iter()
-            .any(|e| e.starts_with("render.sampels: unknown key"))
-    );
+    assert!(errs.iter().any(|e| e.starts_with("render.sampels: unknown key")));
     assert!(errs.iter().any(|e| e.starts_with("handz: unknown key")));
 }
 
 #[test]
 fn wrong_types_are_errors() {
-    assert_single_error(
-        &tiny_with("samples = 16", "samples = 16.5"),
-        "render.samples: must be an integer, got 16.5",
-    );
+    assert_single_error(&tiny_with("samples = 16", "samples = 16.5"), "render.samples: must be an integer, got 16.5");
     assert_single_error(
         &tiny_with("fov_deg = 50.0", "fov_deg = \"wide\""),
         "render.fov_deg: must be a number, got \"wide\"",
@@ -98,18 +91,12 @@ fn nan_and_infinity_are_rejected() {
         &tiny_with("timestep_s = 0.002", "timestep_s = nan"),
         "grasp.timestep_s: must be a finite number, got nan",
     );
-    assert_single_error(
-        &tiny_with("hold_s = 0.5", "hold_s = inf"),
-        "grasp.hold_s: must be a finite number, got inf",
-    );
+    assert_single_error(&tiny_with("hold_s = 0.5", "hold_s = inf"), "grasp.hold_s: must be a finite number, got inf");
 }
 
 #[test]
 fn negative_and_absurd_values_are_rejected() {
-    assert_single_error(
-        &tiny_with("seed = 7", "seed = -1"),
-        "dataset.seed: must be 0..=9223372036854775807, got -1",
-    );
+    assert_single_error(&tiny_with("seed = 7", "seed = -1"), "dataset.seed: must be 0..=9223372036854775807, got -1");
     assert_single_error(
         &tiny_with("timestep_s = 0.002", "timestep_s = -0.002"),
         "grasp.timestep_s: must be in [0.0001, 0.01], got -0.002",
@@ -130,10 +117,7 @@ fn negative_and_absurd_values_are_rejected() {
         &tiny_with("chunk_size = 2", "chunk_size = 5000"),
         "grasp.chunk_size: must be 1..=1024, got 5000",
     );
-    assert_single_error(
-        &tiny_with("dropout = 0.01", "dropout = 1.5"),
-        "noise.dropout: must be in [0, 1], got 1.5",
-    );
+    assert_single_error(&tiny_with("dropout = 0.01", "dropout = 1.5"), "noise.dropout: must be in [0, 1], got 1.5");
     assert_single_error(
         &tiny_with("sigma_base_m = 0.0005", "sigma_base_m = -0.1"),
         "noise.sigma_base_m: must be in [0, 0.1], got -0.1",
@@ -159,10 +143,7 @@ fn ranges_must_be_ordered_and_bounded() {
         "render.radius_m: must be [low, high] with low <= high, got [0.5, 0.35]",
     );
     assert_single_error(
-        &tiny_with(
-            "elevation_deg = [15.0, 75.0]",
-            "elevation_deg = [15.0, 95.0]",
-        ),
+        &tiny_with("elevation_deg = [15.0, 75.0]", "elevation_deg = [15.0, 95.0]"),
         "render.elevation_deg[1]: must be in [-90, 90], got 95.0",
     );
     assert_single_error(
@@ -174,24 +155,15 @@ fn ranges_must_be_ordered_and_bounded() {
 #[test]
 fn names_must_be_known_identifiers() {
     assert_single_error(
-        &tiny_with(
-            "objects = [\"tomato_soup_can\", \"mustard_bottle\", \"mug\"]",
-            "objects = [\"unobtainium\"]",
-        ),
+        &tiny_with("objects = [\"tomato_soup_can\", \"mustard_bottle\", \"mug\"]", "objects = [\"unobtainium\"]"),
         "objects[0]: must be an object in the built-in catalog, got \"unobtainium\"",
     );
     assert_single_error(
-        &tiny_with(
-            "hands = [\"trx3\", \"allegro\"]",
-            "hands = [\"trx3\", \"trx3\"]",
-        ),
+        &tiny_with("hands = [\"trx3\", \"allegro\"]", "hands = [\"trx3\", \"trx3\"]"),
         "hands[1]: must not repeat an earlier entry, got \"trx3\"",
     );
     assert_single_error(
-        &tiny_with(
-            "objects = [\"tomato_soup_can\", \"mustard_bottle\", \"mug\"]",
-            "objects = []",
-        ),
+        &tiny_with("objects = [\"tomato_soup_can\", \"mustard_bottle\", \"mug\"]", "objects = []"),
         "objects: must name at least one, got []",
     );
     assert_single_error(
@@ -199,10 +171,7 @@ fn names_must_be_known_identifiers() {
         "dataset.name: must be 1 to 64 characters of a-z, 0-9 and _, got \"Tiny Set\"",
     );
     assert_single_error(
-        &tiny_with(
-            "environments = [\"studio\", \"forest\"]",
-            "environments = [\"moon\"]",
-        ),
+        &tiny_with("environments = [\"studio\", \"forest\"]", "environments = [\"moon\"]"),
         "render.environments[0]: must be one of Blender's bundled HDRIs (city, courtyard, forest, interior, night, studio, sunrise, sunset), got \"moon\"",
     );
     assert_single_error(
@@ -244,8 +213,7 @@ fn oversized_specs_are_refused() {
 
 #[test]
 fn touch_settings_have_defaults_and_ranges() {
-    let spec =
-        DatasetSpec::parse("objects = [\"mug\"]\n[dataset]\nname = \"t\"\nseed = 1\n").unwrap();
+    let spec = DatasetSpec::parse("objects = [\"mug\"]\n[dataset]\nname = \"t\"\nseed = 1\n").unwrap();
     assert_eq!(spec.touch.sensing_depth_m, 0.003, "default");
     let text = tiny_with("sensing_depth_m = 0.003", "sensing_depth_m = 0.0")
         .replace("aging = 1.0", "aging = 1.5")
@@ -257,6 +225,20 @@ fn touch_settings_have_defaults_and_ranges() {
             "touch.sensing_depth_m: must be in [0.0001, 0.02], got 0.0",
             "touch.aging: must be in [0.01, 1], got 1.5",
             "touch.min_active_taxels: must be 0..=10000, got -1",
+        ]
+    );
+}
+
+#[test]
+fn grasp_procedure_settings_are_checked() {
+    let text =
+        TINY.replace("max_drop_m = 0.02", "max_drop_m = 0.02\nstandoff_ratio = [0.2, -0.5]\nshake_accel_mps2 = -1.0");
+    let errs = errors(&text);
+    assert_eq!(
+        errs,
+        vec![
+            "grasp.standoff_ratio[1]: must be in [-0.2, 1], got -0.5",
+            "grasp.shake_accel_mps2: must be in [0, 100], got -1.0"
         ]
     );
 }

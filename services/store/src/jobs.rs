@@ -5,9 +5,7 @@ use sqlx::{Any, Row, Transaction};
 use vint_core::plan::NewTask;
 use vint_core::{JobState, TaskState};
 
-use crate::{
-    JobRecord, NewJob, Progress, Result, Store, StoreError, TaskRecord, parse, to_u32, trusted,
-};
+use crate::{JobRecord, NewJob, Progress, Result, Store, StoreError, TaskRecord, parse, to_u32, trusted};
 
 const JOB_COLUMNS: &str = "id, name, seed, spec_toml, state, created_ms, finished_ms";
 pub(crate) const TASK_COLUMNS: &str = "id, job_id, key, stage, state, params_json, attempt, max_attempts, \
@@ -52,12 +50,7 @@ pub fn task_id(job_id: &str, key: &str) -> String {
 impl Store {
     /// Creates a job and its initial tasks in one transaction. A job with the same idempotency key
     /// is returned instead, with `false`.
-    pub async fn submit_job(
-        &self,
-        job: &NewJob,
-        tasks: &[NewTask],
-        now_ms: i64,
-    ) -> Result<(JobRecord, bool)> {
+    pub async fn submit_job(&self, job: &NewJob, tasks: &[NewTask], now_ms: i64) -> Result<(JobRecord, bool)> {
         if let Some(existing) = self.job_by_idempotency_key(&job.idempotency_key).await? {
             return Ok((existing, false));
         }
@@ -80,54 +73,38 @@ impl Store {
             // A concurrent submit with the same key won the race.
             tx.rollback().await?;
             let existing = self.job_by_idempotency_key(&job.idempotency_key).await?;
-            return existing
-                .map(|j| (j, false))
-                .ok_or_else(|| StoreError::NotFound("job after conflict".into()));
+            return existing.map(|j| (j, false)).ok_or_else(|| StoreError::NotFound("job after conflict".into()));
         }
         self.insert_tasks(&mut tx, &job.id, tasks, now_ms).await?;
         tx.commit().await?;
-        let created = self
-            .job(&job.id)
-            .await?
-            .ok_or_else(|| StoreError::NotFound(format!("job {}", job.id)))?;
+        let created = self.job(&job.id).await?.ok_or_else(|| StoreError::NotFound(format!("job {}", job.id)))?;
         Ok((created, true))
     }
 
     async fn job_by_idempotency_key(&self, key: &str) -> Result<Option<JobRecord>> {
         let sql = format!("SELECT {JOB_COLUMNS} FROM jobs WHERE idempotency_key = $1");
-        let row = sqlx::query(trusted(sql))
-            .bind(key)
-            .fetch_optional(&self.pool)
-            .await?;
+        let row = sqlx::query(trusted(sql)).bind(key).fetch_optional(&self.pool).await?;
         row.as_ref().map(job_from_row).transpose()
     }
 
     pub async fn job(&self, job_id: &str) -> Result<Option<JobRecord>> {
         let sql = format!("SELECT {JOB_COLUMNS} FROM jobs WHERE id = $1");
-        let row = sqlx::query(trusted(sql))
-            .bind(job_id)
-            .fetch_optional(&self.pool)
-            .await?;
+        let row = sqlx::query(trusted(sql)).bind(job_id).fetch_optional(&self.pool).await?;
         row.as_ref().map(job_from_row).transpose()
     }
 
     /// Most recent jobs first.
     pub async fn list_jobs(&self, limit: u32) -> Result<Vec<JobRecord>> {
         let sql = format!("SELECT {JOB_COLUMNS} FROM jobs ORDER BY created_ms DESC, id LIMIT $1");
-        let rows = sqlx::query(trusted(sql))
-            .bind(i64::from(limit))
-            .fetch_all(&self.pool)
-            .await?;
+        let rows = sqlx::query(trusted(sql)).bind(i64::from(limit)).fetch_all(&self.pool).await?;
         rows.iter().map(job_from_row).collect()
     }
 
     pub async fn progress(&self, job_id: &str) -> Result<Progress> {
-        let rows = sqlx::query(
-            "SELECT stage, state, COUNT(*) AS n FROM tasks WHERE job_id = $1 GROUP BY stage, state",
-        )
-        .bind(job_id)
-        .fetch_all(&self.pool)
-        .await?;
+        let rows = sqlx::query("SELECT stage, state, COUNT(*) AS n FROM tasks WHERE job_id = $1 GROUP BY stage, state")
+            .bind(job_id)
+            .fetch_all(&self.pool)
+            .await?;
         let mut p = Progress::default();
         for row in rows {
             let stage: String = row.try_get("stage")?;
@@ -148,16 +125,14 @@ impl Store {
     /// lease (their completion is refused). Returns the job as it is afterwards.
     pub async fn cancel_job(&self, job_id: &str, now_ms: i64) -> Result<JobRecord> {
         let mut tx = self.pool.begin().await?;
-        let changed = sqlx::query(
-            "UPDATE jobs SET state = $1, finished_ms = $2 WHERE id = $3 AND state = $4",
-        )
-        .bind(JobState::Cancelled.as_str())
-        .bind(now_ms)
-        .bind(job_id)
-        .bind(JobState::Running.as_str())
-        .execute(&mut *tx)
-        .await?
-        .rows_affected();
+        let changed = sqlx::query("UPDATE jobs SET state = $1, finished_ms = $2 WHERE id = $3 AND state = $4")
+            .bind(JobState::Cancelled.as_str())
+            .bind(now_ms)
+            .bind(job_id)
+            .bind(JobState::Running.as_str())
+            .execute(&mut *tx)
+            .await?
+            .rows_affected();
         if changed == 1 {
             sqlx::query(
                 "UPDATE attempts SET ended_ms = $1, outcome = 'cancelled' WHERE ended_ms IS NULL AND task_id IN \
@@ -177,9 +152,7 @@ impl Store {
             .await?;
         }
         tx.commit().await?;
-        self.job(job_id)
-            .await?
-            .ok_or_else(|| StoreError::NotFound(format!("job {job_id}")))
+        self.job(job_id).await?.ok_or_else(|| StoreError::NotFound(format!("job {job_id}")))
     }
 
     /// Marks running jobs whose tasks are all final as succeeded or failed. Returns their ids.
@@ -199,20 +172,14 @@ impl Store {
         for row in rows {
             let id: String = row.try_get("id")?;
             let failed: i64 = row.try_get("failed")?;
-            let state = if failed > 0 {
-                JobState::Failed
-            } else {
-                JobState::Succeeded
-            };
-            let n = sqlx::query(
-                "UPDATE jobs SET state = $1, finished_ms = $2 WHERE id = $3 AND state = 'running'",
-            )
-            .bind(state.as_str())
-            .bind(now_ms)
-            .bind(&id)
-            .execute(&self.pool)
-            .await?
-            .rows_affected();
+            let state = if failed > 0 { JobState::Failed } else { JobState::Succeeded };
+            let n = sqlx::query("UPDATE jobs SET state = $1, finished_ms = $2 WHERE id = $3 AND state = 'running'")
+                .bind(state.as_str())
+                .bind(now_ms)
+                .bind(&id)
+                .execute(&self.pool)
+                .await?
+                .rows_affected();
             if n == 1 {
                 done.push(id);
             }
@@ -222,19 +189,13 @@ impl Store {
 
     pub async fn task(&self, task_id: &str) -> Result<Option<TaskRecord>> {
         let sql = format!("SELECT {TASK_COLUMNS} FROM tasks WHERE id = $1");
-        let row = sqlx::query(trusted(sql))
-            .bind(task_id)
-            .fetch_optional(&self.pool)
-            .await?;
+        let row = sqlx::query(trusted(sql)).bind(task_id).fetch_optional(&self.pool).await?;
         row.as_ref().map(task_from_row).transpose()
     }
 
     pub async fn tasks_of_job(&self, job_id: &str) -> Result<Vec<TaskRecord>> {
         let sql = format!("SELECT {TASK_COLUMNS} FROM tasks WHERE job_id = $1 ORDER BY key");
-        let rows = sqlx::query(trusted(sql))
-            .bind(job_id)
-            .fetch_all(&self.pool)
-            .await?;
+        let rows = sqlx::query(trusted(sql)).bind(job_id).fetch_all(&self.pool).await?;
         rows.iter().map(task_from_row).collect()
     }
 

@@ -59,11 +59,7 @@ pub enum StoreError {
     #[error(
         "task {task_id} attempt {attempt}: lease not held by worker {worker_id} (expired, cancelled or taken over)"
     )]
-    LeaseLost {
-        task_id: String,
-        attempt: u32,
-        worker_id: String,
-    },
+    LeaseLost { task_id: String, attempt: u32, worker_id: String },
     #[error("{0} not found")]
     NotFound(String),
     #[error("corrupt row: {0}")]
@@ -82,11 +78,7 @@ pub struct RetryPolicy {
 
 impl Default for RetryPolicy {
     fn default() -> Self {
-        RetryPolicy {
-            max_attempts: 4,
-            backoff_base_ms: 1_000,
-            backoff_cap_ms: 60_000,
-        }
+        RetryPolicy { max_attempts: 4, backoff_base_ms: 1_000, backoff_cap_ms: 60_000 }
     }
 }
 
@@ -109,18 +101,9 @@ impl Store {
             return Err(StoreError::UnsupportedUrl(url.to_string()));
         };
         let pool = match backend {
-            Backend::Postgres => {
-                AnyPoolOptions::new()
-                    .max_connections(16)
-                    .connect(url)
-                    .await?
-            }
+            Backend::Postgres => AnyPoolOptions::new().max_connections(16).connect(url).await?,
             Backend::Sqlite => {
-                let url = if url.contains('?') {
-                    url.to_string()
-                } else {
-                    format!("{url}?mode=rwc")
-                };
+                let url = if url.contains('?') { url.to_string() } else { format!("{url}?mode=rwc") };
                 // One connection: SQLite serializes writers anyway, and one connection means no
                 // SQLITE_BUSY between our own transactions.
                 AnyPoolOptions::new()
@@ -139,11 +122,7 @@ impl Store {
                     .await?
             }
         };
-        let store = Store {
-            pool,
-            backend,
-            retry,
-        };
+        let store = Store { pool, backend, retry };
         store.migrate().await?;
         Ok(store)
     }
@@ -158,16 +137,8 @@ impl Store {
 
     async fn migrate(&self) -> Result<()> {
         match self.backend {
-            Backend::Postgres => {
-                sqlx::migrate!("../../migrations/postgres")
-                    .run(&self.pool)
-                    .await?
-            }
-            Backend::Sqlite => {
-                sqlx::migrate!("../../migrations/sqlite")
-                    .run(&self.pool)
-                    .await?
-            }
+            Backend::Postgres => sqlx::migrate!("../../migrations/postgres").run(&self.pool).await?,
+            Backend::Sqlite => sqlx::migrate!("../../migrations/sqlite").run(&self.pool).await?,
         }
         Ok(())
     }
@@ -184,8 +155,7 @@ fn trusted(sql: String) -> sqlx::AssertSqlSafe<String> {
 }
 
 fn parse<T: FromStr>(what: &str, s: &str) -> Result<T> {
-    s.parse()
-        .map_err(|_| StoreError::Corrupt(format!("{what} {s:?}")))
+    s.parse().map_err(|_| StoreError::Corrupt(format!("{what} {s:?}")))
 }
 
 fn to_u32(what: &str, v: i64) -> Result<u32> {

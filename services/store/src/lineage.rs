@@ -33,19 +33,15 @@ impl Store {
             if !seen.insert(id.clone()) {
                 continue;
             }
-            let task = self
-                .task(&id)
-                .await?
-                .ok_or_else(|| StoreError::NotFound(format!("task {id}")))?;
-            let depends_on: Vec<String> = sqlx::query(
-                "SELECT depends_on FROM task_deps WHERE task_id = $1 ORDER BY depends_on",
-            )
-            .bind(&id)
-            .fetch_all(&self.pool)
-            .await?
-            .iter()
-            .map(|r| r.try_get("depends_on"))
-            .collect::<Result<_, _>>()?;
+            let task = self.task(&id).await?.ok_or_else(|| StoreError::NotFound(format!("task {id}")))?;
+            let depends_on: Vec<String> =
+                sqlx::query("SELECT depends_on FROM task_deps WHERE task_id = $1 ORDER BY depends_on")
+                    .bind(&id)
+                    .fetch_all(&self.pool)
+                    .await?
+                    .iter()
+                    .map(|r| r.try_get("depends_on"))
+                    .collect::<Result<_, _>>()?;
             let inputs = sqlx::query(
                 "SELECT a.task_id, t.key, a.name, a.sha256, a.size, a.media_type, a.object_key FROM lineage_edges e \
                  JOIN artifacts a ON a.task_id = e.input_task_id AND a.name = e.input_name \
@@ -59,34 +55,19 @@ impl Store {
             .collect::<Result<Vec<_>>>()?;
             let outputs = self.artifacts_of_task(&id).await?;
             queue.extend(depends_on.iter().cloned());
-            chain.push(LineageEntry {
-                task,
-                depends_on,
-                inputs,
-                outputs,
-            });
+            chain.push(LineageEntry { task, depends_on, inputs, outputs });
         }
         Ok(chain)
     }
 
     pub async fn artifacts_of_task(&self, task_id: &str) -> Result<Vec<ArtifactRecord>> {
         let sql = format!("{ARTIFACT_SELECT} WHERE a.task_id = $1 ORDER BY a.name");
-        sqlx::query(trusted(sql))
-            .bind(task_id)
-            .fetch_all(&self.pool)
-            .await?
-            .iter()
-            .map(artifact_from_row)
-            .collect()
+        sqlx::query(trusted(sql)).bind(task_id).fetch_all(&self.pool).await?.iter().map(artifact_from_row).collect()
     }
 
     /// Tasks that produced content with this hash (content can be produced by several tasks,
     /// e.g. a rendered image and its packaged copy), optionally within one job.
-    pub async fn producers_of(
-        &self,
-        sha256: &str,
-        job_id: Option<&str>,
-    ) -> Result<Vec<ArtifactRecord>> {
+    pub async fn producers_of(&self, sha256: &str, job_id: Option<&str>) -> Result<Vec<ArtifactRecord>> {
         let sql = format!(
             "{ARTIFACT_SELECT} WHERE a.sha256 = $1 AND ($2 = '' OR t.job_id = $2) ORDER BY t.stage, a.task_id, a.name"
         );
@@ -114,11 +95,7 @@ impl Store {
         for row in rows {
             let sample: String = row.try_get("sample_id")?;
             let mut a = artifact_from_row(&row)?;
-            let Some(file) = a
-                .name
-                .strip_prefix(&format!("{sample}/"))
-                .map(str::to_string)
-            else {
+            let Some(file) = a.name.strip_prefix(&format!("{sample}/")).map(str::to_string) else {
                 continue;
             };
             a.name = file;
@@ -128,20 +105,13 @@ impl Store {
     }
 
     /// The package task that made `sample_id` in `job_id`, if it is packaged.
-    pub async fn sample_package_task(
-        &self,
-        job_id: &str,
-        sample_id: &str,
-    ) -> Result<Option<String>> {
-        let row =
-            sqlx::query("SELECT package_task_id FROM samples WHERE job_id = $1 AND sample_id = $2")
-                .bind(job_id)
-                .bind(sample_id)
-                .fetch_optional(&self.pool)
-                .await?;
-        row.map(|r| r.try_get("package_task_id"))
-            .transpose()
-            .map_err(Into::into)
+    pub async fn sample_package_task(&self, job_id: &str, sample_id: &str) -> Result<Option<String>> {
+        let row = sqlx::query("SELECT package_task_id FROM samples WHERE job_id = $1 AND sample_id = $2")
+            .bind(job_id)
+            .bind(sample_id)
+            .fetch_optional(&self.pool)
+            .await?;
+        row.map(|r| r.try_get("package_task_id")).transpose().map_err(Into::into)
     }
 
     /// Number of attempts recorded for a task (for lineage displays).
@@ -164,9 +134,6 @@ impl Store {
         .bind(job_id)
         .fetch_one(&self.pool)
         .await?;
-        Ok((
-            row.try_get::<i64, _>("n")? as u64,
-            row.try_get::<i64, _>("d")? as u64,
-        ))
+        Ok((row.try_get::<i64, _>("n")? as u64, row.try_get::<i64, _>("d")? as u64))
     }
 }

@@ -11,10 +11,7 @@ use vint_core::plan::NewTask;
 use vint_core::state::retry_backoff_ms;
 
 use crate::jobs::task_from_row;
-use crate::{
-    ArtifactRecord, Completion, Fence, LeasedTask, Result, Store, StoreError, parse, to_u32,
-    trusted,
-};
+use crate::{ArtifactRecord, Completion, Fence, LeasedTask, Result, Store, StoreError, parse, to_u32, trusted};
 
 impl Store {
     /// Leases up to `capacity` ready tasks of `stages` to `worker_id` until `now_ms + lease_ms`.
@@ -30,11 +27,7 @@ impl Store {
             return Ok(Vec::new());
         }
         // Stage names come from the `Stage` enum, never from the caller's text.
-        let stage_list = stages
-            .iter()
-            .map(|s| format!("'{}'", s.as_str()))
-            .collect::<Vec<_>>()
-            .join(", ");
+        let stage_list = stages.iter().map(|s| format!("'{}'", s.as_str())).collect::<Vec<_>>().join(", ");
         let sql = format!(
             "UPDATE tasks SET state = 'running', attempt = attempt + 1, lease_owner = $1, lease_deadline_ms = $2, \
              updated_ms = $3 WHERE id IN (SELECT id FROM tasks WHERE state = 'queued' AND not_before_ms <= $3 \
@@ -155,15 +148,7 @@ impl Store {
         .bind(&f.task_id)
         .execute(&mut *tx)
         .await?;
-        end_attempt(
-            &mut tx,
-            f,
-            now_ms,
-            "succeeded",
-            None,
-            Some((&c.engine_json, &c.timings_json)),
-        )
-        .await?;
+        end_attempt(&mut tx, f, now_ms, "succeeded", None, Some((&c.engine_json, &c.timings_json))).await?;
         sqlx::query(
             "UPDATE tasks SET deps_pending = deps_pending - 1 WHERE id IN (SELECT task_id FROM task_deps WHERE depends_on = $1)",
         )
@@ -178,8 +163,7 @@ impl Store {
         .bind(now_ms)
         .execute(&mut *tx)
         .await?;
-        self.insert_tasks(&mut tx, &job_id, children, now_ms)
-            .await?;
+        self.insert_tasks(&mut tx, &job_id, children, now_ms).await?;
         for sample in &c.samples {
             sqlx::query(
                 "INSERT INTO samples (job_id, sample_id, package_task_id) VALUES ($1, $2, $3) \
@@ -199,15 +183,8 @@ impl Store {
     /// Fails an attempt. A retryable failure with attempts left requeues the task after a backoff
     /// and returns `true`; otherwise the task fails permanently (keeping `message`), its waiting
     /// dependents fail with it, and this returns `false`.
-    pub async fn fail(
-        &self,
-        f: &Fence,
-        retryable: bool,
-        message: &str,
-        now_ms: i64,
-    ) -> Result<bool> {
-        self.fail_attempt(f, retryable, message, "failed", now_ms, false)
-            .await
+    pub async fn fail(&self, f: &Fence, retryable: bool, message: &str, now_ms: i64) -> Result<bool> {
+        self.fail_attempt(f, retryable, message, "failed", now_ms, false).await
     }
 
     /// Returns tasks whose lease expired to the queue (or fails them when out of attempts).
@@ -226,14 +203,8 @@ impl Store {
                 worker_id: owner.unwrap_or_default(),
                 attempt: to_u32("attempt", row.try_get("attempt")?)?,
             };
-            let msg = format!(
-                "lease expired (worker {} stopped heartbeating)",
-                fence.worker_id
-            );
-            match self
-                .fail_attempt(&fence, true, &msg, "lease_expired", now_ms, true)
-                .await
-            {
+            let msg = format!("lease expired (worker {} stopped heartbeating)", fence.worker_id);
+            match self.fail_attempt(&fence, true, &msg, "lease_expired", now_ms, true).await {
                 Ok(_) => reaped += 1,
                 Err(StoreError::LeaseLost { .. }) => {} // finished or reaped concurrently
                 Err(e) => return Err(e),
@@ -258,17 +229,10 @@ impl Store {
         let sql = format!(
             "SELECT attempt, max_attempts FROM tasks WHERE id = $1 AND state = 'running' AND lease_owner = $2 \
              AND attempt = $3{} {}",
-            if expired_ok {
-                ""
-            } else {
-                " AND lease_deadline_ms >= $4"
-            },
+            if expired_ok { "" } else { " AND lease_deadline_ms >= $4" },
             self.backend.lock_row()
         );
-        let mut q = sqlx::query(trusted(sql))
-            .bind(&f.task_id)
-            .bind(&f.worker_id)
-            .bind(i64::from(f.attempt));
+        let mut q = sqlx::query(trusted(sql)).bind(&f.task_id).bind(&f.worker_id).bind(i64::from(f.attempt));
         if !expired_ok {
             q = q.bind(now_ms);
         }
@@ -279,18 +243,10 @@ impl Store {
         let attempts = to_u32("attempt", row.try_get("attempt")?)?;
         let max_attempts = to_u32("max_attempts", row.try_get("max_attempts")?)?;
         let will_retry = retryable && attempts < max_attempts;
-        let attempt_outcome = if will_retry && outcome == "failed" {
-            "retry"
-        } else {
-            outcome
-        };
+        let attempt_outcome = if will_retry && outcome == "failed" { "retry" } else { outcome };
         end_attempt(&mut tx, f, now_ms, attempt_outcome, Some(message), None).await?;
         if will_retry {
-            let backoff = retry_backoff_ms(
-                attempts,
-                self.retry.backoff_base_ms,
-                self.retry.backoff_cap_ms,
-            );
+            let backoff = retry_backoff_ms(attempts, self.retry.backoff_base_ms, self.retry.backoff_cap_ms);
             sqlx::query(
                 "UPDATE tasks SET state = 'queued', lease_owner = NULL, lease_deadline_ms = NULL, last_error = $1, \
                  not_before_ms = $2, updated_ms = $3 WHERE id = $4",
@@ -346,21 +302,14 @@ impl Store {
 
     /// Running tasks, for tests and operators.
     pub async fn running_tasks(&self) -> Result<Vec<crate::TaskRecord>> {
-        let sql = format!(
-            "SELECT {} FROM tasks WHERE state = 'running' ORDER BY id",
-            crate::jobs::TASK_COLUMNS
-        );
+        let sql = format!("SELECT {} FROM tasks WHERE state = 'running' ORDER BY id", crate::jobs::TASK_COLUMNS);
         let rows = sqlx::query(trusted(sql)).fetch_all(&self.pool).await?;
         rows.iter().map(task_from_row).collect()
     }
 }
 
 fn lease_lost(f: &Fence) -> StoreError {
-    StoreError::LeaseLost {
-        task_id: f.task_id.clone(),
-        attempt: f.attempt,
-        worker_id: f.worker_id.clone(),
-    }
+    StoreError::LeaseLost { task_id: f.task_id.clone(), attempt: f.attempt, worker_id: f.worker_id.clone() }
 }
 
 async fn end_attempt(
@@ -389,11 +338,7 @@ async fn end_attempt(
 }
 
 /// Fails, transitively, every waiting task that depends on `task_id`.
-async fn fail_dependents(
-    tx: &mut Transaction<'static, Any>,
-    task_id: &str,
-    now_ms: i64,
-) -> Result<()> {
+async fn fail_dependents(tx: &mut Transaction<'static, Any>, task_id: &str, now_ms: i64) -> Result<()> {
     let mut frontier = vec![task_id.to_string()];
     while let Some(failed) = frontier.pop() {
         let rows = sqlx::query(
@@ -413,10 +358,7 @@ async fn fail_dependents(
 }
 
 /// The artifacts produced by the dependencies of `task_id`: the task's inputs.
-async fn dependency_outputs(
-    tx: &mut Transaction<'static, Any>,
-    task_id: &str,
-) -> Result<Vec<ArtifactRecord>> {
+async fn dependency_outputs(tx: &mut Transaction<'static, Any>, task_id: &str) -> Result<Vec<ArtifactRecord>> {
     let rows = sqlx::query(
         "SELECT a.task_id, t.key, a.name, a.sha256, a.size, a.media_type, a.object_key FROM task_deps d \
          JOIN artifacts a ON a.task_id = d.depends_on JOIN tasks t ON t.id = a.task_id \

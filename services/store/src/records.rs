@@ -105,18 +105,11 @@ pub struct Progress {
 
 impl Progress {
     pub fn count(&self, state: TaskState) -> u64 {
-        self.by_stage
-            .values()
-            .filter_map(|m| m.get(state.as_str()))
-            .sum()
+        self.by_stage.values().filter_map(|m| m.get(state.as_str())).sum()
     }
 
     pub fn stage_count(&self, stage: Stage, state: TaskState) -> u64 {
-        self.by_stage
-            .get(stage.as_str())
-            .and_then(|m| m.get(state.as_str()))
-            .copied()
-            .unwrap_or(0)
+        self.by_stage.get(stage.as_str()).and_then(|m| m.get(state.as_str())).copied().unwrap_or(0)
     }
 
     pub fn total(&self) -> u64 {

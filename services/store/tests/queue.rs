@@ -10,11 +10,7 @@ use vint_core::plan::NewTask;
 use vint_core::{JobState, Stage, TaskState};
 use vint_store::{Completion, Fence, NewArtifact, NewJob, RetryPolicy, Store, StoreError};
 
-const RETRY: RetryPolicy = RetryPolicy {
-    max_attempts: 3,
-    backoff_base_ms: 100,
-    backoff_cap_ms: 1_000,
-};
+const RETRY: RetryPolicy = RetryPolicy { max_attempts: 3, backoff_base_ms: 100, backoff_cap_ms: 1_000 };
 
 async fn sqlite_store() -> (Store, tempfile::TempDir) {
     let dir = tempfile::tempdir().unwrap();
@@ -25,37 +21,23 @@ async fn sqlite_store() -> (Store, tempfile::TempDir) {
 async fn postgres_store() -> (Store, String) {
     let admin = std::env::var("VINT_TEST_POSTGRES_URL")
         .unwrap_or_else(|_| "postgres://postgres@127.0.0.1:5432/postgres".to_string());
-    let db = format!("vint_test_{}", uuid_like());
+    // vint_test_<pid>_<tag>_<nanos>_<n>, as vint_tests::postgres_database names them: scripts/test.sh
+    // reads the pid to drop the databases of test processes that no longer run.
+    let db = format!("vint_test_{}_queue_{}", std::process::id(), uuid_like());
     sqlx::any::install_default_drivers();
     let mut conn = <sqlx::AnyConnection as sqlx::Connection>::connect(&admin)
         .await
         .unwrap_or_else(|e| panic!("Postgres is required for the store tests ({admin}): {e}"));
-    sqlx::Executor::execute(
-        &mut conn,
-        sqlx::AssertSqlSafe(format!("CREATE DATABASE {db}")),
-    )
-    .await
-    .unwrap();
+    sqlx::Executor::execute(&mut conn, sqlx::AssertSqlSafe(format!("CREATE DATABASE {db}"))).await.unwrap();
     let base = admin.rsplit_once('/').map(|(b, _)| b.to_string()).unwrap();
-    (
-        Store::open(&format!("{base}/{db}"), RETRY).await.unwrap(),
-        db,
-    )
+    (Store::open(&format!("{base}/{db}"), RETRY).await.unwrap(), db)
 }
 
 fn uuid_like() -> String {
     use std::sync::atomic::{AtomicU64, Ordering};
     static N: AtomicU64 = AtomicU64::new(0);
-    let t = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .unwrap()
-        .as_nanos();
-    format!(
-        "{}_{}_{}",
-        std::process::id(),
-        t % 1_000_000_000,
-        N.fetch_add(1, Ordering::Relaxed)
-    )
+    let t = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().as_nanos();
+    format!("{}_{}", t % 1_000_000_000, N.fetch_add(1, Ordering::Relaxed))
 }
 
 /// Runs one contract test against both backends.
@@ -78,22 +60,11 @@ macro_rules! store_test {
 }
 
 fn task(key: &str, stage: Stage, deps: &[&str]) -> NewTask {
-    NewTask {
-        key: key.into(),
-        stage,
-        params: json!({"k": key}),
-        deps: deps.iter().map(|d| d.to_string()).collect(),
-    }
+    NewTask { key: key.into(), stage, params: json!({"k": key}), deps: deps.iter().map(|d| d.to_string()).collect() }
 }
 
 fn job(id: &str) -> NewJob {
-    NewJob {
-        id: id.into(),
-        name: "t".into(),
-        seed: 1,
-        spec_toml: "".into(),
-        idempotency_key: format!("key-{id}"),
-    }
+    NewJob { id: id.into(), name: "t".into(), seed: 1, spec_toml: "".into(), idempotency_key: format!("key-{id}") }
 }
 
 fn artifact(name: &str) -> NewArtifact {
@@ -118,11 +89,7 @@ fn completion(fence: Fence, outputs: &[&str]) -> Completion {
 }
 
 fn fence(t: &vint_store::LeasedTask, worker: &str) -> Fence {
-    Fence {
-        task_id: t.id.clone(),
-        worker_id: worker.into(),
-        attempt: t.attempt,
-    }
+    Fence { task_id: t.id.clone(), worker_id: worker.into(), attempt: t.attempt }
 }
 
 async fn submit_chain(store: &Store, id: &str) {
@@ -139,426 +106,188 @@ async fn state_of(store: &Store, task_id: &str) -> TaskState {
 }
 
 store_test!(submit_is_idempotent, |store: Store| async move {
-    let (a, created_a) = store
-        .submit_job(&job("j1"), &[task("grasp/a", Stage::Grasp, &[])], 0)
-        .await
-        .unwrap();
+    let (a, created_a) = store.submit_job(&job("j1"), &[task("grasp/a", Stage::Grasp, &[])], 0).await.unwrap();
     let mut again = job("j2");
     again.idempotency_key = "key-j1".into();
-    let (b, created_b) = store
-        .submit_job(&again, &[task("grasp/a", Stage::Grasp, &[])], 5)
-        .await
-        .unwrap();
+    let (b, created_b) = store.submit_job(&again, &[task("grasp/a", Stage::Grasp, &[])], 5).await.unwrap();
     assert!(created_a && !created_b);
     assert_eq!(a.id, b.id);
     assert_eq!(store.list_jobs(10).await.unwrap().len(), 1);
 });
 
-store_test!(
-    dependencies_gate_leasing_until_they_succeed,
-    |store: Store| async move {
-        submit_chain(&store, "j").await;
-        assert_eq!(state_of(&store, "j/render/a").await, TaskState::Waiting);
-        let all = [Stage::Grasp, Stage::Render, Stage::Noise, Stage::Package];
-        let leased = store.lease("w", &all, 10, 1_000, 1).await.unwrap();
-        assert_eq!(
-            leased.iter().map(|t| t.key.as_str()).collect::<Vec<_>>(),
-            ["grasp/a"]
-        );
-        store
-            .complete(
-                &completion(fence(&leased[0], "w"), &["grasps.json"]),
-                &[],
-                2,
-            )
-            .await
-            .unwrap();
-        let next = store.lease("w", &all, 10, 1_000, 3).await.unwrap();
-        assert_eq!(next.len(), 1);
-        assert_eq!(next[0].key, "render/a");
-        assert_eq!(next[0].inputs.len(), 1);
-        assert_eq!(next[0].inputs[0].name, "grasps.json");
-        assert_eq!(next[0].inputs[0].task_key, "grasp/a");
-        assert_eq!(state_of(&store, "j/package/a").await, TaskState::Waiting);
-        store
-            .complete(&completion(fence(&next[0], "w"), &["v00_rgb.png"]), &[], 4)
-            .await
-            .unwrap();
-        let package = store.lease("w", &all, 10, 1_000, 5).await.unwrap();
-        assert_eq!(package[0].key, "package/a");
-        assert_eq!(
-            package[0].inputs.len(),
-            2,
-            "package sees both dependencies' outputs"
-        );
-    }
-);
+store_test!(dependencies_gate_leasing_until_they_succeed, |store: Store| async move {
+    submit_chain(&store, "j").await;
+    assert_eq!(state_of(&store, "j/render/a").await, TaskState::Waiting);
+    let all = [Stage::Grasp, Stage::Render, Stage::Noise, Stage::Package];
+    let leased = store.lease("w", &all, 10, 1_000, 1).await.unwrap();
+    assert_eq!(leased.iter().map(|t| t.key.as_str()).collect::<Vec<_>>(), ["grasp/a"]);
+    store.complete(&completion(fence(&leased[0], "w"), &["grasps.json"]), &[], 2).await.unwrap();
+    let next = store.lease("w", &all, 10, 1_000, 3).await.unwrap();
+    assert_eq!(next.len(), 1);
+    assert_eq!(next[0].key, "render/a");
+    assert_eq!(next[0].inputs.len(), 1);
+    assert_eq!(next[0].inputs[0].name, "grasps.json");
+    assert_eq!(next[0].inputs[0].task_key, "grasp/a");
+    assert_eq!(state_of(&store, "j/package/a").await, TaskState::Waiting);
+    store.complete(&completion(fence(&next[0], "w"), &["v00_rgb.png"]), &[], 4).await.unwrap();
+    let package = store.lease("w", &all, 10, 1_000, 5).await.unwrap();
+    assert_eq!(package[0].key, "package/a");
+    assert_eq!(package[0].inputs.len(), 2, "package sees both dependencies' outputs");
+});
 
-store_test!(
-    leasing_is_restricted_to_the_workers_stages,
-    |store: Store| async move {
-        submit_chain(&store, "j").await;
-        assert!(
-            store
-                .lease("w", &[Stage::Render], 10, 1_000, 1)
-                .await
-                .unwrap()
-                .is_empty()
-        );
-        assert_eq!(
-            store
-                .lease("w", &[Stage::Grasp], 10, 1_000, 1)
-                .await
-                .unwrap()
-                .len(),
-            1
-        );
-    }
-);
+store_test!(leasing_is_restricted_to_the_workers_stages, |store: Store| async move {
+    submit_chain(&store, "j").await;
+    assert!(store.lease("w", &[Stage::Render], 10, 1_000, 1).await.unwrap().is_empty());
+    assert_eq!(store.lease("w", &[Stage::Grasp], 10, 1_000, 1).await.unwrap().len(), 1);
+});
 
-store_test!(
-    concurrent_workers_never_lease_the_same_task,
-    |store: Store| async move {
-        let tasks: Vec<NewTask> = (0..200)
-            .map(|i| task(&format!("grasp/{i:03}"), Stage::Grasp, &[]))
-            .collect();
-        store.submit_job(&job("j"), &tasks, 0).await.unwrap();
-        let mut handles = Vec::new();
-        for w in 0..8 {
-            let store = store.clone();
-            handles.push(tokio::spawn(async move {
-                let mut mine = Vec::new();
-                loop {
-                    let got = store
-                        .lease(&format!("w{w}"), &[Stage::Grasp], 7, 60_000, 1)
-                        .await
-                        .unwrap();
-                    if got.is_empty() {
-                        break mine;
-                    }
-                    mine.extend(got.into_iter().map(|t| t.id));
+store_test!(concurrent_workers_never_lease_the_same_task, |store: Store| async move {
+    let tasks: Vec<NewTask> = (0..200).map(|i| task(&format!("grasp/{i:03}"), Stage::Grasp, &[])).collect();
+    store.submit_job(&job("j"), &tasks, 0).await.unwrap();
+    let mut handles = Vec::new();
+    for w in 0..8 {
+        let store = store.clone();
+        handles.push(tokio::spawn(async move {
+            let mut mine = Vec::new();
+            loop {
+                let got = store.lease(&format!("w{w}"), &[Stage::Grasp], 7, 60_000, 1).await.unwrap();
+                if got.is_empty() {
+                    break mine;
                 }
-            }));
-        }
-        let mut all = Vec::new();
-        for h in handles {
-            all.extend(h.await.unwrap());
-        }
-        let unique: BTreeSet<_> = all.iter().cloned().collect();
-        assert_eq!(all.len(), 200);
-        assert_eq!(unique.len(), 200);
-    }
-);
-
-store_test!(
-    lease_expired_worker_cannot_complete_task,
-    |store: Store| async move {
-        submit_chain(&store, "j").await;
-        let leased = store
-            .lease("slow", &[Stage::Grasp], 1, 1_000, 0)
-            .await
-            .unwrap();
-        let f = fence(&leased[0], "slow");
-        // Past the deadline, before any reaper ran: still refused.
-        let err = store
-            .complete(&completion(f.clone(), &["grasps.json"]), &[], 1_001)
-            .await
-            .unwrap_err();
-        assert!(matches!(err, StoreError::LeaseLost { .. }), "{err}");
-        assert!(matches!(
-            store.fail(&f, true, "x", 1_001).await.unwrap_err(),
-            StoreError::LeaseLost { .. }
-        ));
-        // After the reaper requeued it and another worker took it over, the old worker still cannot.
-        assert_eq!(store.reap_expired(1_002).await.unwrap(), 1);
-        let retaken = store
-            .lease("fast", &[Stage::Grasp], 1, 1_000, 2_000)
-            .await
-            .unwrap();
-        assert_eq!(retaken[0].attempt, 2);
-        let err = store
-            .complete(&completion(f, &["grasps.json"]), &[], 2_001)
-            .await
-            .unwrap_err();
-        assert!(matches!(err, StoreError::LeaseLost { .. }));
-        store
-            .complete(
-                &completion(fence(&retaken[0], "fast"), &["grasps.json"]),
-                &[],
-                2_002,
-            )
-            .await
-            .unwrap();
-        assert_eq!(
-            store.artifacts_of_task("j/grasp/a").await.unwrap().len(),
-            1,
-            "exactly one set of outputs"
-        );
-        let attempts = store.attempts("j/grasp/a").await.unwrap();
-        assert_eq!(
-            attempts
-                .iter()
-                .map(|a| a.outcome.as_deref())
-                .collect::<Vec<_>>(),
-            [Some("lease_expired"), Some("succeeded")]
-        );
-    }
-);
-
-store_test!(
-    wrong_worker_or_attempt_cannot_complete,
-    |store: Store| async move {
-        submit_chain(&store, "j").await;
-        let leased = store
-            .lease("w1", &[Stage::Grasp], 1, 1_000, 0)
-            .await
-            .unwrap();
-        let mut other = fence(&leased[0], "w2");
-        assert!(
-            store
-                .complete(&completion(other.clone(), &[]), &[], 1)
-                .await
-                .is_err()
-        );
-        other.worker_id = "w1".into();
-        other.attempt += 1;
-        assert!(
-            store
-                .complete(&completion(other, &[]), &[], 1)
-                .await
-                .is_err()
-        );
-        assert_eq!(state_of(&store, "j/grasp/a").await, TaskState::Running);
-    }
-);
-
-store_test!(
-    heartbeat_extends_leases_and_reports_lost_ones,
-    |store: Store| async move {
-        submit_chain(&store, "j").await;
-        let leased = store
-            .lease("w", &[Stage::Grasp], 1, 1_000, 0)
-            .await
-            .unwrap();
-        let held = vec![(leased[0].id.clone(), leased[0].attempt)];
-        assert!(
-            store
-                .heartbeat("w", &held, 1_000, 900)
-                .await
-                .unwrap()
-                .is_empty()
-        );
-        assert_eq!(
-            store.reap_expired(1_500).await.unwrap(),
-            0,
-            "extended to 1900"
-        );
-        let lost = store
-            .heartbeat("w", &[("j/grasp/missing".into(), 1)], 1_000, 1_000)
-            .await
-            .unwrap();
-        assert_eq!(lost.len(), 1);
-        assert_eq!(store.reap_expired(1_901).await.unwrap(), 1);
-        assert_eq!(
-            store.heartbeat("w", &held, 1_000, 1_902).await.unwrap(),
-            held,
-            "a reaped lease is lost"
-        );
-    }
-);
-
-store_test!(
-    retries_back_off_then_fail_with_the_last_error,
-    |store: Store| async move {
-        submit_chain(&store, "j").await;
-        let mut now = 0;
-        for attempt in 1..=3u32 {
-            let leased = store
-                .lease("w", &[Stage::Grasp], 1, 1_000, now)
-                .await
-                .unwrap();
-            assert_eq!(leased.len(), 1, "attempt {attempt} leasable at {now}");
-            assert_eq!(leased[0].attempt, attempt);
-            let will_retry = store
-                .fail(
-                    &fence(&leased[0], "w"),
-                    true,
-                    &format!("boom {attempt}"),
-                    now + 1,
-                )
-                .await
-                .unwrap();
-            assert_eq!(will_retry, attempt < 3);
-            if will_retry {
-                let backoff = 100 * (1 << (attempt - 1));
-                assert!(
-                    store
-                        .lease("w", &[Stage::Grasp], 1, 1_000, now + backoff)
-                        .await
-                        .unwrap()
-                        .is_empty(),
-                    "backoff"
-                );
-                now += backoff + 1;
+                mine.extend(got.into_iter().map(|t| t.id));
             }
+        }));
+    }
+    let mut all = Vec::new();
+    for h in handles {
+        all.extend(h.await.unwrap());
+    }
+    let unique: BTreeSet<_> = all.iter().cloned().collect();
+    assert_eq!(all.len(), 200);
+    assert_eq!(unique.len(), 200);
+});
+
+store_test!(lease_expired_worker_cannot_complete_task, |store: Store| async move {
+    submit_chain(&store, "j").await;
+    let leased = store.lease("slow", &[Stage::Grasp], 1, 1_000, 0).await.unwrap();
+    let f = fence(&leased[0], "slow");
+    // Past the deadline, before any reaper ran: still refused.
+    let err = store.complete(&completion(f.clone(), &["grasps.json"]), &[], 1_001).await.unwrap_err();
+    assert!(matches!(err, StoreError::LeaseLost { .. }), "{err}");
+    assert!(matches!(store.fail(&f, true, "x", 1_001).await.unwrap_err(), StoreError::LeaseLost { .. }));
+    // After the reaper requeued it and another worker took it over, the old worker still cannot.
+    assert_eq!(store.reap_expired(1_002).await.unwrap(), 1);
+    let retaken = store.lease("fast", &[Stage::Grasp], 1, 1_000, 2_000).await.unwrap();
+    assert_eq!(retaken[0].attempt, 2);
+    let err = store.complete(&completion(f, &["grasps.json"]), &[], 2_001).await.unwrap_err();
+    assert!(matches!(err, StoreError::LeaseLost { .. }));
+    store.complete(&completion(fence(&retaken[0], "fast"), &["grasps.json"]), &[], 2_002).await.unwrap();
+    assert_eq!(store.artifacts_of_task("j/grasp/a").await.unwrap().len(), 1, "exactly one set of outputs");
+    let attempts = store.attempts("j/grasp/a").await.unwrap();
+    assert_eq!(
+        attempts.iter().map(|a| a.outcome.as_deref()).collect::<Vec<_>>(),
+        [Some("lease_expired"), Some("succeeded")]
+    );
+});
+
+store_test!(wrong_worker_or_attempt_cannot_complete, |store: Store| async move {
+    submit_chain(&store, "j").await;
+    let leased = store.lease("w1", &[Stage::Grasp], 1, 1_000, 0).await.unwrap();
+    let mut other = fence(&leased[0], "w2");
+    assert!(store.complete(&completion(other.clone(), &[]), &[], 1).await.is_err());
+    other.worker_id = "w1".into();
+    other.attempt += 1;
+    assert!(store.complete(&completion(other, &[]), &[], 1).await.is_err());
+    assert_eq!(state_of(&store, "j/grasp/a").await, TaskState::Running);
+});
+
+store_test!(heartbeat_extends_leases_and_reports_lost_ones, |store: Store| async move {
+    submit_chain(&store, "j").await;
+    let leased = store.lease("w", &[Stage::Grasp], 1, 1_000, 0).await.unwrap();
+    let held = vec![(leased[0].id.clone(), leased[0].attempt)];
+    assert!(store.heartbeat("w", &held, 1_000, 900).await.unwrap().is_empty());
+    assert_eq!(store.reap_expired(1_500).await.unwrap(), 0, "extended to 1900");
+    let lost = store.heartbeat("w", &[("j/grasp/missing".into(), 1)], 1_000, 1_000).await.unwrap();
+    assert_eq!(lost.len(), 1);
+    assert_eq!(store.reap_expired(1_901).await.unwrap(), 1);
+    assert_eq!(store.heartbeat("w", &held, 1_000, 1_902).await.unwrap(), held, "a reaped lease is lost");
+});
+
+store_test!(retries_back_off_then_fail_with_the_last_error, |store: Store| async move {
+    submit_chain(&store, "j").await;
+    let mut now = 0;
+    for attempt in 1..=3u32 {
+        let leased = store.lease("w", &[Stage::Grasp], 1, 1_000, now).await.unwrap();
+        assert_eq!(leased.len(), 1, "attempt {attempt} leasable at {now}");
+        assert_eq!(leased[0].attempt, attempt);
+        let will_retry = store.fail(&fence(&leased[0], "w"), true, &format!("boom {attempt}"), now + 1).await.unwrap();
+        assert_eq!(will_retry, attempt < 3);
+        if will_retry {
+            let backoff = 100 * (1 << (attempt - 1));
+            assert!(store.lease("w", &[Stage::Grasp], 1, 1_000, now + backoff).await.unwrap().is_empty(), "backoff");
+            now += backoff + 1;
         }
-        let t = store.task("j/grasp/a").await.unwrap().unwrap();
-        assert_eq!(t.state, TaskState::Failed);
-        assert_eq!(t.last_error.as_deref(), Some("boom 3"));
-        // Its dependents can never run: they fail too, and the job ends failed.
-        assert_eq!(state_of(&store, "j/render/a").await, TaskState::Failed);
-        assert_eq!(state_of(&store, "j/package/a").await, TaskState::Failed);
-        assert_eq!(
-            store.job("j").await.unwrap().unwrap().state,
-            JobState::Failed
-        );
     }
-);
+    let t = store.task("j/grasp/a").await.unwrap().unwrap();
+    assert_eq!(t.state, TaskState::Failed);
+    assert_eq!(t.last_error.as_deref(), Some("boom 3"));
+    // Its dependents can never run: they fail too, and the job ends failed.
+    assert_eq!(state_of(&store, "j/render/a").await, TaskState::Failed);
+    assert_eq!(state_of(&store, "j/package/a").await, TaskState::Failed);
+    assert_eq!(store.job("j").await.unwrap().unwrap().state, JobState::Failed);
+});
 
-store_test!(
-    permanent_failure_is_not_retried,
-    |store: Store| async move {
-        submit_chain(&store, "j").await;
-        let leased = store
-            .lease("w", &[Stage::Grasp], 1, 1_000, 0)
-            .await
-            .unwrap();
-        assert!(
-            !store
-                .fail(&fence(&leased[0], "w"), false, "bad params", 1)
-                .await
-                .unwrap()
-        );
-        assert_eq!(state_of(&store, "j/grasp/a").await, TaskState::Failed);
-    }
-);
+store_test!(permanent_failure_is_not_retried, |store: Store| async move {
+    submit_chain(&store, "j").await;
+    let leased = store.lease("w", &[Stage::Grasp], 1, 1_000, 0).await.unwrap();
+    assert!(!store.fail(&fence(&leased[0], "w"), false, "bad params", 1).await.unwrap());
+    assert_eq!(state_of(&store, "j/grasp/a").await, TaskState::Failed);
+});
 
-store_test!(
-    cancel_stops_leasing_and_fences_running_attempts,
-    |store: Store| async move {
-        let tasks = [
-            task("grasp/a", Stage::Grasp, &[]),
-            task("grasp/b", Stage::Grasp, &[]),
-        ];
-        store.submit_job(&job("j"), &tasks, 0).await.unwrap();
-        let leased = store
-            .lease("w", &[Stage::Grasp], 1, 10_000, 0)
-            .await
-            .unwrap();
-        let cancelled = store.cancel_job("j", 1).await.unwrap();
-        assert_eq!(cancelled.state, JobState::Cancelled);
-        assert!(
-            store
-                .lease("w", &[Stage::Grasp], 10, 10_000, 2)
-                .await
-                .unwrap()
-                .is_empty()
-        );
-        assert!(
-            store
-                .complete(&completion(fence(&leased[0], "w"), &[]), &[], 3)
-                .await
-                .is_err()
-        );
-        assert_eq!(
-            store
-                .progress("j")
-                .await
-                .unwrap()
-                .count(TaskState::Cancelled),
-            2
-        );
-    }
-);
+store_test!(cancel_stops_leasing_and_fences_running_attempts, |store: Store| async move {
+    let tasks = [task("grasp/a", Stage::Grasp, &[]), task("grasp/b", Stage::Grasp, &[])];
+    store.submit_job(&job("j"), &tasks, 0).await.unwrap();
+    let leased = store.lease("w", &[Stage::Grasp], 1, 10_000, 0).await.unwrap();
+    let cancelled = store.cancel_job("j", 1).await.unwrap();
+    assert_eq!(cancelled.state, JobState::Cancelled);
+    assert!(store.lease("w", &[Stage::Grasp], 10, 10_000, 2).await.unwrap().is_empty());
+    assert!(store.complete(&completion(fence(&leased[0], "w"), &[]), &[], 3).await.is_err());
+    assert_eq!(store.progress("j").await.unwrap().count(TaskState::Cancelled), 2);
+});
 
-store_test!(
-    completion_inserts_planned_children_atomically,
-    |store: Store| async move {
-        store
-            .submit_job(&job("j"), &[task("grasp/a", Stage::Grasp, &[])], 0)
-            .await
-            .unwrap();
-        let leased = store
-            .lease("w", &[Stage::Grasp], 1, 1_000, 0)
-            .await
-            .unwrap();
-        let children = [
-            task("render/a", Stage::Render, &["grasp/a"]),
-            task("noise/a", Stage::Noise, &["render/a"]),
-        ];
-        store
-            .complete(
-                &completion(fence(&leased[0], "w"), &["grasps.json"]),
-                &children,
-                1,
-            )
-            .await
-            .unwrap();
-        assert_eq!(state_of(&store, "j/render/a").await, TaskState::Queued);
-        assert_eq!(state_of(&store, "j/noise/a").await, TaskState::Waiting);
-        assert_eq!(
-            store.job("j").await.unwrap().unwrap().state,
-            JobState::Running
-        );
-    }
-);
+store_test!(completion_inserts_planned_children_atomically, |store: Store| async move {
+    store.submit_job(&job("j"), &[task("grasp/a", Stage::Grasp, &[])], 0).await.unwrap();
+    let leased = store.lease("w", &[Stage::Grasp], 1, 1_000, 0).await.unwrap();
+    let children = [task("render/a", Stage::Render, &["grasp/a"]), task("noise/a", Stage::Noise, &["render/a"])];
+    store.complete(&completion(fence(&leased[0], "w"), &["grasps.json"]), &children, 1).await.unwrap();
+    assert_eq!(state_of(&store, "j/render/a").await, TaskState::Queued);
+    assert_eq!(state_of(&store, "j/noise/a").await, TaskState::Waiting);
+    assert_eq!(store.job("j").await.unwrap().unwrap().state, JobState::Running);
+});
 
-store_test!(
-    job_succeeds_when_every_task_has_and_lineage_reaches_the_root,
-    |store: Store| async move {
-        submit_chain(&store, "j").await;
-        let all = Stage::ALL;
-        for (now, outputs) in [
-            (1, vec!["grasps.json"]),
-            (2, vec!["v00_rgb.png"]),
-            (3, vec!["s1/rgb.png", "s1/meta.json"]),
-        ] {
-            let leased = store.lease("w", &all, 1, 1_000, now).await.unwrap();
-            let mut c = completion(fence(&leased[0], "w"), &outputs);
-            if leased[0].stage == Stage::Package {
-                c.samples = vec!["s1".into()];
-            }
-            store.complete(&c, &[], now).await.unwrap();
+store_test!(job_succeeds_when_every_task_has_and_lineage_reaches_the_root, |store: Store| async move {
+    submit_chain(&store, "j").await;
+    let all = Stage::ALL;
+    for (now, outputs) in [(1, vec!["grasps.json"]), (2, vec!["v00_rgb.png"]), (3, vec!["s1/rgb.png", "s1/meta.json"])]
+    {
+        let leased = store.lease("w", &all, 1, 1_000, now).await.unwrap();
+        let mut c = completion(fence(&leased[0], "w"), &outputs);
+        if leased[0].stage == Stage::Package {
+            c.samples = vec!["s1".into()];
         }
-        assert_eq!(
-            store.job("j").await.unwrap().unwrap().state,
-            JobState::Succeeded
-        );
-        let samples = store.samples("j").await.unwrap();
-        assert_eq!(
-            samples["s1"]
-                .iter()
-                .map(|a| a.name.as_str())
-                .collect::<Vec<_>>(),
-            ["meta.json", "rgb.png"]
-        );
-        let package = store.sample_package_task("j", "s1").await.unwrap().unwrap();
-        let chain = store.lineage(&package).await.unwrap();
-        let keys: Vec<_> = chain.iter().map(|e| e.task.key.as_str()).collect();
-        assert_eq!(keys, ["package/a", "grasp/a", "render/a"]);
-        assert_eq!(
-            chain[0].inputs.len(),
-            2,
-            "package consumed grasps.json and the render output"
-        );
-        assert!(
-            chain
-                .iter()
-                .all(|e| e.task.engine_json.as_deref() == Some(r#"{"name":"test-double"}"#))
-        );
-        let producers = store
-            .producers_of(&artifact("grasps.json").sha256, Some("j"))
-            .await
-            .unwrap();
-        assert!(producers.iter().any(|a| a.task_key == "grasp/a"));
-        let progress = store.progress("j").await.unwrap();
-        assert_eq!(
-            (
-                progress.total(),
-                progress.count(TaskState::Succeeded),
-                progress.samples
-            ),
-            (3, 3, 1)
-        );
+        store.complete(&c, &[], now).await.unwrap();
     }
-);
+    assert_eq!(store.job("j").await.unwrap().unwrap().state, JobState::Succeeded);
+    let samples = store.samples("j").await.unwrap();
+    assert_eq!(samples["s1"].iter().map(|a| a.name.as_str()).collect::<Vec<_>>(), ["meta.json", "rgb.png"]);
+    let package = store.sample_package_task("j", "s1").await.unwrap().unwrap();
+    let chain = store.lineage(&package).await.unwrap();
+    let keys: Vec<_> = chain.iter().map(|e| e.task.key.as_str()).collect();
+    assert_eq!(keys, ["package/a", "grasp/a", "render/a"]);
+    assert_eq!(chain[0].inputs.len(), 2, "package consumed grasps.json and the render output");
+    assert!(chain.iter().all(|e| e.task.engine_json.as_deref() == Some(r#"{"name":"test-double"}"#)));
+    let producers = store.producers_of(&artifact("grasps.json").sha256, Some("j")).await.unwrap();
+    assert!(producers.iter().any(|a| a.task_key == "grasp/a"));
+    let progress = store.progress("j").await.unwrap();
+    assert_eq!((progress.total(), progress.count(TaskState::Succeeded), progress.samples), (3, 3, 1));
+});

@@ -15,9 +15,8 @@ use crate::{CliResult, Failure, bad_input};
 
 /// Reads and validates a spec; every problem is reported and the exit code is 2.
 pub fn load_spec(path: &Path) -> Result<(String, DatasetSpec), Failure> {
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("reading spec {}", path.display()))
-        .map_err(bad_input)?;
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading spec {}", path.display())).map_err(bad_input)?;
     match DatasetSpec::parse(&text) {
         Ok(spec) => Ok((text, spec)),
         Err(errors) => {
@@ -32,9 +31,8 @@ pub fn load_spec(path: &Path) -> Result<(String, DatasetSpec), Failure> {
 }
 
 pub fn validate(path: &Path, json: bool) -> CliResult {
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("reading spec {}", path.display()))
-        .map_err(bad_input)?;
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading spec {}", path.display())).map_err(bad_input)?;
     match DatasetSpec::parse(&text) {
         Ok(spec) => {
             if json {
@@ -77,10 +75,7 @@ pub async fn connect(url: &str) -> Result<JobServiceClient<Channel>, Failure> {
     let endpoint = Channel::from_shared(url.to_string())
         .map_err(|e| bad_input(anyhow!("invalid coordinator URL {url:?}: {e}")))?
         .connect_timeout(std::time::Duration::from_secs(5));
-    let channel = endpoint
-        .connect()
-        .await
-        .with_context(|| format!("connecting to coordinator {url}"))?;
+    let channel = endpoint.connect().await.with_context(|| format!("connecting to coordinator {url}"))?;
     Ok(JobServiceClient::new(channel).max_decoding_message_size(64 << 20))
 }
 
@@ -96,22 +91,11 @@ pub fn rpc_failure(what: &str, s: tonic::Status) -> Failure {
 pub async fn submit(url: &str, path: &Path, key: Option<String>, json: bool) -> CliResult {
     let (text, _spec) = load_spec(path)?;
     let mut client = connect(url).await?;
-    let request = pb::SubmitJobRequest {
-        spec_toml: text,
-        idempotency_key: key.unwrap_or_default(),
-    };
-    let resp = client
-        .submit_job(request)
-        .await
-        .map_err(|s| rpc_failure("submit", s))?
-        .into_inner();
-    let job = resp
-        .job
-        .ok_or_else(|| anyhow!("coordinator returned no job"))?;
+    let request = pb::SubmitJobRequest { spec_toml: text, idempotency_key: key.unwrap_or_default() };
+    let resp = client.submit_job(request).await.map_err(|s| rpc_failure("submit", s))?.into_inner();
+    let job = resp.job.ok_or_else(|| anyhow!("coordinator returned no job"))?;
     if json {
-        report::print_json(
-            &serde_json::json!({"job_id": job.job_id, "created": resp.created, "state": job.state}),
-        );
+        report::print_json(&serde_json::json!({"job_id": job.job_id, "created": resp.created, "state": job.state}));
     } else {
         if !resp.created {
             eprintln!("this spec was already submitted (same idempotency key): returning that job");
@@ -134,11 +118,7 @@ pub async fn status(url: &str, job: &str, json: bool) -> CliResult {
 
 pub async fn jobs(url: &str, limit: u32, json: bool) -> CliResult {
     let mut client = connect(url).await?;
-    let resp = client
-        .list_jobs(pb::ListJobsRequest { limit })
-        .await
-        .map_err(|s| rpc_failure("jobs", s))?
-        .into_inner();
+    let resp = client.list_jobs(pb::ListJobsRequest { limit }).await.map_err(|s| rpc_failure("jobs", s))?.into_inner();
     report::jobs(&resp.jobs, json);
     Ok(())
 }
@@ -157,12 +137,7 @@ pub async fn cancel(url: &str, job: &str, json: bool) -> CliResult {
 /// Follows a job until it ends; exits 1 unless it succeeded.
 pub async fn watch(url: &str, job: &str, json: bool) -> CliResult {
     let mut client = connect(url).await?;
-    let last = report::follow(
-        &mut client,
-        job,
-        json.then_some(report::JsonProgress::Stdout),
-    )
-    .await?;
+    let last = report::follow(&mut client, job, json.then_some(report::JsonProgress::Stdout)).await?;
     job_outcome(&last)
 }
 
@@ -182,28 +157,11 @@ pub fn job_outcome(p: &pb::JobProgress) -> CliResult {
     }
 }
 
-pub async fn lineage(
-    url: &str,
-    subject: &str,
-    job: Option<String>,
-    artifact: bool,
-    json: bool,
-) -> CliResult {
+pub async fn lineage(url: &str, subject: &str, job: Option<String>, artifact: bool, json: bool) -> CliResult {
     let mut client = connect(url).await?;
-    let subject = if artifact {
-        Subject::ArtifactSha256(subject.into())
-    } else {
-        Subject::SampleId(subject.into())
-    };
-    let request = pb::GetLineageRequest {
-        job_id: job.unwrap_or_default(),
-        subject: Some(subject),
-    };
-    let lineage = client
-        .get_lineage(request)
-        .await
-        .map_err(|s| rpc_failure("lineage", s))?
-        .into_inner();
+    let subject = if artifact { Subject::ArtifactSha256(subject.into()) } else { Subject::SampleId(subject.into()) };
+    let request = pb::GetLineageRequest { job_id: job.unwrap_or_default(), subject: Some(subject) };
+    let lineage = client.get_lineage(request).await.map_err(|s| rpc_failure("lineage", s))?.into_inner();
     report::lineage(&lineage, json);
     Ok(())
 }

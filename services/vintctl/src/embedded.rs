@@ -23,68 +23,37 @@ use crate::{CliResult, Failure, bad_input, report};
 /// Lease used by local workers: short, so a crashed worker's task is retried within seconds.
 const LOCAL_LEASE_MS: u32 = 10_000;
 
-pub async fn run(
-    spec_path: &Path,
-    out: &Path,
-    state: &Path,
-    workers: u32,
-    json: bool,
-) -> CliResult {
+pub async fn run(spec_path: &Path, out: &Path, state: &Path, workers: u32, json: bool) -> CliResult {
     let (text, spec) = load_spec(spec_path)?;
     if workers == 0 || workers > 64 {
-        return Err(bad_input(anyhow!(
-            "--workers: must be 1..=64, got {workers}"
-        )));
+        return Err(bad_input(anyhow!("--workers: must be 1..=64, got {workers}")));
     }
     std::fs::create_dir_all(state.join("logs"))
         .with_context(|| format!("creating state directory {}", state.display()))?;
-    let state = state
-        .canonicalize()
-        .with_context(|| format!("resolving {}", state.display()))?;
+    let state = state.canonicalize().with_context(|| format!("resolving {}", state.display()))?;
     let db_url = format!("sqlite://{}", state.join("vint.db").display());
     let store_url = format!("file://{}", state.join("objects").display());
     let artifacts = vint_artifacts::ArtifactStore::open(&store_url)?;
 
-    let retry = RetryPolicy {
-        max_attempts: 4,
-        backoff_base_ms: 500,
-        backoff_cap_ms: 10_000,
-    };
-    let store = Store::open(&db_url, retry)
-        .await
-        .with_context(|| format!("opening {db_url}"))?;
-    let (listener, addr) =
-        vint_coordinator::bind(SocketAddr::from((Ipv4Addr::LOCALHOST, 0))).await?;
+    let retry = RetryPolicy { max_attempts: 4, backoff_base_ms: 500, backoff_cap_ms: 10_000 };
+    let store = Store::open(&db_url, retry).await.with_context(|| format!("opening {db_url}"))?;
+    let (listener, addr) = vint_coordinator::bind(SocketAddr::from((Ipv4Addr::LOCALHOST, 0))).await?;
     let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-    let server = tokio::spawn(vint_coordinator::serve(
-        store.clone(),
-        CoordinatorConfig::default(),
-        listener,
-        async {
-            let _ = stop_rx.await;
-        },
-    ));
+    let server = tokio::spawn(vint_coordinator::serve(store.clone(), CoordinatorConfig::default(), listener, async {
+        let _ = stop_rx.await;
+    }));
     let url = format!("http://{addr}");
 
     let result = async {
         let mut client = client::connect(&url).await?;
         let submitted = client
-            .submit_job(pb::SubmitJobRequest {
-                spec_toml: text,
-                idempotency_key: String::new(),
-            })
+            .submit_job(pb::SubmitJobRequest { spec_toml: text, idempotency_key: String::new() })
             .await
             .map_err(|s| client::rpc_failure("submit", s))?
             .into_inner();
-        let job = submitted
-            .job
-            .ok_or_else(|| anyhow!("coordinator returned no job"))?;
+        let job = submitted.job.ok_or_else(|| anyhow!("coordinator returned no job"))?;
         if !json {
-            let verb = if submitted.created {
-                "started"
-            } else {
-                "resumed"
-            };
+            let verb = if submitted.created { "started" } else { "resumed" };
             eprintln!(
                 "{verb} job {} ({}): up to {} samples, {workers} worker(s); state in {}",
                 job.job_id,
@@ -122,12 +91,7 @@ struct WorkerPool {
 }
 
 impl WorkerPool {
-    fn start(
-        coordinator: &str,
-        store_url: &str,
-        state: &Path,
-        n: u32,
-    ) -> Result<WorkerPool, Failure> {
+    fn start(coordinator: &str, store_url: &str, state: &Path, n: u32) -> Result<WorkerPool, Failure> {
         let mut pool = WorkerPool {
             children: Vec::new(),
             coordinator: coordinator.to_string(),
@@ -204,17 +168,12 @@ impl WorkerPool {
     async fn stop(&mut self) {
         for child in &self.children {
             if let Some(pid) = child.id() {
-                let _ = nix::sys::signal::kill(
-                    nix::unistd::Pid::from_raw(pid as i32),
-                    nix::sys::signal::Signal::SIGTERM,
-                );
+                let _ =
+                    nix::sys::signal::kill(nix::unistd::Pid::from_raw(pid as i32), nix::sys::signal::Signal::SIGTERM);
             }
         }
         for child in &mut self.children {
-            if tokio::time::timeout(Duration::from_secs(10), child.wait())
-                .await
-                .is_err()
-            {
+            if tokio::time::timeout(Duration::from_secs(10), child.wait()).await.is_err() {
                 let _ = child.kill().await;
             }
         }
@@ -231,10 +190,6 @@ fn worker_binary() -> Result<PathBuf, Failure> {
     if bin.exists() {
         Ok(bin)
     } else {
-        Err(anyhow!(
-            "vint-worker not found next to {} (build the workspace: scripts/setup.sh)",
-            exe.display()
-        )
-        .into())
+        Err(anyhow!("vint-worker not found next to {} (build the workspace: scripts/setup.sh)", exe.display()).into())
     }
 }

@@ -49,28 +49,20 @@ pub async fn export(
 ) -> Result<ExportSummary, Failure> {
     check_destination(out)?;
     let samples = client
-        .list_samples(pb::ListSamplesRequest {
-            job_id: job_id.into(),
-        })
+        .list_samples(pb::ListSamplesRequest { job_id: job_id.into() })
         .await
         .map_err(|s| rpc_failure("listing samples", s))?
         .into_inner()
         .samples;
-    let parent = out
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
+    let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
     let staging = parent.join(format!(
         ".{}.partial-{}",
-        out.file_name()
-            .and_then(|n| n.to_str())
-            .unwrap_or("dataset"),
+        out.file_name().and_then(|n| n.to_str()).unwrap_or("dataset"),
         std::process::id()
     ));
     if staging.exists() {
-        std::fs::remove_dir_all(&staging)
-            .with_context(|| format!("removing stale {}", staging.display()))?;
+        std::fs::remove_dir_all(&staging).with_context(|| format!("removing stale {}", staging.display()))?;
     }
     let written = write_dataset(store, &samples, &staging).await;
     let (files, bytes, manifest) = match written {
@@ -83,8 +75,7 @@ pub async fn export(
     if out.exists() {
         std::fs::remove_dir_all(out).with_context(|| format!("replacing {}", out.display()))?;
     }
-    std::fs::rename(&staging, out)
-        .with_context(|| format!("moving the dataset into {}", out.display()))?;
+    std::fs::rename(&staging, out).with_context(|| format!("moving the dataset into {}", out.display()))?;
     Ok(ExportSummary {
         job_id: job_id.to_string(),
         out: out.to_path_buf(),
@@ -101,14 +92,9 @@ pub fn check_destination(out: &Path) -> Result<(), Failure> {
         return Ok(());
     }
     if !out.is_dir() {
-        return Err(bad_input(anyhow!(
-            "--out {}: exists and is not a directory",
-            out.display()
-        )));
+        return Err(bad_input(anyhow!("--out {}: exists and is not a directory", out.display())));
     }
-    let empty = std::fs::read_dir(out)
-        .map(|mut d| d.next().is_none())
-        .unwrap_or(false);
+    let empty = std::fs::read_dir(out).map(|mut d| d.next().is_none()).unwrap_or(false);
     if !empty && !out.join("manifest.jsonl").exists() {
         return Err(bad_input(anyhow!(
             "--out {}: is a non-empty directory without manifest.jsonl; refusing to replace it",
@@ -129,24 +115,12 @@ async fn write_dataset(
     sorted.sort_by(|a, b| a.sample_id.cmp(&b.sample_id));
     for sample in sorted {
         if sample.sample_id.parse::<vint_core::SampleId>().is_err() {
-            return Err(anyhow!(
-                "coordinator returned a malformed sample id {:?}",
-                sample.sample_id
-            )
-            .into());
+            return Err(anyhow!("coordinator returned a malformed sample id {:?}", sample.sample_id).into());
         }
-        let mut line = ManifestLine {
-            sample_id: &sample.sample_id,
-            files: BTreeMap::new(),
-        };
+        let mut line = ManifestLine { sample_id: &sample.sample_id, files: BTreeMap::new() };
         for f in &sample.files {
             if f.name.contains('/') || f.name.starts_with('.') {
-                return Err(anyhow!(
-                    "sample {}: refusing file name {:?}",
-                    sample.sample_id,
-                    f.name
-                )
-                .into());
+                return Err(anyhow!("sample {}: refusing file name {:?}", sample.sample_id, f.name).into());
             }
             let path = dir.join(&sample.sample_id).join(&f.name);
             store
@@ -155,14 +129,7 @@ async fn write_dataset(
                 .with_context(|| format!("sample {}: fetching {}", sample.sample_id, f.name))?;
             files += 1;
             bytes += f.size;
-            line.files.insert(
-                &f.name,
-                ManifestFile {
-                    sha256: &f.sha256,
-                    size: f.size,
-                    media_type: &f.media_type,
-                },
-            );
+            line.files.insert(&f.name, ManifestFile { sha256: &f.sha256, size: f.size, media_type: &f.media_type });
         }
         serde_json::to_writer(&mut manifest, &line).context("encoding manifest")?;
         manifest.push(b'\n');

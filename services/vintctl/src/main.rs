@@ -9,6 +9,7 @@ mod client;
 mod embedded;
 mod export;
 mod report;
+mod study;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -16,22 +17,13 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
-#[command(
-    name = "vintctl",
-    version,
-    about = "Generate visuo-tactile in-hand datasets"
-)]
+#[command(name = "vintctl", version, about = "Generate visuo-tactile in-hand datasets")]
 struct Cli {
     /// Print machine-readable JSON instead of text.
     #[arg(long, global = true)]
     json: bool,
     /// Coordinator URL for the commands that talk to one (all but validate, run, hands and objects).
-    #[arg(
-        long,
-        global = true,
-        env = "VINT_COORDINATOR",
-        default_value = "http://127.0.0.1:7700"
-    )]
+    #[arg(long, global = true, env = "VINT_COORDINATOR", default_value = "http://127.0.0.1:7700")]
     coordinator: String,
     #[command(subcommand)]
     command: Command,
@@ -92,6 +84,21 @@ enum Command {
         #[arg(long, env = "VINT_STORE")]
         store: String,
     },
+    /// Accuracy-versus-cost studies: run the same work at several settings against a fine
+    /// reference and write CSV, a log-log plot and a markdown table.
+    Study {
+        /// What to study: `grasp` (physics timestep and solver settings).
+        subject: String,
+        /// Directory for the CSV, PNG and markdown outputs.
+        #[arg(long)]
+        out: PathBuf,
+        /// A small, fast version of the study (seconds, for smoke tests).
+        #[arg(long)]
+        quick: bool,
+        /// Extra arguments for the study (e.g. `--hands trx3 --seeds 4`), after `--`.
+        #[arg(last = true)]
+        extra: Vec<String>,
+    },
     /// List the built-in hands with their DoF and taxel counts per region.
     Hands,
     /// List the built-in objects with their mass, material and symmetry tags.
@@ -106,10 +113,7 @@ pub struct Failure {
 
 impl<E: Into<anyhow::Error>> From<E> for Failure {
     fn from(e: E) -> Self {
-        Failure {
-            code: 1,
-            error: e.into(),
-        }
+        Failure { code: 1, error: e.into() }
     }
 }
 
@@ -122,10 +126,7 @@ pub type CliResult = Result<(), Failure>;
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let runtime = match tokio::runtime::Builder::new_multi_thread()
-        .enable_all()
-        .build()
-    {
+    let runtime = match tokio::runtime::Builder::new_multi_thread().enable_all().build() {
         Ok(rt) => rt,
         Err(e) => {
             eprintln!("error: cannot start the async runtime: {e}");
@@ -146,28 +147,17 @@ async fn dispatch(cli: Cli) -> CliResult {
     let coordinator = cli.coordinator;
     match cli.command {
         Command::Validate { spec } => client::validate(&spec, json),
-        Command::Run {
-            spec,
-            out,
-            state,
-            workers,
-        } => embedded::run(&spec, &out, &state, workers, json).await,
-        Command::Submit {
-            spec,
-            idempotency_key,
-        } => client::submit(&coordinator, &spec, idempotency_key, json).await,
+        Command::Run { spec, out, state, workers } => embedded::run(&spec, &out, &state, workers, json).await,
+        Command::Submit { spec, idempotency_key } => client::submit(&coordinator, &spec, idempotency_key, json).await,
         Command::Status { job } => client::status(&coordinator, &job, json).await,
         Command::Watch { job } => client::watch(&coordinator, &job, json).await,
         Command::Cancel { job } => client::cancel(&coordinator, &job, json).await,
         Command::Jobs { limit } => client::jobs(&coordinator, limit, json).await,
-        Command::Lineage {
-            subject,
-            job,
-            artifact,
-        } => client::lineage(&coordinator, &subject, job, artifact, json).await,
-        Command::Export { job, out, store } => {
-            client::export(&coordinator, &job, &out, &store, json).await
+        Command::Lineage { subject, job, artifact } => {
+            client::lineage(&coordinator, &subject, job, artifact, json).await
         }
+        Command::Export { job, out, store } => client::export(&coordinator, &job, &out, &store, json).await,
+        Command::Study { subject, out, quick, extra } => study::run(&subject, &out, quick, &extra).await,
         Command::Hands => {
             report::hands(json);
             Ok(())

@@ -13,22 +13,14 @@ use crate::client::rpc_failure;
 use crate::export::ExportSummary;
 
 pub fn print_json(v: &Value) {
-    println!(
-        "{}",
-        serde_json::to_string_pretty(v).unwrap_or_else(|_| v.to_string())
-    );
+    println!("{}", serde_json::to_string_pretty(v).unwrap_or_else(|_| v.to_string()));
 }
 
 pub fn progress_json(p: &pb::JobProgress) -> Value {
     let stages: serde_json::Map<String, Value> = p
         .stages
         .iter()
-        .map(|(k, s)| {
-            (
-                k.clone(),
-                json!({"total": s.total, "succeeded": s.succeeded, "failed": s.failed}),
-            )
-        })
+        .map(|(k, s)| (k.clone(), json!({"total": s.total, "succeeded": s.succeeded, "failed": s.failed})))
         .collect();
     json!({
         "job_id": p.job_id, "state": p.state, "tasks_total": p.tasks_total, "tasks_succeeded": p.tasks_succeeded,
@@ -41,11 +33,7 @@ pub fn progress_json(p: &pb::JobProgress) -> Value {
 fn progress_line(p: &pb::JobProgress) -> String {
     let stages: Vec<String> = ["grasp", "render", "noise", "package"]
         .iter()
-        .filter_map(|s| {
-            p.stages
-                .get(*s)
-                .map(|st| format!("{s} {}/{}", st.succeeded, st.total))
-        })
+        .filter_map(|s| p.stages.get(*s).map(|st| format!("{s} {}/{}", st.succeeded, st.total)))
         .collect();
     format!(
         "{} samples · {} · running {} · failed {}",
@@ -79,10 +67,7 @@ pub fn jobs(jobs: &[pb::Job], json: bool) {
     } else {
         for j in jobs {
             let samples = j.progress.as_ref().map(|p| p.samples_packaged).unwrap_or(0);
-            println!(
-                "{}  {:<10} {:<20} {} samples",
-                j.job_id, j.state, j.name, samples
-            );
+            println!("{}  {:<10} {:<20} {} samples", j.job_id, j.state, j.name, samples);
         }
     }
 }
@@ -102,22 +87,14 @@ pub async fn follow(
     json: Option<JsonProgress>,
 ) -> Result<pb::JobProgress, Failure> {
     let mut stream = client
-        .watch_job(pb::WatchJobRequest {
-            job_id: job_id.into(),
-        })
+        .watch_job(pb::WatchJobRequest { job_id: job_id.into() })
         .await
         .map_err(|s| rpc_failure("watch", s))?
         .into_inner();
-    let bar = if json.is_some() {
-        ProgressBar::hidden()
-    } else {
-        ProgressBar::new(0)
-    };
+    let bar = if json.is_some() { ProgressBar::hidden() } else { ProgressBar::new(0) };
     bar.set_style(
-        ProgressStyle::with_template(
-            "{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} tasks  {msg}",
-        )
-        .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} tasks  {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
     let mut last = None;
     while let Some(update) = stream.next().await {
@@ -133,15 +110,9 @@ pub async fn follow(
         last = Some(p);
     }
     bar.finish_and_clear();
-    let last =
-        last.ok_or_else(|| anyhow!("the coordinator closed the watch without any progress"))?;
+    let last = last.ok_or_else(|| anyhow!("the coordinator closed the watch without any progress"))?;
     if json.is_none() {
-        eprintln!(
-            "job {} {}: {}",
-            last.job_id,
-            last.state,
-            progress_line(&last)
-        );
+        eprintln!("job {} {}: {}", last.job_id, last.state, progress_line(&last));
     }
     Ok(last)
 }
@@ -169,31 +140,19 @@ pub fn lineage(l: &pb::Lineage, json: bool) {
     println!("lineage of {} (job {})", l.subject, l.job_id);
     for t in &l.tasks {
         let engine: Value = serde_json::from_str(&t.engine_json).unwrap_or(Value::Null);
-        let libs = engine
-            .get("libs")
-            .map(|v| v.to_string())
-            .unwrap_or_default();
-        println!(
-            "\n● {} [{}] {} — {} attempt(s)",
-            t.key, t.stage, t.state, t.attempts
-        );
+        let libs = engine.get("libs").map(|v| v.to_string()).unwrap_or_default();
+        println!("\n● {} [{}] {} — {} attempt(s)", t.key, t.stage, t.state, t.attempts);
         println!(
             "  engine: {} {} {}",
             engine.get("name").and_then(Value::as_str).unwrap_or("?"),
             engine.get("version").and_then(Value::as_str).unwrap_or("?"),
             libs
         );
-        let params = if t.params_json.len() > 300 {
-            format!("{}…", &t.params_json[..300])
-        } else {
-            t.params_json.clone()
-        };
+        let params =
+            if t.params_json.len() > 300 { format!("{}…", &t.params_json[..300]) } else { t.params_json.clone() };
         println!("  params: {params}");
         for a in &t.inputs {
-            println!(
-                "  in  {:<24} sha256:{} (from {})",
-                a.name, a.sha256, a.task_key
-            );
+            println!("  in  {:<24} sha256:{} (from {})", a.name, a.sha256, a.task_key);
         }
         for a in &t.outputs {
             println!("  out {:<24} sha256:{} {} B", a.name, a.sha256, a.size);

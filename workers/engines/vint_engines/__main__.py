@@ -1,4 +1,5 @@
-"""Command line: `python -m vint_engines serve --stage {grasp|render|noise}`.
+"""Command line: `python -m vint_engines serve --stage {grasp|render|noise}`, and
+`python -m vint_engines study grasp --out DIR` (the physics study, `vint_engines/study/`).
 
 Only parses arguments and wires a stage's engine into the serve loop; heavy libraries are imported
 by the chosen stage alone, so a noise engine never pays for Blender.
@@ -9,6 +10,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+from pathlib import Path
 
 from vint_engines.protocol import Engine, ProtocolError, serve
 
@@ -32,12 +34,35 @@ def make_engine(stage: str) -> Engine:
     raise ValueError(f"unknown stage {stage!r}")
 
 
+def names(text: str) -> list[str]:
+    return [name.strip() for name in text.split(",") if name.strip()]
+
+
+def run_study(args: argparse.Namespace) -> int:
+    from vint_engines.study import grasp
+
+    quick_objects = ("tomato_soup_can",) if args.quick else grasp.OBJECTS
+    quick_hands = ("trx3",) if args.quick else grasp.HANDS
+    return grasp.main(
+        args.out, args.quick, args.hands or quick_hands, args.objects or quick_objects, args.seeds
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="vint_engines", description=__doc__)
     commands = parser.add_subparsers(dest="command", required=True)
     serve_cmd = commands.add_parser("serve", help="serve tasks over stdin/stdout (PROTOCOL.md)")
     serve_cmd.add_argument("--stage", required=True, choices=STAGES)
+    study_cmd = commands.add_parser("study", help="run a numerics study and write its report")
+    study_cmd.add_argument("study", choices=("grasp",))
+    study_cmd.add_argument("--out", required=True, type=Path, help="directory for the CSVs, plot and table")
+    study_cmd.add_argument("--quick", action="store_true", help="few seeds and configurations (< 60 s)")
+    study_cmd.add_argument("--hands", type=names, help="comma-separated hands (default: trx3,allegro)")
+    study_cmd.add_argument("--objects", type=names, help="comma-separated catalog objects")
+    study_cmd.add_argument("--seeds", type=int, help="trials per hand and object (default 8, quick 2)")
     args = parser.parse_args(argv)  # exits 2 on a bad command or stage
+    if args.command == "study":
+        return run_study(args)
 
     logging.basicConfig(
         stream=sys.stderr,

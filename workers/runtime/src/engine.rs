@@ -21,11 +21,7 @@ const MAX_FRAME_BYTES: u32 = 64 << 20;
 #[derive(Debug, thiserror::Error)]
 pub enum EngineError {
     #[error("could not start the {stage} engine ({python}): {source}")]
-    Spawn {
-        stage: Stage,
-        python: String,
-        source: std::io::Error,
-    },
+    Spawn { stage: Stage, python: String, source: std::io::Error },
     #[error("the {stage} engine crashed: {detail}")]
     Crashed { stage: Stage, detail: String },
     #[error("the {stage} engine broke the protocol: {detail}")]
@@ -109,41 +105,19 @@ impl Engine {
             .stderr(Stdio::inherit())
             .kill_on_drop(true)
             .spawn()
-            .map_err(|source| EngineError::Spawn {
-                stage,
-                python: cmd.python.display().to_string(),
-                source,
-            })?;
-        let crashed = |detail: &str| EngineError::Crashed {
-            stage,
-            detail: detail.to_string(),
-        };
+            .map_err(|source| EngineError::Spawn { stage, python: cmd.python.display().to_string(), source })?;
+        let crashed = |detail: &str| EngineError::Crashed { stage, detail: detail.to_string() };
         let stdin = child.stdin.take().ok_or_else(|| crashed("no stdin pipe"))?;
-        let stdout = child
-            .stdout
-            .take()
-            .ok_or_else(|| crashed("no stdout pipe"))?;
-        let mut engine = Engine {
-            stage,
-            child,
-            stdin,
-            stdout,
-            identity: Value::Null,
-            task_timeout: cmd.task_timeout,
-        };
+        let stdout = child.stdout.take().ok_or_else(|| crashed("no stdout pipe"))?;
+        let mut engine = Engine { stage, child, stdin, stdout, identity: Value::Null, task_timeout: cmd.task_timeout };
         let hello = match tokio::time::timeout(cmd.start_timeout, engine.read_frame()).await {
             Ok(r) => r?,
             Err(_) => {
-                return Err(engine
-                    .kill(&format!("no hello within {:?}", cmd.start_timeout))
-                    .await);
+                return Err(engine.kill(&format!("no hello within {:?}", cmd.start_timeout)).await);
             }
         };
         if hello.get("type").and_then(Value::as_str) != Some("hello") {
-            return Err(EngineError::Protocol {
-                stage,
-                detail: format!("expected hello, got {hello}"),
-            });
+            return Err(EngineError::Protocol { stage, detail: format!("expected hello, got {hello}") });
         }
         engine.identity = hello.get("engine").cloned().unwrap_or(Value::Null);
         tracing::info!(stage = %stage, engine = %engine.identity, "engine ready");
@@ -162,44 +136,25 @@ impl Engine {
         inputs: &[EngineInput],
         out_dir: &Path,
     ) -> Result<EngineResult, EngineError> {
-        let msg = TaskMessage {
-            kind: "task",
-            task_id,
-            params,
-            inputs,
-            out_dir,
-        };
-        let body = serde_json::to_vec(&msg).map_err(|e| EngineError::Protocol {
-            stage: self.stage,
-            detail: e.to_string(),
-        })?;
+        let msg = TaskMessage { kind: "task", task_id, params, inputs, out_dir };
+        let body =
+            serde_json::to_vec(&msg).map_err(|e| EngineError::Protocol { stage: self.stage, detail: e.to_string() })?;
         self.write_frame(&body).await?;
         let reply = match tokio::time::timeout(self.task_timeout, self.read_frame()).await {
             Ok(r) => r?,
             Err(_) => {
-                return Err(self
-                    .kill(&format!("task {task_id} ran past {:?}", self.task_timeout))
-                    .await);
+                return Err(self.kill(&format!("task {task_id} ran past {:?}", self.task_timeout)).await);
             }
         };
         if reply.get("type").and_then(Value::as_str) != Some("result") {
-            return Err(EngineError::Protocol {
-                stage: self.stage,
-                detail: format!("expected result, got {reply}"),
-            });
+            return Err(EngineError::Protocol { stage: self.stage, detail: format!("expected result, got {reply}") });
         }
-        let result: EngineResult =
-            serde_json::from_value(reply).map_err(|e| EngineError::Protocol {
-                stage: self.stage,
-                detail: e.to_string(),
-            })?;
+        let result: EngineResult = serde_json::from_value(reply)
+            .map_err(|e| EngineError::Protocol { stage: self.stage, detail: e.to_string() })?;
         if result.task_id != task_id {
             return Err(EngineError::Protocol {
                 stage: self.stage,
-                detail: format!(
-                    "result for task {:?} while running {task_id:?}",
-                    result.task_id
-                ),
+                detail: format!("result for task {:?} while running {task_id:?}", result.task_id),
             });
         }
         Ok(result)
@@ -208,10 +163,7 @@ impl Engine {
     /// Asks the engine to exit and waits briefly; kills it otherwise.
     pub async fn shutdown(mut self) {
         let _ = self.write_frame(br#"{"type":"shutdown"}"#).await;
-        if tokio::time::timeout(Duration::from_secs(5), self.child.wait())
-            .await
-            .is_err()
-        {
+        if tokio::time::timeout(Duration::from_secs(5), self.child.wait()).await.is_err() {
             let _ = self.child.kill().await;
         }
     }
@@ -223,20 +175,13 @@ impl Engine {
 
     async fn kill(&mut self, why: &str) -> EngineError {
         let _ = self.child.kill().await;
-        EngineError::Crashed {
-            stage: self.stage,
-            detail: why.to_string(),
-        }
+        EngineError::Crashed { stage: self.stage, detail: why.to_string() }
     }
 
     async fn write_frame(&mut self, body: &[u8]) -> Result<(), EngineError> {
-        let len = u32::try_from(body.len())
-            .ok()
-            .filter(|&n| n <= MAX_FRAME_BYTES)
-            .ok_or_else(|| EngineError::Protocol {
-                stage: self.stage,
-                detail: format!("frame of {} bytes is too large", body.len()),
-            })?;
+        let len = u32::try_from(body.len()).ok().filter(|&n| n <= MAX_FRAME_BYTES).ok_or_else(|| {
+            EngineError::Protocol { stage: self.stage, detail: format!("frame of {} bytes is too large", body.len()) }
+        })?;
         let write = async {
             self.stdin.write_all(&len.to_be_bytes()).await?;
             self.stdin.write_all(body).await?;
@@ -244,10 +189,7 @@ impl Engine {
         };
         if let Err(e) = write.await {
             let detail = self.exit_detail(&e.to_string()).await;
-            return Err(EngineError::Crashed {
-                stage: self.stage,
-                detail,
-            });
+            return Err(EngineError::Crashed { stage: self.stage, detail });
         }
         Ok(())
     }
@@ -256,30 +198,18 @@ impl Engine {
         let mut len = [0u8; 4];
         if let Err(e) = self.stdout.read_exact(&mut len).await {
             let detail = self.exit_detail(&e.to_string()).await;
-            return Err(EngineError::Crashed {
-                stage: self.stage,
-                detail,
-            });
+            return Err(EngineError::Crashed { stage: self.stage, detail });
         }
         let len = u32::from_be_bytes(len);
         if len > MAX_FRAME_BYTES {
-            return Err(EngineError::Protocol {
-                stage: self.stage,
-                detail: format!("frame of {len} bytes"),
-            });
+            return Err(EngineError::Protocol { stage: self.stage, detail: format!("frame of {len} bytes") });
         }
         let mut body = vec![0u8; len as usize];
         if let Err(e) = self.stdout.read_exact(&mut body).await {
             let detail = self.exit_detail(&e.to_string()).await;
-            return Err(EngineError::Crashed {
-                stage: self.stage,
-                detail,
-            });
+            return Err(EngineError::Crashed { stage: self.stage, detail });
         }
-        serde_json::from_slice(&body).map_err(|e| EngineError::Protocol {
-            stage: self.stage,
-            detail: e.to_string(),
-        })
+        serde_json::from_slice(&body).map_err(|e| EngineError::Protocol { stage: self.stage, detail: e.to_string() })
     }
 
     /// Describes how the engine ended, after an I/O error on its pipes.

@@ -40,11 +40,7 @@ pub enum PackageError {
     #[error("package params: {0}")]
     Params(String),
     #[error("sample {sample}: input {name:?} of task {task_key} is missing")]
-    MissingInput {
-        sample: String,
-        task_key: String,
-        name: String,
-    },
+    MissingInput { sample: String, task_key: String, name: String },
     #[error("sample {sample}: {what}")]
     BadInput { sample: String, what: String },
     #[error(transparent)]
@@ -74,12 +70,7 @@ struct SampleRef {
 const MODALITY_FILES: &[(&str, &str, &str, &str)] = &[
     ("rgb", "rgb.png", "render", "v{v}_rgb.png"),
     ("depth", "depth.npy", "render", "v{v}_depth.npy"),
-    (
-        "depth_noisy",
-        "depth_noisy.npy",
-        "noise",
-        "v{v}_depth_noisy.npy",
-    ),
+    ("depth_noisy", "depth_noisy.npy", "noise", "v{v}_depth_noisy.npy"),
     ("mask", "mask.png", "render", "v{v}_mask.png"),
 ];
 
@@ -88,28 +79,20 @@ pub async fn package(
     inputs: &[PackageInput],
     store: &ArtifactStore,
 ) -> Result<Vec<PackagedFile>, PackageError> {
-    let params: Params =
-        serde_json::from_value(params.clone()).map_err(|e| PackageError::Params(e.to_string()))?;
-    let by_origin: BTreeMap<(&str, &str), &PackageInput> = inputs
-        .iter()
-        .map(|i| ((i.task_key.as_str(), i.name.as_str()), i))
-        .collect();
+    let params: Params = serde_json::from_value(params.clone()).map_err(|e| PackageError::Params(e.to_string()))?;
+    let by_origin: BTreeMap<(&str, &str), &PackageInput> =
+        inputs.iter().map(|i| ((i.task_key.as_str(), i.name.as_str()), i)).collect();
     let mut grasp_docs: BTreeMap<String, Value> = BTreeMap::new();
     let mut files = Vec::new();
     for s in &params.samples {
-        let id: SampleId = s
-            .sample_id
-            .parse()
-            .map_err(|e: vint_core::sample::BadSampleId| PackageError::Params(e.to_string()))?;
+        let id: SampleId =
+            s.sample_id.parse().map_err(|e: vint_core::sample::BadSampleId| PackageError::Params(e.to_string()))?;
         let find = |task_key: String, name: String| {
-            by_origin
-                .get(&(task_key.as_str(), name.as_str()))
-                .copied()
-                .ok_or_else(|| PackageError::MissingInput {
-                    sample: s.sample_id.clone(),
-                    task_key,
-                    name,
-                })
+            by_origin.get(&(task_key.as_str(), name.as_str())).copied().ok_or_else(|| PackageError::MissingInput {
+                sample: s.sample_id.clone(),
+                task_key,
+                name,
+            })
         };
         let view = format!("{:02}", id.view_index);
         for (modality, file, stage, pattern) in MODALITY_FILES {
@@ -129,18 +112,11 @@ pub async fn package(
                 key: src.key.clone(),
             });
         }
-        let camera_ref = find(
-            render_key(&id.object, &id.hand, id.grasp_index),
-            format!("v{view}_camera.json"),
-        )?;
+        let camera_ref = find(render_key(&id.object, &id.hand, id.grasp_index), format!("v{view}_camera.json"))?;
         let camera = read_json(store, camera_ref, &s.sample_id).await?;
         let grasp_ref = inputs
             .iter()
-            .find(|i| {
-                i.name == "grasps.json"
-                    && i.task_key
-                        .starts_with(&format!("grasp/{}/{}/", id.object, id.hand))
-            })
+            .find(|i| i.name == "grasps.json" && i.task_key.starts_with(&format!("grasp/{}/{}/", id.object, id.hand)))
             .ok_or_else(|| PackageError::MissingInput {
                 sample: s.sample_id.clone(),
                 task_key: format!("grasp/{}/{}/…", id.object, id.hand),
@@ -152,8 +128,7 @@ pub async fn package(
         }
         let grasps = &grasp_docs[&grasp_ref.sha256];
         let meta = sample_meta(&id, grasps, &camera)?;
-        let bytes =
-            serde_json::to_vec_pretty(&meta).map_err(|e| PackageError::Params(e.to_string()))?;
+        let bytes = serde_json::to_vec_pretty(&meta).map_err(|e| PackageError::Params(e.to_string()))?;
         let stored = store.put_bytes(bytes.into()).await?;
         files.push(PackagedFile {
             name: format!("{}/meta.json", s.sample_id),
@@ -166,11 +141,7 @@ pub async fn package(
     Ok(files)
 }
 
-async fn read_json(
-    store: &ArtifactStore,
-    input: &PackageInput,
-    sample: &str,
-) -> Result<Value, PackageError> {
+async fn read_json(store: &ArtifactStore, input: &PackageInput, sample: &str) -> Result<Value, PackageError> {
     let bytes = store.get(&input.sha256).await?;
     serde_json::from_slice(&bytes).map_err(|e| PackageError::BadInput {
         sample: sample.to_string(),
@@ -182,10 +153,7 @@ async fn read_json(
 fn sample_meta(id: &Sid, grasps: &Value, camera: &Value) -> Result<Value, PackageError> {
     let trial = grasps["trials"]
         .as_array()
-        .and_then(|ts| {
-            ts.iter()
-                .find(|t| t["grasp_index"].as_u64() == Some(u64::from(id.grasp_index)))
-        })
+        .and_then(|ts| ts.iter().find(|t| t["grasp_index"].as_u64() == Some(u64::from(id.grasp_index))))
         .ok_or_else(|| PackageError::BadInput {
             sample: id.to_string(),
             what: format!("grasps.json has no trial {}", id.grasp_index),

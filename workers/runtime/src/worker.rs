@@ -41,10 +41,7 @@ pub struct WorkerConfig {
 #[derive(Debug, thiserror::Error)]
 pub enum WorkerError {
     #[error("invalid coordinator URL {url:?}: {source}")]
-    BadCoordinatorUrl {
-        url: String,
-        source: tonic::transport::Error,
-    },
+    BadCoordinatorUrl { url: String, source: tonic::transport::Error },
 }
 
 /// Why a task attempt did not complete.
@@ -56,16 +53,10 @@ struct TaskFailure {
 
 impl TaskFailure {
     fn retryable(message: impl Into<String>) -> Self {
-        TaskFailure {
-            retryable: true,
-            message: message.into(),
-        }
+        TaskFailure { retryable: true, message: message.into() }
     }
     fn permanent(message: impl Into<String>) -> Self {
-        TaskFailure {
-            retryable: false,
-            message: message.into(),
-        }
+        TaskFailure { retryable: false, message: message.into() }
     }
 }
 
@@ -86,29 +77,16 @@ pub struct Worker {
 impl Worker {
     pub fn new(config: WorkerConfig, store: ArtifactStore) -> Result<Worker, WorkerError> {
         let endpoint = Endpoint::from_shared(config.coordinator.clone())
-            .map_err(|source| WorkerError::BadCoordinatorUrl {
-                url: config.coordinator.clone(),
-                source,
-            })?
+            .map_err(|source| WorkerError::BadCoordinatorUrl { url: config.coordinator.clone(), source })?
             .connect_timeout(Duration::from_secs(5));
         let client = WorkServiceClient::new(endpoint.connect_lazy());
-        Ok(Worker {
-            config,
-            client,
-            store,
-            engines: HashMap::new(),
-        })
+        Ok(Worker { config, client, store, engines: HashMap::new() })
     }
 
     /// Serves tasks until `shutdown` resolves; the task in flight is finished first.
     pub async fn run(mut self, shutdown: impl Future<Output = ()>) {
         tokio::pin!(shutdown);
-        let stages: Vec<String> = self
-            .config
-            .stages
-            .iter()
-            .map(|s| s.as_str().to_string())
-            .collect();
+        let stages: Vec<String> = self.config.stages.iter().map(|s| s.as_str().to_string()).collect();
         let mut idle = Duration::from_millis(50);
         loop {
             let request = pb::LeaseTasksRequest {
@@ -153,17 +131,11 @@ impl Worker {
             let heartbeat = tokio::spawn(heartbeat_loop(
                 self.client.clone(),
                 self.config.worker_id.clone(),
-                pb::TaskAttempt {
-                    task_id: task.task_id.clone(),
-                    attempt: task.attempt,
-                },
+                pb::TaskAttempt { task_id: task.task_id.clone(), attempt: task.attempt },
                 self.config.lease_ms,
                 lost.clone(),
             ));
-            let dir =
-                self.config
-                    .scratch
-                    .join(format!("{}-a{}", sanitize(&task.task_id), task.attempt));
+            let dir = self.config.scratch.join(format!("{}-a{}", sanitize(&task.task_id), task.attempt));
             let outcome = self.execute(&task, &dir).await;
             heartbeat.abort();
             let _ = tokio::fs::remove_dir_all(&dir).await;
@@ -180,16 +152,10 @@ impl Worker {
         .await
     }
 
-    async fn execute(
-        &mut self,
-        task: &pb::LeasedTask,
-        dir: &Path,
-    ) -> Result<Finished, TaskFailure> {
+    async fn execute(&mut self, task: &pb::LeasedTask, dir: &Path) -> Result<Finished, TaskFailure> {
         let started = Instant::now();
-        let stage: Stage = task
-            .stage
-            .parse()
-            .map_err(|e: vint_core::stage::UnknownStage| TaskFailure::permanent(e.to_string()))?;
+        let stage: Stage =
+            task.stage.parse().map_err(|e: vint_core::stage::UnknownStage| TaskFailure::permanent(e.to_string()))?;
         let params: Value = serde_json::from_str(&task.params_json)
             .map_err(|e| TaskFailure::permanent(format!("task params are not JSON: {e}")))?;
         if stage == Stage::Package {
@@ -207,10 +173,7 @@ impl Worker {
                 .collect();
             let files = package::package(&params, &inputs, &self.store)
                 .await
-                .map_err(|e| TaskFailure {
-                    retryable: e.retryable(),
-                    message: e.to_string(),
-                })?;
+                .map_err(|e| TaskFailure { retryable: e.retryable(), message: e.to_string() })?;
             let engine_ms = ms(started.elapsed());
             let outputs = files
                 .into_iter()
@@ -223,26 +186,20 @@ impl Worker {
                     task_key: task.key.clone(),
                 })
                 .collect();
-            let engine =
-                serde_json::json!({"name": "vint-package", "version": env!("CARGO_PKG_VERSION")});
+            let engine = serde_json::json!({"name": "vint-package", "version": env!("CARGO_PKG_VERSION")});
             return Ok(Finished {
                 outputs,
                 engine_json: engine.to_string(),
                 result_json: "{}".into(),
-                timings: pb::Timings {
-                    fetch_ms: 0.0,
-                    engine_ms,
-                    upload_ms: 0.0,
-                    total_ms: engine_ms,
-                },
+                timings: pb::Timings { fetch_ms: 0.0, engine_ms, upload_ms: 0.0, total_ms: engine_ms },
             });
         }
 
         let in_dir = dir.join("in");
         let out_dir = dir.join("out");
-        tokio::fs::create_dir_all(&out_dir).await.map_err(|e| {
-            TaskFailure::retryable(format!("creating scratch {}: {e}", out_dir.display()))
-        })?;
+        tokio::fs::create_dir_all(&out_dir)
+            .await
+            .map_err(|e| TaskFailure::retryable(format!("creating scratch {}: {e}", out_dir.display())))?;
         let fetch_start = Instant::now();
         let mut inputs = Vec::new();
         for a in task.inputs.iter().filter(|a| stage_reads(stage, &a.name)) {
@@ -250,17 +207,8 @@ impl Worker {
             self.store
                 .get_to_file(&a.sha256, &path)
                 .await
-                .map_err(|e| {
-                    TaskFailure::retryable(format!(
-                        "fetching input {} of {}: {e}",
-                        a.name, a.task_key
-                    ))
-                })?;
-            inputs.push(EngineInput {
-                name: a.name.clone(),
-                task_key: a.task_key.clone(),
-                path,
-            });
+                .map_err(|e| TaskFailure::retryable(format!("fetching input {} of {}: {e}", a.name, a.task_key)))?;
+            inputs.push(EngineInput { name: a.name.clone(), task_key: a.task_key.clone(), path });
         }
         let fetch_ms = ms(fetch_start.elapsed());
 
@@ -277,10 +225,7 @@ impl Worker {
         };
         let engine_ms = ms(engine_start.elapsed());
         if !result.ok {
-            return Err(TaskFailure {
-                retryable: result.retryable,
-                message: format!("engine: {}", result.error),
-            });
+            return Err(TaskFailure { retryable: result.retryable, message: format!("engine: {}", result.error) });
         }
 
         let upload_start = Instant::now();
@@ -319,29 +264,20 @@ impl Worker {
             outputs,
             engine_json: engine_json.to_string(),
             result_json,
-            timings: pb::Timings {
-                fetch_ms,
-                engine_ms,
-                upload_ms,
-                total_ms: ms(started.elapsed()),
-            },
+            timings: pb::Timings { fetch_ms, engine_ms, upload_ms, total_ms: ms(started.elapsed()) },
         })
     }
 
     /// The warm engine of `stage`, started on first use.
     async fn engine(&mut self, stage: Stage) -> Result<&mut Engine, TaskFailure> {
         if !self.engines.contains_key(&stage) {
-            let engine = Engine::start(stage, &self.config.engine)
-                .await
-                .map_err(|e| match e {
-                    EngineError::Spawn { .. } => TaskFailure::retryable(e.to_string()),
-                    other => TaskFailure::retryable(other.to_string()),
-                })?;
+            let engine = Engine::start(stage, &self.config.engine).await.map_err(|e| match e {
+                EngineError::Spawn { .. } => TaskFailure::retryable(e.to_string()),
+                other => TaskFailure::retryable(other.to_string()),
+            })?;
             self.engines.insert(stage, engine);
         }
-        self.engines
-            .get_mut(&stage)
-            .ok_or_else(|| TaskFailure::retryable("engine vanished"))
+        self.engines.get_mut(&stage).ok_or_else(|| TaskFailure::retryable("engine vanished"))
     }
 
     async fn complete(&mut self, task: &pb::LeasedTask, done: Finished) {
@@ -362,11 +298,9 @@ impl Worker {
         })
         .await;
         match sent {
-            Ok(()) => tracing::info!(
-                total_ms = done.timings.total_ms,
-                engine_ms = done.timings.engine_ms,
-                "task completed"
-            ),
+            Ok(()) => {
+                tracing::info!(total_ms = done.timings.total_ms, engine_ms = done.timings.engine_ms, "task completed")
+            }
             Err(s) if s.code() == Code::FailedPrecondition => {
                 tracing::warn!(error = %s.message(), "completion refused: lease lost")
             }
@@ -413,26 +347,18 @@ async fn grasp_summary(outputs: &[crate::engine::EngineOutput]) -> Result<String
         .iter()
         .find(|o| o.name == "grasps.json")
         .ok_or_else(|| TaskFailure::permanent("grasp engine wrote no grasps.json"))?;
-    let bytes = tokio::fs::read(&out.path)
-        .await
-        .map_err(|e| TaskFailure::retryable(format!("reading grasps.json: {e}")))?;
-    let doc: Value = serde_json::from_slice(&bytes)
-        .map_err(|e| TaskFailure::permanent(format!("grasps.json: {e}")))?;
-    let trials = doc["trials"]
-        .as_array()
-        .ok_or_else(|| TaskFailure::permanent("grasps.json has no trials"))?;
+    let bytes =
+        tokio::fs::read(&out.path).await.map_err(|e| TaskFailure::retryable(format!("reading grasps.json: {e}")))?;
+    let doc: Value = serde_json::from_slice(&bytes).map_err(|e| TaskFailure::permanent(format!("grasps.json: {e}")))?;
+    let trials = doc["trials"].as_array().ok_or_else(|| TaskFailure::permanent("grasps.json has no trials"))?;
     let mut accepted = Vec::new();
     let mut rejected: std::collections::BTreeMap<String, u64> = Default::default();
     for t in trials {
-        let index = t["grasp_index"]
-            .as_u64()
-            .ok_or_else(|| TaskFailure::permanent("trial without grasp_index"))?;
+        let index = t["grasp_index"].as_u64().ok_or_else(|| TaskFailure::permanent("trial without grasp_index"))?;
         if t["accepted"].as_bool() == Some(true) {
             accepted.push(index);
         } else {
-            *rejected
-                .entry(t["reason"].as_str().unwrap_or("unknown").to_string())
-                .or_default() += 1;
+            *rejected.entry(t["reason"].as_str().unwrap_or("unknown").to_string()).or_default() += 1;
         }
     }
     Ok(serde_json::json!({"accepted": accepted, "rejected": rejected}).to_string())
@@ -448,19 +374,9 @@ async fn heartbeat_loop(
     let every = Duration::from_millis(u64::from(lease_ms / 3).max(200));
     loop {
         tokio::time::sleep(every).await;
-        let request = pb::HeartbeatRequest {
-            worker_id: worker_id.clone(),
-            held: vec![held.clone()],
-            lease_ms,
-        };
+        let request = pb::HeartbeatRequest { worker_id: worker_id.clone(), held: vec![held.clone()], lease_ms };
         match client.heartbeat(request).await {
-            Ok(resp)
-                if resp
-                    .get_ref()
-                    .lost
-                    .iter()
-                    .any(|l| l.task_id == held.task_id) =>
-            {
+            Ok(resp) if resp.get_ref().lost.iter().any(|l| l.task_id == held.task_id) => {
                 lost.store(true, Ordering::SeqCst);
                 return;
             }
@@ -482,10 +398,7 @@ where
         match call().await {
             Ok(()) => return Ok(()),
             Err(s)
-                if matches!(
-                    s.code(),
-                    Code::Unavailable | Code::Unknown | Code::DeadlineExceeded | Code::Cancelled
-                ) =>
+                if matches!(s.code(), Code::Unavailable | Code::Unknown | Code::DeadlineExceeded | Code::Cancelled) =>
             {
                 let now = std::time::SystemTime::now()
                     .duration_since(std::time::UNIX_EPOCH)
@@ -509,13 +422,5 @@ fn ms(d: Duration) -> f64 {
 
 /// A path component from an id: keeps `[A-Za-z0-9._-]`, replaces the rest.
 fn sanitize(s: &str) -> String {
-    s.chars()
-        .map(|c| {
-            if c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-') {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect()
+    s.chars().map(|c| if c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-') { c } else { '_' }).collect()
 }

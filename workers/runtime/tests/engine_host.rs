@@ -9,20 +9,9 @@ use vint_runtime::engine::{Engine, EngineCommand, EngineError, EngineInput};
 
 fn command() -> EngineCommand {
     let (engines_dir, default_python) = vint_runtime::checkout_defaults();
-    let python = std::env::var("VINT_PYTHON")
-        .map(PathBuf::from)
-        .unwrap_or(default_python);
-    assert!(
-        python.exists(),
-        "engine Python {} is missing: run scripts/setup-python.sh",
-        python.display()
-    );
-    EngineCommand {
-        python,
-        engines_dir,
-        task_timeout: Duration::from_secs(60),
-        start_timeout: Duration::from_secs(60),
-    }
+    let python = std::env::var("VINT_PYTHON").map(PathBuf::from).unwrap_or(default_python);
+    assert!(python.exists(), "engine Python {} is missing: run scripts/setup-python.sh", python.display());
+    EngineCommand { python, engines_dir, task_timeout: Duration::from_secs(60), start_timeout: Duration::from_secs(60) }
 }
 
 /// A float32 `.npy` file of `h`×`w` metres, constant depth.
@@ -51,11 +40,7 @@ fn noise_task(dir: &Path) -> (serde_json::Value, Vec<EngineInput>, PathBuf) {
                   "edge_hole_jump_m": 0.05, "dropout": 0.01},
         "views": [{"view_index": 0, "seed": 42}],
     });
-    let inputs = vec![EngineInput {
-        name: "v00_depth.npy".into(),
-        task_key: "render/x".into(),
-        path: depth,
-    }];
+    let inputs = vec![EngineInput { name: "v00_depth.npy".into(), task_key: "render/x".into(), path: depth }];
     (params, inputs, out)
 }
 
@@ -68,19 +53,13 @@ async fn one_engine_process_serves_many_tasks() {
     let (params, inputs, out) = noise_task(dir.path());
     let mut hashes = Vec::new();
     for i in 0..3 {
-        let r = engine
-            .run(&format!("t{i}"), &params, &inputs, &out)
-            .await
-            .unwrap();
+        let r = engine.run(&format!("t{i}"), &params, &inputs, &out).await.unwrap();
         assert!(r.ok, "{}", r.error);
         assert_eq!(r.outputs.len(), 1);
         hashes.push(std::fs::read(&r.outputs[0].path).unwrap());
     }
     assert_eq!(engine.pid(), pid, "the same process served every task");
-    assert!(
-        hashes.windows(2).all(|w| w[0] == w[1]),
-        "same seed, same noisy depth"
-    );
+    assert!(hashes.windows(2).all(|w| w[0] == w[1]), "same seed, same noisy depth");
     engine.shutdown().await;
 }
 
@@ -89,15 +68,7 @@ async fn impossible_parameters_are_a_permanent_task_failure_not_a_crash() {
     let dir = tempfile::tempdir().unwrap();
     let mut engine = Engine::start(Stage::Noise, &command()).await.unwrap();
     let (_, inputs, out) = noise_task(dir.path());
-    let r = engine
-        .run(
-            "bad",
-            &json!({"noise": {"dropout": "lots"}, "views": []}),
-            &inputs,
-            &out,
-        )
-        .await
-        .unwrap();
+    let r = engine.run("bad", &json!({"noise": {"dropout": "lots"}, "views": []}), &inputs, &out).await.unwrap();
     assert!(!r.ok);
     assert!(!r.retryable, "bad parameters will fail again: {}", r.error);
     // The engine survives a bad task.
@@ -110,33 +81,17 @@ async fn a_killed_engine_is_reported_as_crashed() {
     let dir = tempfile::tempdir().unwrap();
     let mut engine = Engine::start(Stage::Noise, &command()).await.unwrap();
     let pid = engine.pid().unwrap() as i32;
-    nix::sys::signal::kill(
-        nix::unistd::Pid::from_raw(pid),
-        nix::sys::signal::Signal::SIGKILL,
-    )
-    .unwrap();
+    nix::sys::signal::kill(nix::unistd::Pid::from_raw(pid), nix::sys::signal::Signal::SIGKILL).unwrap();
     let (params, inputs, out) = noise_task(dir.path());
     let err = engine.run("t", &params, &inputs, &out).await.unwrap_err();
-    assert!(
-        matches!(
-            err,
-            EngineError::Crashed {
-                stage: Stage::Noise,
-                ..
-            }
-        ),
-        "{err}"
-    );
+    assert!(matches!(err, EngineError::Crashed { stage: Stage::Noise, .. }), "{err}");
 }
 
 #[tokio::test]
 async fn a_missing_interpreter_is_a_clear_spawn_error() {
     let mut cmd = command();
     cmd.python = PathBuf::from("/nonexistent/python3.13");
-    let err = Engine::start(Stage::Grasp, &cmd)
-        .await
-        .err()
-        .expect("must fail");
+    let err = Engine::start(Stage::Grasp, &cmd).await.err().expect("must fail");
     assert!(matches!(err, EngineError::Spawn { .. }));
     assert!(err.to_string().contains("/nonexistent/python3.13"));
 }

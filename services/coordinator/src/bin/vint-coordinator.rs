@@ -8,10 +8,7 @@ use vint_coordinator::CoordinatorConfig;
 use vint_store::{RetryPolicy, Store};
 
 #[derive(Parser)]
-#[command(
-    version,
-    about = "vint coordinator: schedules grasp, render, noise and package tasks over gRPC"
-)]
+#[command(version, about = "vint coordinator: schedules grasp, render, noise and package tasks over gRPC")]
 struct Args {
     /// Database URL: postgres://… (cluster) or sqlite://… (single machine).
     #[arg(long, env = "VINT_DATABASE_URL")]
@@ -37,23 +34,15 @@ struct Args {
 async fn main() -> anyhow::Result<()> {
     let args = Args::parse();
     vint_telemetry::init_tracing(args.log_json);
-    let retry = RetryPolicy {
-        max_attempts: args.max_attempts,
-        backoff_base_ms: args.backoff_ms,
-        ..RetryPolicy::default()
-    };
-    let store = Store::open(&args.database, retry)
-        .await
-        .with_context(|| format!("opening database {}", args.database))?;
-    let (listener, addr) = vint_coordinator::bind(args.listen)
-        .await
-        .with_context(|| format!("binding {}", args.listen))?;
+    let retry =
+        RetryPolicy { max_attempts: args.max_attempts, backoff_base_ms: args.backoff_ms, ..RetryPolicy::default() };
+    let store =
+        Store::open(&args.database, retry).await.with_context(|| format!("opening database {}", args.database))?;
+    let (listener, addr) =
+        vint_coordinator::bind(args.listen).await.with_context(|| format!("binding {}", args.listen))?;
     tracing::info!(%addr, backend = ?store.backend(), "coordinator listening");
     println!("listening on {addr}");
-    let config = CoordinatorConfig {
-        default_lease_ms: args.lease_ms,
-        ..CoordinatorConfig::default()
-    };
+    let config = CoordinatorConfig { default_lease_ms: args.lease_ms, ..CoordinatorConfig::default() };
     let shutdown = async {
         let _ = tokio::signal::ctrl_c().await;
         tracing::info!("shutting down");

@@ -99,6 +99,7 @@ class GraspEngine:
         result.metrics.update(
             trials=len(records),
             accepted=len(accepted),
+            reruns=sum(record["stability"]["retries"] for record in records),
             active_taxels_median=float(np.median([r["touch"]["active_count"] for r in accepted] or [0])),
             trials_ms=round(1e3 * trials_s, 3),
             touch_ms=round(1e3 * skin.elapsed_s, 3),

@@ -82,6 +82,12 @@ class GraspScene:
     link_bodies: dict[str, int]
     joint_qpos: dict[str, int]
     joint_ctrl: dict[str, int]
+    # As compiled: a trial's physics overrides (`trial.configure`) start from these every time, so
+    # trials stay independent of the order they run in on one cached scene.
+    hand_geoms: tuple[int, ...] = ()
+    object_mass: float = 0.0
+    object_inertia: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    actuator_forcerange: tuple[tuple[float, float], ...] = ()
 
     def link_of_geom(self, geom: int) -> str | None:
         """The hand link owning `geom`, or None for non-hand geoms."""
@@ -111,6 +117,8 @@ def build_scene(hand: HandDims, obj: ObjectSpec, object_model: ObjectModel | Non
     add_object(spec, placed.model)
     add_hand(spec, hand)
     model = spec.compile()
+    object_body = model.body("object").id
+    hand_bodies = [model.body(name).id for name in hand.link_names()]
 
     def qpos_of(joint: str) -> int:
         return int(model.jnt_qposadr[model.joint(joint).id])
@@ -128,6 +136,10 @@ def build_scene(hand: HandDims, obj: ObjectSpec, object_model: ObjectModel | Non
         link_bodies={name: model.body(name).id for name in hand.link_names()},
         joint_qpos={name: qpos_of(name) for name in hand.joint_names()},
         joint_ctrl={name: model.actuator(name.replace("_j", "_a")).id for name in hand.joint_names()},
+        hand_geoms=tuple(int(g) for g in np.flatnonzero(np.isin(model.geom_bodyid, hand_bodies))),
+        object_mass=float(model.body_mass[object_body]),
+        object_inertia=tuple(float(v) for v in model.body_inertia[object_body]),
+        actuator_forcerange=tuple((float(lo), float(hi)) for lo, hi in model.actuator_forcerange),
     )
 
 

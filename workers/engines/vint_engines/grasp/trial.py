@@ -1,16 +1,26 @@
-"""One grasp trial: place the open hand beside the object, close, lift, hold, judge, read out.
+"""One grasp trial, after VinT-6D's procedure: pick a point on the object's graspable surface, align
+the open palm tangentially to it at a standoff, close the fingers until they touch, squeeze (power
+grasp), lift, hold, optionally shake, judge, read out.
 
 A trial depends only on the scene, the physics parameters, the hand's skin and its seed; `data` is
-reset fully at the start, so trials can run in any order on one `MjData`. A grasp is kept when the
-hand lifted and held the object (it slid less than `max_drop_m` relative to the palm) with
-tactile contact: at least `touch.min_active_taxels` taxels active on the captured state.
+reset fully at the start and the model's per-trial settings (`configure`) are rewritten from the
+compiled values every time, so trials can run in any order on one `MjData`. A grasp is kept when the
+hand lifted and held the object (it slid less than `max_drop_m` relative to the palm, through the
+hold and the shake) with tactile contact: at least `touch.min_active_taxels` taxels active on the
+captured state.
+
+Numerical trouble is never accepted silently: the rollout watches MuJoCo's warning counters (the
+default autoreset hides a divergence), NaN/Inf, the deepest contact penetration and the object's
+speed and the system's kinetic energy. On trouble the trial is rerun with half the timestep (up to
+`max_retries` times, not below `min_timestep`), then rejected with the reason. Every trial records
+what it took in `stability`.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import mujoco
@@ -20,7 +30,8 @@ from vint_engines import params as P
 from vint_engines.grasp.hand import palm_frame_facing
 from vint_engines.grasp.scene import GraspScene
 from vint_engines.grasp.touch import Skin
-from vint_engines.poses import matrix_to_quat, pose_json
+from vint_engines.poses import matrix_to_quat, pose_json, quat_to_matrix
+from vint_engines.protocol import BadInput
 
 # Phase durations (s) before the hold; the hold itself comes from params.
 SETTLE_S = 0.05
@@ -29,10 +40,60 @@ SQUEEZE_S = 0.20
 STAGGER = 0.5
 LIFT_S = 0.60
 
-# Approach sampling: where along the object the palm centre sits, and the gap to its surface.
+# Approach sampling: where along the object the palm centre sits (side approach), how far from the
+# middle of a low object's long axis (top approach), and the hand's clearance above the ground.
 HEIGHT_FRACTION = (0.45, 0.62)
-STANDOFF_M = (0.003, 0.012)
+AZIMUTH_TRIES = 8
+TOP_OFFSET_FRACTION = 0.25
+TOP_YAW_JITTER = 0.2
 GROUND_CLEARANCE_M = 0.004
+# Setting the standoff: at most this many slides of the hand, to within this tolerance; gaps are
+# measured up to the standoff plus GAP_SEARCH_M (a farther hand is moved in by that much at once).
+STANDOFF_ITERATIONS = 6
+STANDOFF_TOLERANCE_M = 2e-4
+GAP_SEARCH_M = 0.1
+
+# The stability monitor looks at the state every CHECK_EVERY steps.
+CHECK_EVERY = 5
+
+CONES = {"elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC, "pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL}
+
+
+@dataclass(frozen=True)
+class Shake:
+    """After the hold the arm shakes the hand: one sine period of peak acceleration `accel_mps2`
+    along each of `directions` fixed directions (spread over the upper hemisphere), `duration_s`
+    in all."""
+
+    enabled: bool = False
+    accel_mps2: float = 5.0
+    directions: int = 4
+    duration_s: float = 1.0
+
+    @staticmethod
+    def parse(obj: Any) -> Shake:
+        where = "params.physics.shake"
+        if not isinstance(obj, Mapping):
+            raise BadInput(f"{where}: expected an object")
+        enabled = obj.get("enabled", False)
+        if not isinstance(enabled, bool):
+            raise BadInput(f"{where}.enabled: expected true or false, got {enabled!r}")
+        return Shake(
+            enabled=enabled,
+            accel_mps2=P.number(obj, "accel_mps2", where, 5.0, low=0.0, high=100.0),
+            directions=P.integer(obj, "directions", where, 4, low=1, high=32),
+            duration_s=P.number(obj, "duration_s", where, 1.0, low=0.01, high=30.0),
+        )
+
+    def unit_vectors(self) -> list[np.ndarray]:
+        """Deterministic directions: a golden-angle spiral over the upper hemisphere."""
+        out = []
+        for k in range(self.directions):
+            z = 1.0 - (k + 0.5) / self.directions
+            r = math.sqrt(max(0.0, 1.0 - z * z))
+            phi = k * math.pi * (3.0 - math.sqrt(5.0))
+            out.append(np.array([r * math.cos(phi), r * math.sin(phi), z]))
+        return out
 
 
 @dataclass(frozen=True)
@@ -41,39 +102,170 @@ class Physics:
     lift_height: float
     hold_s: float
     max_drop_m: float
+    # Standoff: gap between the palmar face and the object's surface along the approach, as a
+    # fraction of the hand's finger length (`reach`); negative values start the palm inside.
+    standoff_ratio: tuple[float, float] = (0.025, 0.10)
+    shake: Shake = field(default_factory=Shake)
+    cone: str = "elliptic"
+    impratio: float = 10.0
+    hand_solref_timeconst: float = 0.005
+    force_scale: float = 1.0
+    mass_override_kg: float | None = None
+    max_retries: int = 2
+    min_timestep: float = 0.00025
+    max_penetration_m: float = 0.004
+    max_object_speed_mps: float = 5.0
 
     @staticmethod
     def parse(obj: Mapping[str, Any]) -> Physics:
         where = "params.physics"
+        if not isinstance(obj, Mapping):
+            raise BadInput(f"{where}: expected an object")
+        cone = P.string(obj, "cone", where, "elliptic")
+        if cone not in CONES:
+            raise BadInput(f"{where}.cone: {cone!r} is not one of {sorted(CONES)}")
+        mass = obj.get("mass_override_kg")
         return Physics(
-            timestep=P.number(obj, "timestep", where, 0.002, low=1e-4, high=0.005),
+            timestep=P.number(obj, "timestep", where, 0.002, low=1e-4, high=0.01),
             lift_height=P.number(obj, "lift_height", where, 0.10, low=0.0, high=1.0),
             hold_s=P.number(obj, "hold_s", where, 1.0, low=0.0, high=30.0),
             max_drop_m=P.number(obj, "max_drop_m", where, 0.02, low=0.0),
+            standoff_ratio=P.number_range(obj, "standoff_ratio", where, (0.025, 0.10), low=-0.2),
+            shake=Shake.parse(obj.get("shake", {})),
+            cone=cone,
+            impratio=P.number(obj, "impratio", where, 10.0, low=1.0, high=1000.0),
+            hand_solref_timeconst=P.number(obj, "hand_solref_timeconst", where, 0.005, low=1e-4, high=0.1),
+            force_scale=P.number(obj, "force_scale", where, 1.0, low=0.01, high=100.0),
+            mass_override_kg=None
+            if mass is None
+            else P.number(obj, "mass_override_kg", where, low=0.001, high=20.0),
+            max_retries=P.integer(obj, "max_retries", where, 2, low=0, high=4),
+            min_timestep=P.number(obj, "min_timestep", where, 0.00025, low=1e-5, high=0.01),
+            max_penetration_m=P.number(obj, "max_penetration_m", where, 0.004, low=1e-4, high=0.1),
+            max_object_speed_mps=P.number(obj, "max_object_speed_mps", where, 5.0, low=0.1, high=100.0),
         )
 
-    def to_json(self) -> dict[str, float]:
-        return asdict(self)
+    def to_json(self) -> dict[str, Any]:
+        out = asdict(self)
+        out["standoff_ratio"] = list(self.standoff_ratio)
+        return out
+
+
+def configure(scene: GraspScene, data: mujoco.MjData, physics: Physics, timestep: float) -> None:
+    """Write the trial's settings into the cached model, always from the compiled values."""
+    model = scene.model
+    model.opt.timestep = timestep
+    model.opt.cone = CONES[physics.cone]
+    model.opt.impratio = physics.impratio
+    model.opt.enableflags |= mujoco.mjtEnableBit.mjENBL_ENERGY
+    if scene.hand_geoms:
+        model.geom_solref[list(scene.hand_geoms), 0] = physics.hand_solref_timeconst
+    if scene.actuator_forcerange:
+        model.actuator_forcerange[:] = physics.force_scale * np.array(scene.actuator_forcerange)
+    if scene.object_mass > 0:
+        mass = physics.mass_override_kg or scene.object_mass
+        model.body_mass[scene.object_body] = mass
+        model.body_inertia[scene.object_body] = np.array(scene.object_inertia) * (mass / scene.object_mass)
+    mujoco.mj_setConst(model, data)
+
+
+def finger_reach(scene: GraspScene) -> float:
+    """The longest finger's length, base to fingertip: the scale of `standoff_ratio`."""
+    return max(sum(link.length for link in f.links) + f.tip_radius for f in scene.hand.fingers)
+
+
+def resting_vertices(scene: GraspScene) -> np.ndarray:
+    """The object's model vertices in the world frame as it rests before a trial."""
+    obj = scene.obj
+    rot = quat_to_matrix(obj.rest_quat)
+    return obj.model.mesh.vertices @ np.asarray(rot).T + np.array([0.0, 0.0, obj.rest_height])
 
 
 @dataclass(frozen=True)
 class Approach:
-    """Where the hand starts: palm normal towards the object's axis from `azimuth`."""
+    """Where the open hand starts. `side`: palm normal horizontal, towards the object's vertical
+    axis from `azimuth`, palm centre at `height`. `top` (objects too low for the side approach):
+    palm normal down, the palm's +y along the object's long horizontal axis turned by `azimuth`,
+    centred `offset` metres along that axis. Either way the hand slides along its palm normal
+    until its nearest geom is `standoff` metres from the object (`Rollout.place`), and rises if
+    its open fingers would touch the ground."""
 
     azimuth: float
     height: float
     standoff: float
+    mode: str = "side"
+    offset: float = 0.0
 
     @staticmethod
-    def sample(rng: np.random.Generator, scene: GraspScene) -> Approach:
+    def sample(
+        rng: np.random.Generator, scene: GraspScene, ratio: tuple[float, float] = (0.025, 0.10)
+    ) -> Approach:
+        standoff = float(rng.uniform(*ratio)) * finger_reach(scene)
         # The palm's lower edge must clear the ground: a wide palm holds a short object higher up.
         floor = scene.hand.palm_half[1] + GROUND_CLEARANCE_M + scene.hand.grasp_centre[1]
+        if floor > HEIGHT_FRACTION[1] * scene.obj.height:
+            axis = long_axis(scene)
+            half_length = float(np.ptp(resting_vertices(scene)[:, :2] @ axis)) / 2
+            return Approach(
+                azimuth=math.atan2(axis[1], axis[0]) + float(rng.uniform(-TOP_YAW_JITTER, TOP_YAW_JITTER)),
+                height=scene.obj.height,
+                standoff=standoff,
+                mode="top",
+                offset=float(rng.uniform(-1.0, 1.0)) * TOP_OFFSET_FRACTION * half_length,
+            )
         low, high = (max(fraction * scene.obj.height, floor) for fraction in HEIGHT_FRACTION)
-        return Approach(
-            azimuth=float(rng.uniform(0.0, 2.0 * math.pi)),
-            height=float(rng.uniform(low, high)),
-            standoff=float(rng.uniform(*STANDOFF_M)),
-        )
+        height = float(rng.uniform(low, high))
+        # The graspable side: one the fingers can wrap, i.e. whose width across the closing
+        # direction is at most a finger's length (a cracker box's 158 mm face is not). The
+        # narrowest of AZIMUTH_TRIES draws when none is.
+        band = height_band(resting_vertices(scene), height, scene.hand.palm_half[1])
+        reach = finger_reach(scene)
+        best = (math.inf, 0.0)
+        for _ in range(AZIMUTH_TRIES):
+            azimuth = float(rng.uniform(0.0, 2.0 * math.pi))
+            across = np.array([-math.sin(azimuth), math.cos(azimuth)])
+            width = float(np.ptp(band[:, :2] @ across))
+            best = min(best, (width, azimuth))
+            if width <= reach:
+                break
+        return Approach(azimuth=best[1], height=height, standoff=standoff)
+
+
+def height_band(points: np.ndarray, height: float, half: float) -> np.ndarray:
+    """The points within `half` of `height`; all of them when the band holds too few to span a
+    shape (a box's mesh has vertices only at its corners)."""
+    band = points[np.abs(points[:, 2] - height) <= half]
+    return band if len(band) >= 3 else points
+
+
+def long_axis(scene: GraspScene) -> np.ndarray:
+    """Unit horizontal direction along which the resting object is longest (principal axis)."""
+    xy = resting_vertices(scene)[:, :2]
+    xy = xy - xy.mean(axis=0)
+    _, vectors = np.linalg.eigh(xy.T @ xy)
+    axis = vectors[:, -1]
+    return axis * (1.0 if axis[0] + 1e-12 * axis[1] >= 0 else -1.0)
+
+
+def palm_pose(scene: GraspScene, approach: Approach) -> tuple[np.ndarray, np.ndarray]:
+    """Palm position and rotation (palm → world) for `approach`, before any ground clearance."""
+    dims = scene.hand
+    points = resting_vertices(scene)
+    if approach.mode == "top":
+        axis = np.array([math.cos(approach.azimuth), math.sin(approach.azimuth), 0.0])
+        rot = palm_frame_facing(np.array([0.0, 0.0, -1.0]), axis)
+        target = np.array([*(approach.offset * axis[:2]), approach.height + approach.standoff])
+        face = dims.palm_half[2]
+        return target + face * np.array([0.0, 0.0, 1.0]) - rot @ np.array([*dims.grasp_centre, 0.0]), rot
+    toward_axis = -np.array([math.cos(approach.azimuth), math.sin(approach.azimuth), 0.0])
+    rot = palm_frame_facing(toward_axis, np.array([0.0, 0.0, 1.0]))
+    # The object's extent towards the hand, over the band of heights the palm covers: a box's face
+    # or corner, a drill's handle — not its largest reach in any direction.
+    near = height_band(points, approach.height, dims.palm_half[1])
+    extent = float((near[:, :2] @ -toward_axis[:2]).max())
+    back_off = extent + approach.standoff + dims.palm_half[2]
+    centre = rot @ np.array([*dims.grasp_centre, 0.0])
+    return np.array([0.0, 0.0, approach.height]) - back_off * toward_axis - centre, rot
 
 
 class TrialRejected(Exception):
@@ -84,11 +276,37 @@ class TrialRejected(Exception):
         self.reason = reason
 
 
+class Unstable(TrialRejected):
+    """The simulation itself went wrong (divergence, NaN, deep penetration, an energy blow-up):
+    worth a rerun with a smaller timestep."""
+
+
+@dataclass
+class Stability:
+    """What the stability monitor saw over one attempt (the last one is recorded)."""
+
+    timestep_used: float
+    retries: int = 0
+    max_penetration_m: float = 0.0
+    max_object_speed_mps: float = 0.0
+    max_kinetic_energy_j: float = 0.0
+    warnings: dict[str, int] = field(default_factory=dict)
+    retry_reasons: list[str] = field(default_factory=list)
+
+    def to_json(self) -> dict[str, Any]:
+        return asdict(self)
+
+
 def run_trial(
-    scene: GraspScene, data: mujoco.MjData, physics: Physics, skin: Skin, grasp_index: int, seed: int
+    scene: GraspScene,
+    data: mujoco.MjData,
+    physics: Physics,
+    skin: Skin,
+    grasp_index: int,
+    seed: int,
 ) -> dict:
     """Simulate one trial and return its JSON record (accepted or with a rejection reason)."""
-    approach = Approach.sample(np.random.default_rng(seed), scene)
+    approach = Approach.sample(np.random.default_rng(seed), scene, physics.standoff_ratio)
     record: dict[str, Any] = {
         "grasp_index": grasp_index,
         "seed": seed,
@@ -96,60 +314,145 @@ def run_trial(
         "reason": None,
         "approach": asdict(approach),
     }
-    rollout = Rollout(scene, data, physics)
-    try:
-        rollout.place(approach)
-        rollout.close_fingers()
-        if not finger_contacts(scene, data):
-            raise TrialRejected("no_contact")
-        hold = rollout.lift_and_hold()
-        contacts = finger_contacts(scene, data)
-        if hold["drop_m"] >= physics.max_drop_m:
-            raise TrialRejected("dropped")
-        if not contacts:
-            raise TrialRejected("no_contact")
-        touch = skin.read(data, {contact["link"] for contact in contacts})
-        if touch["active_count"] < skin.params.min_active_taxels:
-            raise TrialRejected("no_touch")
-    except TrialRejected as rejection:
-        record["reason"] = rejection.reason
+    timestep, reasons = physics.timestep, []
+    while True:
+        rollout = Rollout(scene, data, physics, timestep=timestep)
+        try:
+            outcome = attempt(rollout, approach, skin)
+            reason = None
+        except Unstable as trouble:
+            smaller = timestep / 2
+            if len(reasons) < physics.max_retries and smaller >= physics.min_timestep * (1 - 1e-9):
+                reasons.append(trouble.reason)
+                timestep = smaller
+                continue
+            reason = trouble.reason
+        except TrialRejected as rejection:
+            reason = rejection.reason
+        break
+    stability = replace(rollout.stability, retries=len(reasons), retry_reasons=reasons)
+    record["stability"] = stability.to_json()
+    if reason is not None:
+        record["reason"] = reason
         record["steps"] = rollout.steps
         return record
-    record.update(accepted=True, **readout(scene, data), contacts=contacts, hold=hold, touch=touch)
+    record.update(accepted=True, **outcome)
     return record
 
 
-class Rollout:
-    """Steps one trial through its phases, checking for divergence after each phase."""
+def attempt(rollout: Rollout, approach: Approach, skin: Skin) -> dict[str, Any]:
+    """One rollout of the procedure; raises `TrialRejected` (or `Unstable`) on failure."""
+    scene, data, physics = rollout.scene, rollout.data, rollout.physics
+    rollout.check_timestep()
+    rollout.place(approach)
+    rollout.close_fingers()
+    if not finger_contacts(scene, data):
+        raise TrialRejected("no_contact")
+    hold = rollout.lift_and_hold()
+    if hold["drop_m"] >= physics.max_drop_m:
+        raise TrialRejected("dropped")
+    if physics.shake.enabled:
+        hold["shake_slip_m"] = rollout.shake()
+        if hold["shake_slip_m"] >= physics.max_drop_m:
+            raise TrialRejected("dropped: shake")
+    contacts = finger_contacts(scene, data)
+    if not contacts:
+        raise TrialRejected("no_contact")
+    touch = skin.read(data, {contact["link"] for contact in contacts})
+    if touch["active_count"] < skin.params.min_active_taxels:
+        raise TrialRejected("no_touch")
+    return {**readout(scene, data), "contacts": contacts, "hold": hold, "touch": touch}
 
-    def __init__(self, scene: GraspScene, data: mujoco.MjData, physics: Physics) -> None:
+
+class Rollout:
+    """Steps one trial through its phases, watching the simulation's health as it goes."""
+
+    def __init__(
+        self, scene: GraspScene, data: mujoco.MjData, physics: Physics, timestep: float | None = None
+    ) -> None:
         self.scene, self.data, self.physics = scene, data, physics
+        self.timestep = physics.timestep if timestep is None else timestep
         self.steps = 0
         self.dims = scene.hand
         self.ctrl = np.array([scene.joint_ctrl[j] for j in self.dims.joint_names()])
         self.qadr = np.array([scene.joint_qpos[j] for j in self.dims.joint_names()])
         self.open = np.array(self.dims.open_pose())
         self.closed = np.array(self.dims.closed_pose())
+        self.stability = Stability(timestep_used=self.timestep)
+        model = scene.model
+        self.object_dof = int(model.jnt_dofadr[model.body_jntadr[scene.object_body]])
+        # Kinetic energy bound: every body of the scene moving at the object speed limit.
+        self.max_kinetic = 0.5 * float(model.body_mass.sum()) * physics.max_object_speed_mps**2
+
+    def check_timestep(self) -> None:
+        """MuJoCo silently clamps a contact time constant below two timesteps (softening the
+        skin): treat it as a timestep that is too coarse."""
+        if self.physics.hand_solref_timeconst < 2 * self.timestep * (1 - 1e-9):
+            raise Unstable(
+                f"timestep: hand contact time constant {1e3 * self.physics.hand_solref_timeconst:.3g} ms"
+                f" needs a timestep <= {0.5e3 * self.physics.hand_solref_timeconst:.3g} ms,"
+                f" got {1e3 * self.timestep:.3g} ms"
+            )
 
     def place(self, approach: Approach) -> None:
         scene, data, model = self.scene, self.data, self.scene.model
-        model.opt.timestep = self.physics.timestep
         mujoco.mj_resetData(model, data)
+        configure(scene, data, self.physics, self.timestep)
         obj = scene.obj
         data.qpos[scene.object_qpos : scene.object_qpos + 7] = [0, 0, obj.rest_height, *obj.rest_quat]
-        toward_axis = -np.array([math.cos(approach.azimuth), math.sin(approach.azimuth), 0.0])
-        rot = palm_frame_facing(toward_axis, np.array([0.0, 0.0, 1.0]))
-        back_off = obj.radius + approach.standoff + self.dims.palm_half[2]
-        centre = rot @ np.array([*self.dims.grasp_centre, 0.0])
-        palm_pos = np.array([0.0, 0.0, approach.height]) - back_off * toward_axis - centre
-        palm_quat = matrix_to_quat(rot)
-        data.qpos[scene.palm_qpos : scene.palm_qpos + 7] = [*palm_pos, *palm_quat]
-        data.mocap_pos[scene.mocap] = palm_pos
-        data.mocap_quat[scene.mocap] = palm_quat
+        palm_pos, rot = palm_pose(scene, approach)
+        quat = matrix_to_quat(rot)
         data.qpos[self.qadr] = self.open
+        self._set_palm(palm_pos, quat)
+        # The standoff is the gap between the whole open hand and the object, not only the palm
+        # centre's: open fingers wider than the palm must not start inside a wide box. Slide the
+        # hand along its normal until the nearest hand–object gap is the standoff.
+        normal = rot[:, 2]
+        for _ in range(STANDOFF_ITERATIONS):
+            error = approach.standoff - self.hand_object_gap(approach.standoff)
+            if abs(error) < STANDOFF_TOLERANCE_M:
+                break
+            palm_pos = palm_pos - error * normal
+            self._set_palm(palm_pos, quat)
+        # Open fingers reaching below the ground (a top approach with fingers along the palm
+        # normal) lift the hand until they clear it.
+        lift = GROUND_CLEARANCE_M - self.lowest_hand_point()
+        if lift > 0:
+            self._set_palm(palm_pos + np.array([0.0, 0.0, lift]), quat)
         data.ctrl[self.ctrl] = self.open
-        mujoco.mj_forward(model, data)
         self.run(SETTLE_S)
+
+    def _set_palm(self, pos: np.ndarray, quat: np.ndarray) -> None:
+        scene, data = self.scene, self.data
+        data.qpos[scene.palm_qpos : scene.palm_qpos + 7] = [*pos, *quat]
+        data.mocap_pos[scene.mocap] = pos
+        data.mocap_quat[scene.mocap] = quat
+        mujoco.mj_forward(scene.model, data)
+
+    def hand_object_gap(self, standoff: float) -> float:
+        """Smallest signed distance between the hand's geoms and the object's (negative inside)."""
+        model, data = self.scene.model, self.data
+        cap = max(0.0, standoff) + GAP_SEARCH_M
+        return min(
+            mujoco.mj_geomDistance(model, data, hand, obj, cap, None)
+            for hand in self.scene.hand_geoms
+            for obj in self.scene.object_geoms
+        )
+
+    def lowest_hand_point(self) -> float:
+        model, data = self.scene.model, self.data
+        lowest = math.inf
+        for geom in self.scene.hand_geoms:
+            kind, size = model.geom_type[geom], model.geom_size[geom]
+            centre, axis = data.geom_xpos[geom], data.geom_xmat[geom].reshape(3, 3)
+            if kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
+                z = centre[2] - abs(axis[2, 2]) * size[1] - size[0]
+            elif kind == mujoco.mjtGeom.mjGEOM_SPHERE:
+                z = centre[2] - size[0]
+            else:
+                z = centre[2] - float(np.abs(axis[2, :3]) @ size[:3])
+            lowest = min(lowest, float(z))
+        return lowest
 
     def close_fingers(self) -> None:
         # Proximal joints lead and distal ones follow, so a finger wraps the object instead of
@@ -183,34 +486,83 @@ class Rollout:
             "steps": hold_steps,
         }
 
+    def shake(self) -> float:
+        """Shake the hand (see `Shake`); returns how far the object moved relative to the palm."""
+        scene, data, shake = self.scene, self.data, self.physics.shake
+        centre = data.mocap_pos[scene.mocap].copy()
+        before = self.object_in_palm()
+        period = shake.duration_s / shake.directions
+        omega = 2.0 * math.pi / period
+        amplitude = shake.accel_mps2 / omega**2  # x = A sin(ωt) peaks at A ω² acceleration
+        for direction in shake.unit_vectors():
+
+            def move(s: float, direction: np.ndarray = direction) -> None:
+                data.mocap_pos[scene.mocap] = centre + amplitude * math.sin(2.0 * math.pi * s) * direction
+
+            self.ramp(period, move)
+        data.mocap_pos[scene.mocap] = centre
+        return float(np.linalg.norm(self.object_in_palm() - before))
+
     def object_minus_palm_z(self) -> float:
         xpos = self.data.xpos
         return float(xpos[self.scene.object_body][2] - xpos[self.scene.palm_body][2])
 
+    def object_in_palm(self) -> np.ndarray:
+        xpos, xmat = self.data.xpos, self.data.xmat
+        palm = self.scene.palm_body
+        return xmat[palm].reshape(3, 3).T @ (xpos[self.scene.object_body] - xpos[palm])
+
     def run(self, seconds: float) -> int:
-        steps = round(seconds / self.physics.timestep)
-        if steps:
-            mujoco.mj_step(self.scene.model, self.data, nstep=steps)
+        steps = round(seconds / self.timestep)
+        done = 0
+        while done < steps:
+            chunk = min(CHECK_EVERY, steps - done)
+            mujoco.mj_step(self.scene.model, self.data, nstep=chunk)
+            done += chunk
+            self.monitor()
         self.steps += steps
         self.check()
         return steps
 
     def ramp(self, seconds: float, apply: Callable[[float], None]) -> None:
         """Step for `seconds`, calling apply(s) with s rising from 0 to 1 before each step."""
-        steps = max(1, round(seconds / self.physics.timestep))
+        steps = max(1, round(seconds / self.timestep))
         for k in range(steps):
             apply((k + 1) / steps)
             mujoco.mj_step(self.scene.model, self.data)
+            if k % CHECK_EVERY == CHECK_EVERY - 1:
+                self.monitor()
         self.steps += steps
         self.check()
 
+    def monitor(self) -> None:
+        """Track penetration, object speed and kinetic energy; reject a blow-up at once."""
+        data, stability, physics = self.data, self.stability, self.physics
+        self.check()
+        if data.ncon:
+            depth = -float(data.contact.dist[: data.ncon].min())
+            stability.max_penetration_m = max(stability.max_penetration_m, depth)
+        speed = float(np.linalg.norm(data.qvel[self.object_dof : self.object_dof + 3]))
+        stability.max_object_speed_mps = max(stability.max_object_speed_mps, speed)
+        kinetic = float(data.energy[1])
+        stability.max_kinetic_energy_j = max(stability.max_kinetic_energy_j, kinetic)
+        if stability.max_penetration_m > physics.max_penetration_m:
+            raise Unstable(f"penetration: {1e3 * stability.max_penetration_m:.2f} mm")
+        if speed > physics.max_object_speed_mps:
+            raise Unstable(f"energy: object speed {speed:.3g} m/s")
+        if not math.isfinite(kinetic) or kinetic > self.max_kinetic:
+            raise Unstable(f"energy: kinetic {kinetic:.3g} J")
+
     def check(self) -> None:
         data = self.data
+        counts = data.warning.number  # one array read: iterating the warning structs costs ~90 µs
+        self.stability.warnings = (
+            {mujoco.mjtWarning(i).name: int(n) for i, n in enumerate(counts) if n > 0} if counts.any() else {}
+        )
         if not (np.isfinite(data.qpos).all() and np.isfinite(data.qvel).all()):
-            raise TrialRejected("nan_state")
-        for i, warning in enumerate(data.warning):
-            if warning.number > 0:
-                raise TrialRejected(f"diverged: {mujoco.mjtWarning(i).name}")
+            raise Unstable("nan_state")
+        if self.stability.warnings:
+            raise Unstable(f"diverged: {next(iter(self.stability.warnings))}")
 
 
 def finger_contacts(scene: GraspScene, data: mujoco.MjData) -> list[dict[str, Any]]:

@@ -11,27 +11,16 @@ use vint_runtime::engine::EngineCommand;
 use vint_runtime::worker::{Worker, WorkerConfig};
 
 #[derive(Parser)]
-#[command(
-    version,
-    about = "vint worker: runs grasp, render, noise and package tasks"
-)]
+#[command(version, about = "vint worker: runs grasp, render, noise and package tasks")]
 struct Args {
     /// Coordinator URL.
-    #[arg(
-        long,
-        env = "VINT_COORDINATOR",
-        default_value = "http://127.0.0.1:7700"
-    )]
+    #[arg(long, env = "VINT_COORDINATOR", default_value = "http://127.0.0.1:7700")]
     coordinator: String,
     /// Artifact store URL: file:///abs/dir or s3://bucket[/prefix].
     #[arg(long, env = "VINT_STORE")]
     store: String,
     /// Stages to serve, comma-separated.
-    #[arg(
-        long,
-        value_delimiter = ',',
-        default_value = "grasp,render,noise,package"
-    )]
+    #[arg(long, value_delimiter = ',', default_value = "grasp,render,noise,package")]
     stages: Vec<String>,
     /// Python interpreter with the engines' packages (bpy, mujoco, opencv).
     #[arg(long, env = "VINT_PYTHON")]
@@ -60,28 +49,14 @@ struct Args {
 async fn main() -> anyhow::Result<()> {
     let args = Args::parse();
     vint_telemetry::init_tracing(args.log_json);
-    let stages = args
-        .stages
-        .iter()
-        .map(|s| s.parse::<Stage>())
-        .collect::<Result<Vec<_>, _>>()
-        .context("--stages")?;
+    let stages = args.stages.iter().map(|s| s.parse::<Stage>()).collect::<Result<Vec<_>, _>>().context("--stages")?;
     let (default_engines, default_python) = vint_runtime::checkout_defaults();
     let worker_id = args.worker_id.unwrap_or_else(|| {
-        let host =
-            std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap_or_else(|_| "host".into());
-        format!(
-            "{}-{}-{}",
-            host.trim(),
-            std::process::id(),
-            &uuid::Uuid::new_v4().simple().to_string()[..6]
-        )
+        let host = std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap_or_else(|_| "host".into());
+        format!("{}-{}-{}", host.trim(), std::process::id(), &uuid::Uuid::new_v4().simple().to_string()[..6])
     });
-    let scratch = args
-        .scratch
-        .unwrap_or_else(|| std::env::temp_dir().join(format!("vint-worker-{worker_id}")));
-    let store = ArtifactStore::open(&args.store)
-        .with_context(|| format!("opening artifact store {}", args.store))?;
+    let scratch = args.scratch.unwrap_or_else(|| std::env::temp_dir().join(format!("vint-worker-{worker_id}")));
+    let store = ArtifactStore::open(&args.store).with_context(|| format!("opening artifact store {}", args.store))?;
     let config = WorkerConfig {
         coordinator: args.coordinator,
         worker_id,

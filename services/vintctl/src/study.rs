@@ -1,0 +1,34 @@
+//! `vintctl study`: accuracy-versus-cost studies. Each study runs inside the engine that owns the
+//! physics or pixels (`python -m vint_engines study SUBJECT`), so it measures exactly the code
+//! that produces datasets; this command finds the engines' interpreter and hands over.
+
+use std::path::Path;
+
+use anyhow::{Context, anyhow};
+use tokio::process::Command;
+
+use crate::{CliResult, Failure, bad_input};
+
+/// Studies the engines implement.
+const SUBJECTS: &[&str] = &["grasp"];
+
+pub async fn run(subject: &str, out: &Path, quick: bool, extra: &[String]) -> CliResult {
+    if !SUBJECTS.contains(&subject) {
+        return Err(bad_input(anyhow!("study: unknown subject {subject:?}; expected one of {}", SUBJECTS.join(", "))));
+    }
+    let (default_engines, default_python) = vint_runtime::checkout_defaults();
+    let python = std::env::var_os("VINT_PYTHON").map(Into::into).unwrap_or(default_python);
+    let engines = std::env::var_os("VINT_ENGINES_DIR").map(Into::into).unwrap_or(default_engines);
+    let mut cmd = Command::new(&python);
+    cmd.args(["-m", "vint_engines", "study", subject, "--out"]).arg(out).env("PYTHONPATH", &engines);
+    if quick {
+        cmd.arg("--quick");
+    }
+    cmd.args(extra);
+    let status = cmd.status().await.with_context(|| format!("starting {}", python.display()))?;
+    match status.code() {
+        Some(0) => Ok(()),
+        Some(2) => Err(bad_input(anyhow!("study {subject}: invalid arguments (see above)"))),
+        _ => Err(Failure { code: 1, error: anyhow!("study {subject} failed ({status})") }),
+    }
+}

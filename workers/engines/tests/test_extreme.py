@@ -1,0 +1,228 @@
+"""Stiff and extreme grasp trials: each ends in a valid accepted grasp or a clean rejection with a
+reason — never a crash, a NaN or silently wrong data.
+
+Every case runs both hands for a couple of short trials through the engine, then holds its output
+to `assert_valid_or_rejected`: accepted grasps have finite unit-quaternion poses, held the object,
+touch points within the sensing depth of the object's model mesh and a penetration below the
+bound; rejected ones carry a reason; every trial records what the stability monitor saw.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from conftest import ENGINES_DIR, new_dir
+from geometry import distance_to_mesh
+
+from vint_engines.grasp.engine import GraspEngine
+from vint_engines.grasp.hands import hand_dims
+from vint_engines.grasp.hands.catalog import read_hand_catalog
+from vint_engines.grasp.taxels import TaxelLayout, parse_layout
+from vint_engines.grasp.trial import Physics
+from vint_engines.objects import ObjectSpec, build_model
+from vint_engines.poses import quat_to_matrix
+from vint_engines.protocol import BadInput, TaskRequest
+
+CATALOG = {
+    entry["name"]: entry
+    for entry in tomllib.loads((ENGINES_DIR.parents[1] / "catalog" / "objects.toml").read_text())["object"]
+}
+HANDS = ("trx3", "allegro")
+SEEDS = [1234567890123 + 7919 * i for i in range(2)]
+SHORT = {"hold_s": 0.3}
+
+
+def run(
+    engine: GraspEngine,
+    tmp_path: Path,
+    obj: str,
+    hand: str,
+    physics: dict[str, Any],
+    seeds: list[int] = SEEDS,
+) -> dict[str, Any]:
+    params = {
+        "object": CATALOG[obj],
+        "hand": {"name": hand},
+        "trials": [{"grasp_index": i, "seed": seed} for i, seed in enumerate(seeds)],
+        "physics": physics,
+    }
+    result = engine.run(TaskRequest("t", params, (), new_dir(tmp_path, f"{obj}-{hand}")))
+    doc = json.loads(result.outputs[0].path.read_text())
+    assert_valid_or_rejected(doc, Physics.parse(physics))
+    return doc
+
+
+def assert_valid_or_rejected(doc: dict[str, Any], physics: Physics) -> None:
+    mesh = build_model(ObjectSpec.parse({k: v for k, v in doc["object"].items() if k != "model"}))
+    layout = hand_layout(doc["hand"]["name"])
+    for trial in doc["trials"]:
+        stability = trial["stability"]
+        assert stability["retries"] <= physics.max_retries
+        assert physics.min_timestep * (1 - 1e-9) <= stability["timestep_used"] <= physics.timestep
+        for key in ("timestep_used", "max_penetration_m", "max_object_speed_mps", "max_kinetic_energy_j"):
+            assert math.isfinite(stability[key]), (key, stability)
+        if not trial["accepted"]:
+            assert isinstance(trial["reason"], str) and trial["reason"], trial
+            continue
+        assert trial["reason"] is None and not stability["warnings"]
+        assert stability["max_penetration_m"] <= physics.max_penetration_m
+        assert stability["max_object_speed_mps"] <= physics.max_object_speed_mps
+        assert trial["hold"]["drop_m"] < physics.max_drop_m
+        for pose in [trial["object_pose"], trial["hand_pose"], *trial["link_poses"].values()]:
+            assert all(math.isfinite(v) for v in pose["p"] + pose["q"])
+            assert math.isclose(math.hypot(*pose["q"]), 1.0, rel_tol=1e-6)
+        assert all(math.isfinite(v) for v in trial["joints"].values())
+        touch = trial["touch"]
+        depth = touch["sensing_depth_m"]
+        assert touch["active_count"] == len(touch["active"]) > 0
+        world = taxel_points(layout, trial, [t["taxel"] for t in touch["active"]])
+        pose = trial["object_pose"]
+        local = (world - np.array(pose["p"])) @ quat_to_matrix(pose["q"])
+        gap = distance_to_mesh(local, mesh.mesh.vertices, mesh.mesh.faces)
+        for taxel, distance in zip(touch["active"], gap, strict=True):
+            assert taxel["distance_m"] < depth
+            # The mesh is the union of the collision pieces' surfaces only up to tessellation.
+            assert distance < depth + 1e-3, (taxel, distance)
+
+
+def hand_layout(hand: str) -> TaxelLayout:
+    path = read_hand_catalog()[hand].taxels_path()
+    return parse_layout(path.read_text(), hand_dims(hand).link_names(), str(path))
+
+
+def taxel_points(layout: TaxelLayout, trial: dict[str, Any], indices: list[int]) -> np.ndarray:
+    points = []
+    for i in indices:
+        pose = trial["link_poses"][layout.links[i]]
+        points.append(quat_to_matrix(pose["q"]) @ layout.positions[i] + pose["p"])
+    return np.array(points).reshape(-1, 3)
+
+
+@pytest.fixture(scope="module")
+def engine() -> GraspEngine:
+    return GraspEngine()
+
+
+@pytest.mark.parametrize("hand", HANDS)
+def test_stirring_stick_is_approached_from_above(engine: GraspEngine, tmp_path: Path, hand: str) -> None:
+    doc = run(engine, tmp_path, "stirring_stick", hand, SHORT)
+    assert {t["approach"]["mode"] for t in doc["trials"]} == {"top"}
+
+
+@pytest.mark.parametrize("hand", HANDS)
+def test_a_2_kg_drill_is_held_or_rejected(engine: GraspEngine, tmp_path: Path, hand: str) -> None:
+    run(engine, tmp_path, "power_drill", hand, {**SHORT, "mass_override_kg": 2.0})
+
+
+@pytest.mark.parametrize("hand", HANDS)
+def test_a_5_g_brick_is_held_or_rejected(engine: GraspEngine, tmp_path: Path, hand: str) -> None:
+    run(engine, tmp_path, "foam_brick", hand, {**SHORT, "mass_override_kg": 0.005})
+
+
+@pytest.mark.parametrize("ratio", [0.0, -0.1])
+def test_zero_and_negative_standoff_start_touching_or_inside(
+    engine: GraspEngine, tmp_path: Path, ratio: float
+) -> None:
+    for hand in HANDS:
+        doc = run(engine, tmp_path, "tomato_soup_can", hand, {**SHORT, "standoff_ratio": [ratio, ratio]})
+        standoffs = [t["approach"]["standoff"] for t in doc["trials"]]
+        assert all(s == 0.0 for s in standoffs) if ratio == 0 else all(s < 0 for s in standoffs)
+
+
+def test_contact_time_constant_at_the_timestep_reruns_with_a_finer_step(
+    engine: GraspEngine, tmp_path: Path
+) -> None:
+    """MuJoCo would clamp the time constant to two timesteps, softening the skin silently."""
+    for hand in HANDS:
+        doc = run(engine, tmp_path, "tomato_soup_can", hand, {**SHORT, "hand_solref_timeconst": 0.002})
+        for trial in doc["trials"]:
+            assert trial["stability"]["timestep_used"] <= 0.001
+            assert trial["stability"]["retry_reasons"][0].startswith("timestep:")
+
+
+def test_an_8_ms_timestep_is_never_accepted_as_is(engine: GraspEngine, tmp_path: Path) -> None:
+    """FACTS: a held can dropped silently at 4 ms. Either the trial reruns finer, or it is rejected."""
+    for hand in HANDS:
+        doc = run(engine, tmp_path, "tomato_soup_can", hand, {**SHORT, "timestep": 0.008})
+        for trial in doc["trials"]:
+            assert trial["stability"]["timestep_used"] <= 0.0025 or not trial["accepted"]
+        rigid = run(
+            engine,
+            tmp_path / "rigid",
+            "tomato_soup_can",
+            hand,
+            {**SHORT, "timestep": 0.008, "max_retries": 0},
+        )
+        assert [t["accepted"] for t in rigid["trials"]] == [False, False]
+        assert all(t["reason"].startswith("timestep:") for t in rigid["trials"])
+
+
+def test_a_10_s_hold_keeps_the_can(engine: GraspEngine, tmp_path: Path) -> None:
+    doc = run(engine, tmp_path, "tomato_soup_can", "trx3", {"hold_s": 10.0}, SEEDS[:1])
+    assert doc["trials"][0]["hold"]["steps"] == 5000
+
+
+@pytest.mark.parametrize("hand", HANDS)
+def test_a_tenfold_squeeze_is_held_or_rejected(engine: GraspEngine, tmp_path: Path, hand: str) -> None:
+    run(engine, tmp_path, "tomato_soup_can", hand, {**SHORT, "force_scale": 10.0})
+
+
+@pytest.mark.parametrize("hand", HANDS)
+def test_pyramidal_cones_with_high_impratio_hold_or_are_rejected(
+    engine: GraspEngine, tmp_path: Path, hand: str
+) -> None:
+    run(engine, tmp_path, "tomato_soup_can", hand, {**SHORT, "cone": "pyramidal", "impratio": 100.0})
+
+
+def test_a_shake_is_recorded_and_judged(engine: GraspEngine, tmp_path: Path) -> None:
+    shake = {"enabled": True, "accel_mps2": 20.0, "directions": 4, "duration_s": 0.4}
+    doc = run(engine, tmp_path, "tomato_soup_can", "trx3", {**SHORT, "shake": shake})
+    for trial in doc["trials"]:
+        if trial["accepted"]:
+            assert 0.0 <= trial["hold"]["shake_slip_m"] < doc["physics"]["max_drop_m"]
+        else:
+            assert trial["reason"] in {"dropped: shake", "dropped", "no_contact", "no_touch"}
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"cone": "square"},
+        {"standoff_ratio": [0.1, 0.0]},
+        {"standoff_ratio": [-1.0, 0.0]},
+        {"shake": {"enabled": "yes"}},
+        {"shake": {"enabled": True, "directions": 0}},
+        {"impratio": 0.5},
+        {"force_scale": 0.0},
+        {"mass_override_kg": -1.0},
+        {"timestep": 0.02},
+        {"max_retries": 9},
+    ],
+)
+def test_impossible_physics_parameters_are_bad_input(bad: dict[str, Any]) -> None:
+    with pytest.raises(BadInput):
+        Physics.parse(bad)
+
+
+def test_reruns_and_shakes_are_deterministic(tmp_path: Path) -> None:
+    """Same seed, same bytes — also when trials rerun at a finer step and the hand shakes."""
+    shake = {"enabled": True, "accel_mps2": 10.0, "directions": 3, "duration_s": 0.3}
+    physics = {**SHORT, "timestep": 0.004, "shake": shake}
+    params = {
+        "object": CATALOG["mustard_bottle"],
+        "hand": {"name": "allegro"},
+        "trials": [{"grasp_index": i, "seed": seed} for i, seed in enumerate(SEEDS)],
+        "physics": physics,
+    }
+    texts = []
+    for name in ("first", "second"):
+        result = GraspEngine().run(TaskRequest("t", params, (), new_dir(tmp_path, name)))
+        texts.append(result.outputs[0].path.read_bytes())
+    assert texts[0] == texts[1]
+    assert all(t["stability"]["retries"] == 1 for t in json.loads(texts[0])["trials"])
