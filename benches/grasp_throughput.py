@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from vint_engines.grasp.engine import GraspEngine
 from vint_engines.objects import OBJECTS_TOML
 from vint_engines.protocol import TaskRequest
@@ -59,6 +60,7 @@ def measure(engine: GraspEngine, request: TaskRequest) -> dict[str, float]:
         "accepted_per_cpu_s": metrics["accepted"] / cpu,
         "touch_share_pct": 100.0 * metrics["touch_ms"] / metrics["trials_ms"],
         "touch_ms_per_trial": metrics["touch_ms"] / metrics["trials"],
+        "active_taxels_median": metrics["active_taxels_median"],
     }
 
 
@@ -85,7 +87,9 @@ def main() -> int:
                 print(
                     f"{hand:>8} {name:>16}  accepted {median['accepted']:>4.0f}/{args.trials}  "
                     f"{median['accepted_per_cpu_s']:6.2f} accepted/CPU-s  "
-                    f"touch {median['touch_share_pct']:5.2f} % ({median['touch_ms_per_trial']:.2f} ms/trial)",
+                    f"touch {median['touch_share_pct']:5.2f} % "
+                    f"({median['touch_ms_per_trial']:.2f} ms/trial)  "
+                    f"median active taxels {median['active_taxels_median']:.0f}",
                     file=sys.stderr,
                     flush=True,
                 )
@@ -103,13 +107,17 @@ def main() -> int:
                 "touch_share_pct": max(r["touch_share_pct"] for r in mine),
             }
         )
-    print("| hand | object | accepted / trials | accepted grasps per CPU-s | taxel share of trial time |")
-    print("|---|---|---:|---:|---:|")
+    print(
+        "| hand | object | accepted / trials | accepted grasps per CPU-s | taxel share of trial time "
+        "| median active taxels |"
+    )
+    print("|---|---|---:|---:|---:|---:|")
     for r in results:
         share = f"{r['touch_share_pct']:.2f} %" + (" (max)" if r["object"] == "all" else "")
+        active = f"{r['active_taxels_median']:.0f}" if "active_taxels_median" in r else ""
         print(
             f"| {r['hand']} | {r['object']} | {r['accepted']:.0f} / {r['trials']:.0f} | "
-            f"{r['accepted_per_cpu_s']:.2f} | {share} |"
+            f"{r['accepted_per_cpu_s']:.2f} | {share} | {active} |"
         )
     print(json.dumps({"trials_per_task": args.trials, "repetitions": args.reps, "results": results}))
     return 0
