@@ -15,24 +15,29 @@ use crate::{CliResult, Failure, bad_input};
 
 /// Reads and validates a spec; every problem is reported and the exit code is 2.
 pub fn load_spec(path: &Path) -> Result<(String, DatasetSpec), Failure> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading spec {}", path.display())).map_err(bad_input)?;
+    let text = read_spec(path)?;
     match DatasetSpec::parse(&text) {
         Ok(spec) => Ok((text, spec)),
-        Err(errors) => {
-            let n = errors.0.len();
-            Err(bad_input(anyhow!(
-                "{} is not a valid spec ({n} problem{}):\n{errors}",
-                path.display(),
-                if n == 1 { "" } else { "s" }
-            )))
-        }
+        Err(errors) => Err(invalid_spec(path, &errors)),
     }
 }
 
+fn read_spec(path: &Path) -> Result<String, Failure> {
+    std::fs::read_to_string(path).with_context(|| format!("reading spec {}", path.display())).map_err(bad_input)
+}
+
+/// Every problem of an invalid spec, as one bad-input failure (exit code 2).
+fn invalid_spec(path: &Path, errors: &vint_core::SpecErrors) -> Failure {
+    let n = errors.0.len();
+    bad_input(anyhow!(
+        "{} is not a valid spec ({n} problem{}):\n{errors}",
+        path.display(),
+        if n == 1 { "" } else { "s" }
+    ))
+}
+
 pub fn validate(path: &Path, json: bool) -> CliResult {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading spec {}", path.display())).map_err(bad_input)?;
+    let text = read_spec(path)?;
     match DatasetSpec::parse(&text) {
         Ok(spec) => {
             if json {
@@ -61,12 +66,7 @@ pub fn validate(path: &Path, json: bool) -> CliResult {
                     .collect();
                 report::print_json(&serde_json::json!({"valid": false, "errors": list}));
             }
-            let n = errors.0.len();
-            Err(bad_input(anyhow!(
-                "{} is not a valid spec ({n} problem{}):\n{errors}",
-                path.display(),
-                if n == 1 { "" } else { "s" }
-            )))
+            Err(invalid_spec(path, &errors))
         }
     }
 }
