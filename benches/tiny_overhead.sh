@@ -17,9 +17,10 @@
 #   Σtask      total_ms summed over tasks: fetch + engine + upload as the worker timed them
 #   overhead   (wall − Σengine) / wall: the share of wall time no engine was working (1 worker only)
 #   efficiency Σengine / (workers × wall): how busy the workers' engines kept them
-# and, for 1 worker, where the wall time went: outside the job (coordinator start, submit, export,
-# stopping workers), in the job before the first lease (worker start), between tasks (lease and
-# completion RPCs, idle polls), in tasks outside the engine (fetch, upload), in engines.
+# the succeeded tasks by stage, and, for 1 worker, where the wall time went: outside the job
+# (coordinator start, submit, export, stopping workers), in the job before the first lease (worker
+# start), between tasks (lease and completion RPCs, idle polls), in tasks outside the engine (fetch,
+# upload), in engines.
 # The last line is JSON with the medians. Needs the engines' Python (.venv, or $VINT_PYTHON).
 set -euo pipefail
 
@@ -79,8 +80,10 @@ def measure(dir: Path, workers: int) -> dict:
     ok = [(stage, json.loads(t)) for stage, t, outcome, _ in rows if outcome == "succeeded"]
     first_lease = min(started for *_, started in rows)
     engine_by_stage: dict[str, float] = {}
+    tasks_by_stage: dict[str, int] = {}
     for stage, t in ok:
         engine_by_stage[stage] = engine_by_stage.get(stage, 0.0) + t["engine_ms"]
+        tasks_by_stage[stage] = tasks_by_stage.get(stage, 0) + 1
     startup_by_stage: dict[str, float] = {}
     for log in glob.glob(str(dir / "state" / "logs" / "worker-*.log")):
         for m in READY.finditer(Path(log).read_text(errors="replace")):
@@ -105,6 +108,7 @@ def measure(dir: Path, workers: int) -> dict:
         "overhead_pct": 100.0 * (wall - engine) / wall if workers == 1 else None,
         "efficiency_pct": 100.0 * engine / (workers * wall),
         "engine_ms_by_stage": engine_by_stage,
+        "tasks_by_stage": tasks_by_stage,
         "startup_ms_by_stage": startup_by_stage,
     }
 
@@ -147,6 +151,9 @@ for workers in (1, 2):
             print(f"{'':>14} ({m['attempts_not_succeeded']} attempt(s) did not succeed)")
     med = {c: median_of(ms, c) for c in COLS}
     med["tasks"] = ms[0]["tasks"]
+    med["tasks_by_stage"] = ms[0]["tasks_by_stage"]
+    if any(m["tasks_by_stage"] != ms[0]["tasks_by_stage"] for m in ms):
+        print(f"{'':>14} (runs differ in tasks by stage: {[m['tasks_by_stage'] for m in ms]})")
     med["workers"] = workers
     med["engine_ms_by_stage"] = {
         s: statistics.median(m["engine_ms_by_stage"].get(s, 0.0) for m in ms)
@@ -164,6 +171,8 @@ for workers in (1, 2):
     m = medians[workers]
     by_stage = ", ".join(f"{s} {v:.0f}" for s, v in m["engine_ms_by_stage"].items())
     startup = ", ".join(f"{s} {v:.0f}" for s, v in m["startup_ms_by_stage"].items())
+    tasks = ", ".join(f"{s} {n}" for s, n in sorted(m["tasks_by_stage"].items()))
+    print(f"{workers}w succeeded tasks by stage: {tasks}")
     print(f"{workers}w median Σengine by stage (ms): {by_stage}")
     print(f"{workers}w median Σstartup by stage (ms): {startup}")
 m = medians[1]
