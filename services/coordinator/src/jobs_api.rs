@@ -41,20 +41,10 @@ impl JobApi {
 
     /// The job that packaged `sample_id`: the given one, or the most recent that has it.
     async fn job_of_sample(&self, job_id: &str, sample_id: &str) -> Result<(String, String), Status> {
-        let candidates = if job_id.is_empty() {
-            self.store.list_jobs(1_000).await.map_err(status)?.into_iter().map(|j| j.id).collect()
-        } else {
-            vec![job_id.to_string()]
-        };
-        for job in candidates {
-            if let Some(task) = self.store.sample_package_task(&job, sample_id).await.map_err(status)? {
-                return Ok((job, task));
-            }
-        }
-        Err(Status::not_found(format!(
-            "sample {sample_id} is not packaged in {}",
-            if job_id.is_empty() { "any job" } else { job_id }
-        )))
+        let job = (!job_id.is_empty()).then_some(job_id);
+        self.store.sample_package_task(job, sample_id).await.map_err(status)?.ok_or_else(|| {
+            Status::not_found(format!("sample {sample_id} is not packaged in {}", job.unwrap_or("any job")))
+        })
     }
 
     /// A sample's chain: its files in the package task, then its own noise, render and grasp tasks.

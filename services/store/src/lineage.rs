@@ -104,14 +104,18 @@ impl Store {
         Ok(out)
     }
 
-    /// The package task that made `sample_id` in `job_id`, if it is packaged.
-    pub async fn sample_package_task(&self, job_id: &str, sample_id: &str) -> Result<Option<String>> {
-        let row = sqlx::query("SELECT package_task_id FROM samples WHERE job_id = $1 AND sample_id = $2")
-            .bind(job_id)
-            .bind(sample_id)
-            .fetch_optional(&self.pool)
-            .await?;
-        row.map(|r| r.try_get("package_task_id")).transpose().map_err(Into::into)
+    /// The (job, package task) that made `sample_id`: in `job_id` if given, else in the newest job
+    /// that packaged it.
+    pub async fn sample_package_task(&self, job_id: Option<&str>, sample_id: &str) -> Result<Option<(String, String)>> {
+        let row = sqlx::query(
+            "SELECT s.job_id, s.package_task_id FROM samples s JOIN jobs j ON j.id = s.job_id \
+             WHERE s.sample_id = $1 AND ($2 = '' OR s.job_id = $2) ORDER BY j.created_ms DESC, j.id LIMIT 1",
+        )
+        .bind(sample_id)
+        .bind(job_id.unwrap_or(""))
+        .fetch_optional(&self.pool)
+        .await?;
+        row.map(|r| Ok((r.try_get("job_id")?, r.try_get("package_task_id")?))).transpose()
     }
 
     /// Number of attempts recorded for a task (for lineage displays).

@@ -280,7 +280,10 @@ store_test!(job_succeeds_when_every_task_has_and_lineage_reaches_the_root, |stor
     assert_eq!(store.job("j").await.unwrap().unwrap().state, JobState::Succeeded);
     let samples = store.samples("j").await.unwrap();
     assert_eq!(samples["s1"].iter().map(|a| a.name.as_str()).collect::<Vec<_>>(), ["meta.json", "rgb.png"]);
-    let package = store.sample_package_task("j", "s1").await.unwrap().unwrap();
+    let (job, package) = store.sample_package_task(Some("j"), "s1").await.unwrap().unwrap();
+    assert_eq!(job, "j");
+    assert_eq!(store.sample_package_task(None, "s1").await.unwrap(), Some((job, package.clone())));
+    assert_eq!(store.sample_package_task(Some("other"), "s1").await.unwrap(), None);
     let chain = store.lineage(&package).await.unwrap();
     let keys: Vec<_> = chain.iter().map(|e| e.task.key.as_str()).collect();
     assert_eq!(keys, ["package/a", "grasp/a", "render/a"]);

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from vint_engines.grasp.engine import GraspEngine
-from vint_engines.grasp.hand import TOUCH_PROBE, TOUCH_PROBE_RADIUS
+from vint_engines.grasp.hand import TOUCH_PROBE, add_touch_probe
 from vint_engines.grasp.hands import HANDS, hand_dims
 from vint_engines.grasp.hands.catalog import read_hand_catalog
 from vint_engines.grasp.taxels import TaxelLayout, read_layout
@@ -243,13 +243,7 @@ def test_distances_work_for_every_object_geom_type() -> None:
     body.add_geom(name="mesh", type=mujoco.mjtGeom.mjGEOM_MESH, meshname="cube")
     body.add_geom(name="box", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.02, 0.02, 0.02], pos=[0, 0, 0.1])
     body.add_geom(name="capsule", type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[0.01, 0.02, 0], pos=[0, 0.1, 0])
-    spec.worldbody.add_geom(
-        name=TOUCH_PROBE,
-        type=mujoco.mjtGeom.mjGEOM_SPHERE,
-        size=[TOUCH_PROBE_RADIUS, 0, 0],
-        contype=0,
-        conaffinity=0,
-    )
+    add_touch_probe(spec)
     model = spec.compile()
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)

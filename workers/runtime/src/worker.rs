@@ -21,7 +21,7 @@ use vint_core::Stage;
 use vint_proto::v1 as pb;
 use vint_proto::v1::work_service_client::WorkServiceClient;
 
-use crate::engine::{Engine, EngineCommand, EngineError, EngineInput};
+use crate::engine::{Engine, EngineCommand, EngineInput};
 use crate::package::{self, PackageInput};
 
 #[derive(Clone, Debug)]
@@ -271,10 +271,9 @@ impl Worker {
     /// The warm engine of `stage`, started on first use.
     async fn engine(&mut self, stage: Stage) -> Result<&mut Engine, TaskFailure> {
         if !self.engines.contains_key(&stage) {
-            let engine = Engine::start(stage, &self.config.engine).await.map_err(|e| match e {
-                EngineError::Spawn { .. } => TaskFailure::retryable(e.to_string()),
-                other => TaskFailure::retryable(other.to_string()),
-            })?;
+            // A missing interpreter or a crash at start-up may be a bad node: let another try.
+            let engine =
+                Engine::start(stage, &self.config.engine).await.map_err(|e| TaskFailure::retryable(e.to_string()))?;
             self.engines.insert(stage, engine);
         }
         self.engines.get_mut(&stage).ok_or_else(|| TaskFailure::retryable("engine vanished"))

@@ -70,6 +70,11 @@ def add_hand(spec: mujoco.MjSpec, dims: HandDims) -> None:
         objtype=mujoco.mjtObj.mjOBJ_BODY,
         solref=[0.01, 1.0],
     )
+    add_touch_probe(spec)
+
+
+def add_touch_probe(spec: mujoco.MjSpec) -> None:
+    """The collision-free sphere the touch model moves to each taxel to measure object distances."""
     spec.worldbody.add_geom(
         name=TOUCH_PROBE,
         type=mujoco.mjtGeom.mjGEOM_SPHERE,
