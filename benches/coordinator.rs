@@ -203,7 +203,7 @@ async fn run_case(case: &Case, repeat: usize) -> Run {
     let job_id = format!("bench-{}-b{}-r{repeat}", case.backend.name(), case.batch);
     let spec_toml = bench_spec(case.tasks);
     let spec = DatasetSpec::parse(&spec_toml).expect("bench spec parses");
-    let tasks = initial_tasks(&spec);
+    let tasks = initial_tasks(&spec, &[]).expect("the bench spec names no assets");
     assert_eq!(tasks.len(), case.tasks as usize);
     store
         .submit_job(
@@ -213,6 +213,7 @@ async fn run_case(case: &Case, repeat: usize) -> Run {
                 seed: spec.dataset.seed,
                 spec_toml,
                 idempotency_key: job_id.clone(),
+                assets: vec![],
             },
             &tasks,
             now_ms(),

@@ -4,6 +4,8 @@
     .venv/bin/python scripts/gen_taxels.py            # every hand in the catalog
     .venv/bin/python scripts/gen_taxels.py allegro    # one hand
     .venv/bin/python scripts/gen_taxels.py --check    # exit 1 if a committed layout is stale
+    .venv/bin/python scripts/gen_taxels.py --mjcf examples/assets/gripper.xml --count 240 \
+        --out examples/assets/gripper_taxels.csv         # a user's MJCF hand (docs/hands.md)
 
 Deterministic: the same models give byte-identical files (vint_engines/grasp/skin.py says how
 taxels are placed).
@@ -29,7 +31,14 @@ def main() -> int:
     )
     parser.add_argument("hands", nargs="*", help="hand names (default: every hand in the catalog)")
     parser.add_argument("--check", action="store_true", help="compare with the files instead of writing")
+    parser.add_argument("--mjcf", type=Path, help="a user's hand model instead of the catalog's hands")
+    parser.add_argument("--count", type=int, default=240, help="taxels on an --mjcf hand")
+    parser.add_argument("--out", type=Path, help="where an --mjcf hand's layout goes")
     args = parser.parse_args()
+    if args.mjcf is not None:
+        if args.out is None or args.hands:
+            parser.error("--mjcf needs --out and no hand names")
+        return mjcf_layout(args.mjcf, args.count, args.out, args.check)
     catalog = read_hand_catalog()
     stale = []
     for name in args.hands or list(catalog):
@@ -47,6 +56,22 @@ def main() -> int:
     if stale:
         print(f"stale taxel layouts: {stale} (run scripts/gen_taxels.py)", file=sys.stderr)
         return 1
+    return 0
+
+
+def mjcf_layout(mjcf: Path, count: int, out: Path, check: bool) -> int:
+    from vint_engines.grasp.hands import load_mjcf_hand
+    from vint_engines.grasp.skin import generate_layout
+
+    hand = load_mjcf_hand(mjcf.stem, mjcf.read_text(encoding="utf-8"), str(mjcf))
+    text = generate_layout(hand, count).to_csv()
+    if check:
+        if not out.is_file() or out.read_text(encoding="utf-8") != text:
+            print(f"stale taxel layout: {out} (run scripts/gen_taxels.py --mjcf {mjcf} ...)", file=sys.stderr)
+            return 1
+        return 0
+    out.write_text(text, encoding="utf-8")
+    print(f"{mjcf}: {count} taxels -> {out}")
     return 0
 
 

@@ -40,13 +40,18 @@ pub fn tiny_spec() -> PathBuf {
 
 /// `vintctl run examples/tiny.toml` into `dir/out` with state in `dir/state`, summary as JSON.
 pub fn run_tiny(dir: &Path, workers: u32) -> Output {
+    run_tiny_with_env(dir, workers, &[])
+}
+
+/// `run_tiny` with extra environment for vintctl and the workers it starts.
+pub fn run_tiny_with_env(dir: &Path, workers: u32, env: &[(String, String)]) -> Output {
     let out = dir.join("out");
     let state = dir.join("state");
     let spec = tiny_spec();
     let workers = workers.to_string();
     let args =
         ["run", path_str(&spec), "--out", path_str(&out), "--state", path_str(&state), "--workers", &workers, "--json"];
-    vintctl(&args)
+    vintctl_with_env(&args, env)
 }
 
 fn path_str(p: &Path) -> &str {

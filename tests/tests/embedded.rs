@@ -1,20 +1,34 @@
 //! `vintctl run` on the embedded default, as a researcher uses it.
 
+use sha2::{Digest, Sha256};
 use vint_tests::*;
 
 #[test]
-fn tiny_spec_produces_verified_samples_identical_for_any_worker_count() {
+fn tiny_spec_produces_verified_samples_identical_for_any_worker_count_and_engine_reuse() {
     let tmp = tempfile::tempdir().unwrap();
     let mut hashes = Vec::new();
-    for workers in [1, 3] {
+    // One worker keeps its engines warm for the whole job; three workers replace every engine
+    // process after two tasks: a warm engine's cached scene must not change a single byte.
+    for (workers, max_tasks) in [(1, "0"), (3, "2")] {
         let dir = tmp.path().join(format!("w{workers}"));
-        let o = run_tiny(&dir, workers);
+        let o = run_tiny_with_env(&dir, workers, &[("VINT_ENGINE_MAX_TASKS".into(), max_tasks.into())]);
         assert!(o.status.success(), "vintctl run failed:\n{}\n{}", stdout(&o), stderr(&o));
         let lines = verify_dataset(&dir.join("out"));
         assert!(!lines.is_empty(), "no samples");
         for line in &lines {
             let files: Vec<&str> = line["files"].as_object().unwrap().keys().map(String::as_str).collect();
-            assert_eq!(files, ["depth.npy", "depth_noisy.npy", "mask.png", "meta.json", "rgb.png"]);
+            assert_eq!(
+                files,
+                [
+                    "depth.npy",
+                    "depth_noisy.npy",
+                    "mask.png",
+                    "mask_full.png",
+                    "meta.json",
+                    "rgb.png",
+                    "segmentation.png"
+                ]
+            );
             let sample = line["sample_id"].as_str().unwrap();
             let meta: serde_json::Value =
                 serde_json::from_slice(&std::fs::read(dir.join("out").join(sample).join("meta.json")).unwrap())
@@ -26,12 +40,24 @@ fn tiny_spec_produces_verified_samples_identical_for_any_worker_count() {
             );
             assert!(!meta["grasp"]["link_poses"].as_object().unwrap().is_empty());
             assert!(!meta["grasp"]["joints"].as_object().unwrap().is_empty());
+            let occlusion = meta["visibility"]["occlusion"].as_f64().unwrap();
+            assert!((0.0..=1.0).contains(&occlusion), "{sample}: occlusion {occlusion}");
+            let view: usize = sample.rsplit_once(".v").unwrap().1.parse().unwrap();
+            let environment = if view < 3 { "studio" } else { "forest" };
+            assert_eq!(meta["camera"]["environment"]["name"], environment, "{sample}");
         }
+        // Every accepted grasp is seen from 3 views in each of 2 environments.
+        let mut views_per_grasp = std::collections::BTreeMap::<String, usize>::new();
+        for line in &lines {
+            let sample = line["sample_id"].as_str().unwrap();
+            *views_per_grasp.entry(sample.rsplit_once(".v").unwrap().0.to_string()).or_default() += 1;
+        }
+        assert!(views_per_grasp.values().all(|&n| n == 6), "{views_per_grasp:?}");
         let summary: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("--json summary");
         assert_eq!(summary["manifest_sha256"], manifest_sha256(&dir.join("out")));
         hashes.push(manifest_sha256(&dir.join("out")));
     }
-    assert_eq!(hashes[0], hashes[1], "1 and 3 workers must produce the same dataset");
+    assert_eq!(hashes[0], hashes[1], "1 warm and 3 recycling workers must produce the same dataset");
 }
 
 #[test]
@@ -120,4 +146,134 @@ fn grasp_study_writes_csv_plot_and_table() {
     }
     let bad = vintctl(&["study", "paint", "--out", out.to_str().unwrap()]);
     assert_eq!(bad.status.code(), Some(2));
+}
+
+#[test]
+fn render_study_writes_csv_plot_and_table_with_exact_labels() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("study");
+    // Exit 0 also says that depth, masks and segmentation equal the reference at every setting.
+    let o = vintctl(&["study", "render", "--out", out.to_str().unwrap(), "--quick"]);
+    assert!(o.status.success(), "{}\n{}", stdout(&o), stderr(&o));
+    for f in ["render_study.csv", "render_study_summary.csv", "render_study.png", "render_study.md"] {
+        assert!(out.join(f).metadata().map(|m| m.len() > 0).unwrap_or(false), "{f} missing");
+    }
+    let summary = std::fs::read_to_string(out.join("render_study_summary.csv")).unwrap();
+    let psnr = |config: &str| -> f64 {
+        let header: Vec<&str> = summary.lines().next().unwrap().split(',').collect();
+        let column = header.iter().position(|h| *h == "median_psnr_db").unwrap();
+        let line = summary.lines().find(|l| l.starts_with(&format!("{config},"))).unwrap();
+        line.split(',').nth(column).unwrap().parse().unwrap()
+    };
+    assert!(psnr("16spp") > psnr("4spp"), "more samples must come closer to the reference:\n{summary}");
+}
+
+/// `examples/custom.toml`: a user's MJCF hand with its taxel layout, a user's mesh object and a
+/// user's HDRI, next to a built-in hand, object and HDRI.
+fn custom_spec() -> std::path::PathBuf {
+    repo_root().join("examples").join("custom.toml")
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_spec_with_its_own_hand_mesh_object_and_hdri_runs_end_to_end_with_touch() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (out, state) = (tmp.path().join("out"), tmp.path().join("state"));
+    let spec = custom_spec();
+    let (spec, out_arg, state_arg) = (spec.to_str().unwrap(), out.to_str().unwrap(), state.to_str().unwrap());
+    let o = vintctl(&["--json", "run", spec, "--out", out_arg, "--state", state_arg]);
+    assert!(o.status.success(), "vintctl run failed:\n{}\n{}", stdout(&o), stderr(&o));
+    let lines = verify_dataset(&out);
+    let samples: Vec<&str> = lines.iter().map(|l| l["sample_id"].as_str().unwrap()).collect();
+    for pair in ["cup.gripper.", "cup.trx3.", "tomato_soup_can.gripper."] {
+        assert!(samples.iter().any(|s| s.starts_with(pair)), "no accepted grasp for {pair}: {samples:?}");
+    }
+    let file_sha = |name: &str| {
+        hex::encode(Sha256::digest(std::fs::read(repo_root().join("examples/assets").join(name)).unwrap()))
+    };
+    let (cup_sha, lab_sha) = (file_sha("cup.obj"), file_sha("lab.hdr"));
+    for sample in samples.iter().filter(|s| s.starts_with("cup.gripper.")) {
+        let meta: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join(sample).join("meta.json")).unwrap()).unwrap();
+        assert!(meta["grasp"]["touch"]["active_count"].as_u64().unwrap() >= 3, "{sample}: no touch");
+        assert_eq!(meta["object"]["shape"]["asset"], cup_sha.as_str(), "{sample}: the mesh is named by its hash");
+        let links = meta["grasp"]["link_poses"].as_object().unwrap();
+        assert!(links.contains_key("left_tip") && links.contains_key("palm"), "{sample}: {links:?}");
+    }
+    // View 1 of every grasp is lit by the user's HDRI, named by its hash.
+    let lit = samples.iter().filter(|s| s.ends_with(".v01")).collect::<Vec<_>>();
+    assert!(!lit.is_empty(), "{samples:?}");
+    for sample in lit {
+        let meta: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join(sample).join("meta.json")).unwrap()).unwrap();
+        let environment = &meta["camera"]["environment"];
+        assert_eq!(environment["name"], "lab", "{sample}");
+        assert_eq!(environment["asset"], lab_sha.as_str(), "{sample}");
+        assert_eq!((environment["rotation_deg"].as_f64(), environment["strength"].as_f64()), (Some(45.0), Some(1.5)));
+    }
+
+    // Lineage: the grasp task's parameters name the user files, which show as its inputs.
+    let url = format!("sqlite://{}", state.join("vint.db").display());
+    let store = vint_store::Store::open(&url, vint_store::RetryPolicy::default()).await.unwrap();
+    let job = &store.list_jobs(1).await.unwrap()[0];
+    let grasp = format!("{}/grasp/cup/gripper/c00000", job.id);
+    let chain = store.lineage(&grasp).await.unwrap();
+    let inputs: Vec<&str> = chain[0].inputs.iter().map(|a| a.name.as_str()).collect();
+    assert_eq!(inputs, ["assets/cup.obj", "assets/gripper.xml", "assets/gripper_taxels.csv"]);
+    assert!(chain[0].task.params_json.contains(&cup_sha));
+    // A render task names the HDRI, which shows as its input; the grasp task does not.
+    let render = format!("{}/render/{}", job.id, samples[0].rsplit_once('.').unwrap().0.replace('.', "/"));
+    let chain = store.lineage(&render).await.unwrap();
+    let inputs: Vec<&str> = chain[0].inputs.iter().map(|a| a.name.as_str()).collect();
+    assert!(inputs.contains(&"assets/lab.hdr"), "{render}: {inputs:?}");
+    assert!(chain.iter().filter(|e| e.task.key.starts_with("grasp/")).all(|e| !e.task.params_json.contains(&lab_sha)));
+    store.close().await;
+}
+
+#[test]
+fn a_spec_naming_a_missing_file_exits_2_and_submits_nothing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let spec = tmp.path().join("custom.toml");
+    std::fs::copy(custom_spec(), &spec).unwrap(); // without its assets directory
+    let (out, state) = (tmp.path().join("out"), tmp.path().join("state"));
+    let o =
+        vintctl(&["run", spec.to_str().unwrap(), "--out", out.to_str().unwrap(), "--state", state.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    for field in ["hand.gripper.mjcf", "hand.gripper.taxels", "object.cup.mesh", "render.environments[1].file"] {
+        assert!(stderr(&o).contains(&format!("{field}: must name a readable file")), "{}", stderr(&o));
+    }
+    assert!(stderr(&o).contains("got \"assets/cup.obj\""), "{}", stderr(&o));
+    assert!(!out.exists() && !state.exists(), "nothing may be written or submitted");
+    let v = vintctl(&["validate", spec.to_str().unwrap()]);
+    assert_eq!(v.status.code(), Some(2));
+}
+
+#[test]
+fn a_user_hdri_must_be_a_readable_hdr_or_exr_file_next_to_the_spec() {
+    let tmp = tempfile::tempdir().unwrap();
+    let spec = tmp.path().join("spec.toml");
+    let tiny = std::fs::read_to_string(tiny_spec()).unwrap();
+    let forest = "{ name = \"forest\", rotation_deg = 0.0, strength = 1.2 }";
+    assert!(tiny.contains(forest));
+    let validate = |entry: &str| {
+        std::fs::write(&spec, tiny.replace(forest, entry)).unwrap();
+        vintctl(&["validate", spec.to_str().unwrap()])
+    };
+    let missing = validate("{ name = \"lab\", file = \"hdri/lab.hdr\" }");
+    assert_eq!(missing.status.code(), Some(2), "{}", stderr(&missing));
+    assert!(
+        stderr(&missing).contains("render.environments[1].file: must name a readable file")
+            && stderr(&missing).contains("got \"hdri/lab.hdr\""),
+        "{}",
+        stderr(&missing)
+    );
+    std::fs::create_dir(tmp.path().join("hdri")).unwrap();
+    std::fs::copy(repo_root().join("examples/assets/lab.hdr"), tmp.path().join("hdri/lab.hdr")).unwrap();
+    let present = validate("{ name = \"lab\", file = \"hdri/lab.hdr\" }");
+    assert!(present.status.success(), "{}", stderr(&present));
+    let png = validate("{ name = \"lab\", file = \"hdri/lab.png\" }");
+    assert_eq!(png.status.code(), Some(2));
+    assert!(stderr(&png).contains("render.environments[1].file: must name a .hdr, .exr file"), "{}", stderr(&png));
+    let shadow = validate("{ name = \"forest\", file = \"hdri/lab.hdr\" }");
+    assert_eq!(shadow.status.code(), Some(2));
+    assert!(stderr(&shadow).contains("must not reuse the name of a bundled HDRI"), "{}", stderr(&shadow));
 }

@@ -5,12 +5,13 @@ use std::collections::BTreeSet;
 use sha2::{Digest, Sha256};
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status};
+use vint_core::asset::{self, Asset, MAX_ASSET_BYTES, MAX_ASSETS_TOTAL_BYTES};
 use vint_core::plan;
 use vint_core::{DatasetSpec, SampleId};
 use vint_proto::v1 as pb;
 use vint_proto::v1::get_lineage_request::Subject;
 use vint_proto::v1::job_service_server::JobService;
-use vint_store::{JobRecord, LineageEntry, NewJob, Store};
+use vint_store::{JobAsset, JobRecord, LineageEntry, NewJob, Store};
 
 use crate::convert::{self, status};
 use crate::{CoordinatorConfig, now_ms};
@@ -32,6 +33,33 @@ impl JobApi {
             .await
             .map_err(status)?
             .ok_or_else(|| Status::not_found(format!("job {job_id} not found")))
+    }
+
+    /// Writes a submission's user files into the artifact store (idempotent: content-addressed).
+    async fn store_assets(&self, files: Vec<pb::AssetFile>) -> Result<Vec<JobAsset>, Status> {
+        if files.is_empty() {
+            return Ok(Vec::new());
+        }
+        let store = self.config.artifacts.as_ref().ok_or_else(|| {
+            Status::failed_precondition("this coordinator has no artifact store (--store) for the spec's user files")
+        })?;
+        let mut out = Vec::with_capacity(files.len());
+        for f in files {
+            let stored = store
+                .put_bytes(bytes::Bytes::from(f.content))
+                .await
+                .map_err(|e| Status::unavailable(format!("storing asset {:?}: {e}", f.path)))?;
+            let media_type = asset::media_type(&f.path).to_string();
+            out.push(JobAsset {
+                path: f.path,
+                sha256: stored.sha256,
+                size: stored.size,
+                media_type,
+                object_key: stored.key,
+            });
+        }
+        out.sort_by(|a, b| a.path.cmp(&b.path));
+        Ok(out)
     }
 
     async fn job_message(&self, job: &JobRecord) -> Result<pb::Job, Status> {
@@ -101,9 +129,45 @@ impl JobApi {
     }
 }
 
-/// Default idempotency key: the spec's content, so resubmitting the same file is a no-op.
-fn default_idempotency_key(spec_toml: &str) -> String {
-    format!("spec-sha256:{}", hex::encode(Sha256::digest(spec_toml.as_bytes())))
+/// Default idempotency key: the spec's content and its user files' hashes, so resubmitting the
+/// same files is a no-op and changing a mesh on disk makes a new job.
+fn default_idempotency_key(spec_toml: &str, assets: &[JobAsset]) -> String {
+    let mut h = Sha256::new();
+    h.update(spec_toml.as_bytes());
+    for a in assets {
+        h.update(format!("\0{}\0{}", a.path, a.sha256).as_bytes());
+    }
+    format!("spec-sha256:{}", hex::encode(h.finalize()))
+}
+
+/// The submitted user files, checked against the spec: each a file the spec names, once, within
+/// the size limits. (Files the spec names but the submission lacks are the planner's error.)
+fn checked_assets(spec: &DatasetSpec, files: Vec<pb::AssetFile>) -> Result<Vec<pb::AssetFile>, Status> {
+    let named = spec.asset_paths();
+    let mut seen = BTreeSet::new();
+    let mut total = 0u64;
+    for f in &files {
+        let size = f.content.len() as u64;
+        total += size;
+        if !named.contains(&f.path) {
+            return Err(Status::invalid_argument(format!("asset {:?}: the spec names no such file", f.path)));
+        }
+        if !seen.insert(f.path.as_str()) {
+            return Err(Status::invalid_argument(format!("asset {:?}: submitted twice", f.path)));
+        }
+        if size > MAX_ASSET_BYTES {
+            return Err(Status::invalid_argument(format!(
+                "asset {:?}: {size} bytes, larger than the limit of {MAX_ASSET_BYTES}",
+                f.path
+            )));
+        }
+    }
+    if total > MAX_ASSETS_TOTAL_BYTES {
+        return Err(Status::invalid_argument(format!(
+            "assets: {total} bytes in all, larger than the limit of {MAX_ASSETS_TOTAL_BYTES}"
+        )));
+    }
+    Ok(files)
 }
 
 #[tonic::async_trait]
@@ -115,8 +179,16 @@ impl JobService for JobApi {
         let req = request.into_inner();
         let spec =
             DatasetSpec::parse(&req.spec_toml).map_err(|e| Status::invalid_argument(format!("invalid spec:\n{e}")))?;
-        let key =
-            if req.idempotency_key.is_empty() { default_idempotency_key(&req.spec_toml) } else { req.idempotency_key };
+        let files = checked_assets(&spec, req.assets)?;
+        let assets = self.store_assets(files).await?;
+        let key = if req.idempotency_key.is_empty() {
+            default_idempotency_key(&req.spec_toml, &assets)
+        } else {
+            req.idempotency_key
+        };
+        let planned: Vec<Asset> =
+            assets.iter().map(|a| Asset { path: a.path.clone(), sha256: a.sha256.clone(), size: a.size }).collect();
+        let tasks = plan::initial_tasks(&spec, &planned).map_err(|e| Status::invalid_argument(e.to_string()))?;
         let uuid = uuid::Uuid::new_v4().simple().to_string();
         let new_job = NewJob {
             id: format!("j{}", &uuid[..12]),
@@ -124,8 +196,8 @@ impl JobService for JobApi {
             seed: spec.dataset.seed,
             spec_toml: req.spec_toml,
             idempotency_key: key,
+            assets,
         };
-        let tasks = plan::initial_tasks(&spec);
         let (job, created) = self.store.submit_job(&new_job, &tasks, now_ms()).await.map_err(status)?;
         tracing::info!(job = %job.id, created, tasks = tasks.len(), "job submitted");
         Ok(Response::new(pb::SubmitJobResponse { job: Some(self.job_message(&job).await?), created }))

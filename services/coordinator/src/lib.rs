@@ -4,6 +4,8 @@
 //! It holds no state that is not in the database: kill it at any moment, start it again (or run
 //! several behind a load balancer on Postgres) and nothing is lost. It never runs an engine and
 //! never reads artifact contents; workers move the bytes, the coordinator records their hashes.
+//! The one set of bytes it writes is a submission's user files (a spec's own hands and objects),
+//! which it stores content-addressed where the workers read artifacts.
 
 mod convert;
 mod jobs_api;
@@ -31,6 +33,9 @@ pub struct CoordinatorConfig {
     pub reap_interval: Duration,
     /// How often WatchJob polls the store.
     pub watch_interval: Duration,
+    /// Where submitted user files go (the workers' artifact store); `None` refuses specs that
+    /// name any.
+    pub artifacts: Option<vint_artifacts::ArtifactStore>,
 }
 
 impl Default for CoordinatorConfig {
@@ -39,6 +44,7 @@ impl Default for CoordinatorConfig {
             default_lease_ms: 30_000,
             reap_interval: Duration::from_millis(500),
             watch_interval: Duration::from_millis(250),
+            artifacts: None,
         }
     }
 }
@@ -50,6 +56,8 @@ pub fn now_ms() -> i64 {
 
 /// Largest gRPC message accepted (a spec is at most 1 MiB; completions list a few hundred files).
 const MAX_MESSAGE_BYTES: usize = 8 << 20;
+/// Largest job submission: a spec and its user files.
+const MAX_SUBMIT_BYTES: usize = vint_core::asset::MAX_ASSETS_TOTAL_BYTES as usize + (2 << 20);
 
 /// Serves both APIs on `listener` until `shutdown` resolves, with the lease reaper running.
 pub async fn serve(
@@ -60,7 +68,7 @@ pub async fn serve(
 ) -> Result<(), tonic::transport::Error> {
     let reaper = tokio::spawn(reap_forever(store.clone(), config.reap_interval));
     let jobs =
-        JobServiceServer::new(JobApi::new(store.clone(), config.clone())).max_decoding_message_size(MAX_MESSAGE_BYTES);
+        JobServiceServer::new(JobApi::new(store.clone(), config.clone())).max_decoding_message_size(MAX_SUBMIT_BYTES);
     let work = WorkServiceServer::new(WorkApi::new(store, config)).max_decoding_message_size(MAX_MESSAGE_BYTES);
     // Small request/response pairs: without TCP_NODELAY each reply waits ~40 ms for a delayed ACK
     // (tonic applies its nodelay default only to listeners it binds itself).

@@ -1,12 +1,13 @@
 //! What a completed task unlocks: the coordinator's side of `vint_core::plan`.
 //!
 //! Grasp tasks report their accepted grasp indices in `result_json`; the planner turns them into
-//! render, noise and package tasks. Package tasks report their samples through their output names
+//! render, noise and package tasks (whose parameters name the job's stored files they need). Package tasks report their samples through their output names
 //! (`<sample_id>/<file>`). Every other stage unlocks nothing new: its dependents already exist.
 
 use std::collections::BTreeSet;
 
 use serde::Deserialize;
+use vint_core::asset::Asset;
 use vint_core::plan::{self, GraspChunk, NewTask};
 use vint_core::{DatasetSpec, SampleId, Stage};
 use vint_store::{JobRecord, NewArtifact, TaskRecord};
@@ -23,6 +24,8 @@ pub enum PlanError {
     BadKey { task: String },
     #[error("task {task}: output {name:?} is not <sample_id>/<file> of a sample the task was asked to make")]
     UnknownSampleFile { task: String, name: String },
+    #[error("job {job}: {source}")]
+    Plan { job: String, source: plan::PlanError },
 }
 
 #[derive(Deserialize)]
@@ -36,11 +39,14 @@ pub struct Unlocked {
     pub samples: Vec<String>,
 }
 
+/// What `task`'s completion unlocks. `assets` are the job's stored files; only a grasp task's
+/// completion needs them (pass none for other stages).
 pub fn on_complete(
     job: &JobRecord,
     task: &TaskRecord,
     result_json: &str,
     outputs: &[NewArtifact],
+    assets: &[Asset],
 ) -> Result<Unlocked, PlanError> {
     match task.stage {
         Stage::Grasp => {
@@ -55,7 +61,9 @@ pub fn on_complete(
                 return Err(PlanError::ForeignGrasp { task: task.id.clone(), grasp });
             }
             let accepted: Vec<u32> = accepted.into_iter().collect();
-            Ok(Unlocked { children: plan::after_grasp(&spec, &chunk, &accepted), samples: vec![] })
+            let children = plan::after_grasp(&spec, &chunk, &accepted, assets)
+                .map_err(|source| PlanError::Plan { job: job.id.clone(), source })?;
+            Ok(Unlocked { children, samples: vec![] })
         }
         Stage::Package => {
             let expected: BTreeSet<String> = serde_json::from_str::<serde_json::Value>(&task.params_json)

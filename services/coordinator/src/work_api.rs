@@ -7,6 +7,7 @@
 use tonic::{Request, Response, Status};
 use tracing::Instrument;
 use vint_core::Stage;
+use vint_core::asset::Asset;
 use vint_proto::v1 as pb;
 use vint_proto::v1::work_service_server::WorkService;
 use vint_store::{Completion, Fence, NewArtifact, Store};
@@ -132,7 +133,14 @@ impl WorkService for WorkApi {
                 .await
                 .map_err(status)?
                 .ok_or_else(|| Status::not_found(format!("job {} not found", task.job_id)))?;
-            let unlocked = planner::on_complete(&job, &task, &req.result_json, &outputs)
+            // Only a grasp chunk unlocks tasks, and their parameters may name the job's files.
+            let assets: Vec<Asset> = if task.stage == Stage::Grasp {
+                let stored = self.store.job_assets(&job.id).await.map_err(status)?;
+                stored.into_iter().map(|a| Asset { path: a.path, sha256: a.sha256, size: a.size }).collect()
+            } else {
+                Vec::new()
+            };
+            let unlocked = planner::on_complete(&job, &task, &req.result_json, &outputs, &assets)
                 .map_err(|e| Status::invalid_argument(e.to_string()))?;
             let completion = Completion {
                 fence: Fence { task_id: req.task_id.clone(), worker_id: req.worker_id.clone(), attempt: req.attempt },

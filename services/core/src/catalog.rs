@@ -120,8 +120,14 @@ pub fn hand(name: &str) -> Option<&'static HandModel> {
 /// HDRI environments bundled with Blender (`studiolights/world`).
 pub const ENVIRONMENTS: &[&str] = &["city", "courtyard", "forest", "interior", "night", "studio", "sunrise", "sunset"];
 
+/// Surface classes an object can have (the renderer maps each to a material).
+pub const MATERIALS: &[&str] = &["plastic", "metal", "glass", "paper", "cardboard", "wood", "ceramic", "rubber"];
+
+/// Symmetry classes of an object about its z axis (BOP-style; pose metrics use them).
+pub const SYMMETRIES: &[&str] = &["none", "continuous_z", "discrete_z2", "discrete_z4"];
+
 /// Modalities a spec can request.
-pub const MODALITIES: &[&str] = &["rgb", "depth", "depth_noisy", "mask", "pose"];
+pub const MODALITIES: &[&str] = &["rgb", "depth", "depth_noisy", "mask", "segmentation", "pose"];
 
 #[cfg(test)]
 mod tests {
@@ -141,6 +147,8 @@ mod tests {
             assert!(seen.insert(&o.name), "duplicate {}", o.name);
             assert!(o.mass_kg > 0.0 && o.mass_kg < 10.0, "{}: mass {}", o.name, o.mass_kg);
             assert!(o.shape.get("type").and_then(|t| t.as_str()).is_some(), "{}: shape without type", o.name);
+            assert!(MATERIALS.contains(&o.material.as_str()), "{}: material {}", o.name, o.material);
+            assert!(SYMMETRIES.contains(&o.symmetry.as_str()), "{}: symmetry {}", o.name, o.symmetry);
         }
     }
 

@@ -4,6 +4,7 @@
 //! Everything here is pure: no I/O, no clocks, no randomness. The store, the coordinator and the
 //! workers build on these types; none of them redefines what lives here.
 
+pub mod asset;
 pub mod catalog;
 pub mod plan;
 pub mod sample;

@@ -5,11 +5,13 @@
 //! value found and the rule it breaks, e.g. `render.resolution[0]: must be 16..=8192, got 0`.
 //! A spec that parses is valid; nothing downstream re-checks it.
 
+use std::collections::{BTreeMap, BTreeSet};
 use std::fmt;
 
 use serde::Serialize;
 use toml::{Table, Value};
 
+use crate::asset::AssetUse;
 use crate::catalog;
 
 /// A validated dataset spec.
@@ -18,6 +20,10 @@ pub struct DatasetSpec {
     pub dataset: DatasetSection,
     pub hands: Vec<String>,
     pub objects: Vec<String>,
+    /// The spec's own hands (`[hand.NAME]` tables), by name; `hands` may list them.
+    pub hand_defs: BTreeMap<String, UserHand>,
+    /// The spec's own mesh objects (`[object.NAME]` tables), by name; `objects` may list them.
+    pub object_defs: BTreeMap<String, UserObject>,
     pub grasp: GraspSettings,
     pub touch: TouchSettings,
     pub render: RenderSettings,
@@ -30,6 +36,36 @@ pub struct DatasetSection {
     pub name: String,
     /// Root of every random stream (see `seed`).
     pub seed: u64,
+}
+
+/// A user's hand: an MJCF model following `docs/hands.md` and its taxel layout (the format of
+/// `catalog/hands/*/taxels.csv`). Paths are relative to the spec file.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct UserHand {
+    pub mjcf: String,
+    pub taxels: String,
+}
+
+/// A user's object: a triangle mesh file (OBJ, STL or PLY; convex-decomposed for collision) and
+/// the catalog tags the built-in objects carry. The path is relative to the spec file.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct UserObject {
+    pub mesh: String,
+    /// Length unit of the mesh file's coordinates: one of `MESH_UNITS`.
+    pub unit: String,
+    pub mass_kg: f64,
+    pub material: String,
+    pub symmetry: String,
+}
+
+/// Length units a mesh file may be in, with their size in metres.
+pub const MESH_UNITS: &[(&str, f64)] = &[("m", 1.0), ("cm", 0.01), ("mm", 0.001)];
+
+impl UserObject {
+    /// File units to metres.
+    pub fn scale(&self) -> f64 {
+        MESH_UNITS.iter().find(|(u, _)| *u == self.unit).map_or(1.0, |(_, s)| *s)
+    }
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -70,17 +106,78 @@ pub struct TouchSettings {
 pub struct RenderSettings {
     /// [width, height] in pixels.
     pub resolution: [u32; 2],
-    /// Cycles samples per pixel.
+    /// Cycles samples per pixel (of the RGB image; depth, masks and segmentation are not path traced).
+    /// Default 32: the cheapest setting within 35 dB PSNR of a 1024-sample reference in the render
+    /// study (docs/studies/render/render_study.md).
     pub samples: u32,
-    pub views_per_grasp: u32,
-    /// Bundled HDRI names; view `v` uses `environments[v % len]`.
-    pub environments: Vec<String>,
+    /// OpenImageDenoise on the RGB image.
+    pub denoise: bool,
+    /// Light-path caps; the renderer lowers them to what the scene's materials can use.
+    pub bounces: Bounces,
+    /// Views rendered under each environment: a grasp has `views_per_environment × environments`
+    /// views, view `v` under `environments[v / views_per_environment]`.
+    pub views_per_environment: u32,
+    pub environments: Vec<Environment>,
     /// Horizontal field of view.
     pub fov_deg: f64,
     /// Camera distance range from the object.
     pub radius_m: [f64; 2],
     /// Camera elevation range above the horizontal plane.
     pub elevation_deg: [f64; 2],
+}
+
+/// Views of one grasp at most: view ids are two digits (`v00`..`v99`).
+pub const MAX_VIEWS_PER_GRASP: u32 = 100;
+
+impl RenderSettings {
+    pub fn views_per_grasp(&self) -> u32 {
+        self.views_per_environment * self.environments.len() as u32
+    }
+
+    /// The environment view `v` of a grasp is rendered under.
+    pub fn environment_of_view(&self, v: u32) -> &Environment {
+        &self.environments[(v / self.views_per_environment) as usize % self.environments.len()]
+    }
+}
+
+/// An HDRI environment, turned about world +z (counter-clockwise seen from above) and scaled in
+/// strength: a bundled one by name (`catalog::ENVIRONMENTS`), or the user's own `.hdr`/`.exr`
+/// file under a name of the spec's choosing.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Environment {
+    pub name: String,
+    pub rotation_deg: f64,
+    pub strength: f64,
+    /// The user's HDRI file (its field and path relative to the spec); `None` for a bundled one.
+    #[serde(skip_serializing_if = "Option::is_none", serialize_with = "serialize_file")]
+    pub file: Option<AssetUse>,
+}
+
+impl Environment {
+    pub fn bundled(name: &str) -> Environment {
+        Environment { name: name.to_string(), rotation_deg: 0.0, strength: 1.0, file: None }
+    }
+}
+
+/// An environment's file serializes as its path, as the spec writes it.
+fn serialize_file<S: serde::Serializer>(file: &Option<AssetUse>, s: S) -> Result<S::Ok, S::Error> {
+    match file {
+        Some(f) => s.serialize_str(&f.path),
+        None => s.serialize_none(),
+    }
+}
+
+/// Extensions of the HDRI files a spec may name (Radiance RGBE and OpenEXR).
+pub const HDRI_EXTENSIONS: &[&str] = &["hdr", "exr"];
+
+/// Cycles' light-path caps (Cycles' defaults).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Bounces {
+    pub total: u32,
+    pub diffuse: u32,
+    pub glossy: u32,
+    pub transmission: u32,
+    pub transparent: u32,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -175,7 +272,32 @@ impl DatasetSpec {
     pub fn max_samples(&self) -> u64 {
         (self.hands.len() * self.objects.len()) as u64
             * u64::from(self.grasp.trials_per_pair)
-            * u64::from(self.render.views_per_grasp)
+            * u64::from(self.render.views_per_grasp())
+    }
+
+    /// Every asset file the spec's listed hands and objects and its environments name, field by
+    /// field.
+    pub fn asset_uses(&self) -> Vec<AssetUse> {
+        let mut uses = Vec::new();
+        let mut add = |field: String, path: &str| uses.push(AssetUse { field, path: path.to_string() });
+        for name in &self.hands {
+            if let Some(h) = self.hand_defs.get(name) {
+                add(format!("hand.{name}.mjcf"), &h.mjcf);
+                add(format!("hand.{name}.taxels"), &h.taxels);
+            }
+        }
+        for name in &self.objects {
+            if let Some(o) = self.object_defs.get(name) {
+                add(format!("object.{name}.mesh"), &o.mesh);
+            }
+        }
+        uses.extend(self.render.environments.iter().filter_map(|e| e.file.clone()));
+        uses
+    }
+
+    /// The distinct asset paths the spec needs, sorted.
+    pub fn asset_paths(&self) -> BTreeSet<String> {
+        self.asset_uses().into_iter().map(|u| u.path).collect()
     }
 }
 
@@ -187,9 +309,24 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
     };
     r.finish(ds, "dataset", &["name", "seed"]);
 
-    let hands = r.name_list(root, "", "hands", &["trx3"], |n| catalog::hand(n).is_some(), "a hand in `vintctl hands`");
-    let objects =
-        r.name_list(root, "", "objects", &[], |n| catalog::object(n).is_some(), "an object in the built-in catalog");
+    let hand_defs = read_user_hands(r, root);
+    let object_defs = read_user_objects(r, root);
+    let hands = r.name_list(
+        root,
+        "",
+        "hands",
+        &["trx3"],
+        |n| catalog::hand(n).is_some() || hand_defs.contains_key(n),
+        "a hand in `vintctl hands` or one a [hand.NAME] table defines",
+    );
+    let objects = r.name_list(
+        root,
+        "",
+        "objects",
+        &[],
+        |n| catalog::object(n).is_some() || object_defs.contains_key(n),
+        "an object in the built-in catalog or one an [object.NAME] table defines",
+    );
 
     let mut g = r.section(root, "grasp");
     let grasp = GraspSettings {
@@ -233,26 +370,55 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
 
     let mut rd = r.section(root, "render");
     let resolution = r.int_pair(&mut rd, "render", "resolution", 16..=8192, [128, 128]);
+    if let Some(v) = rd.remove("views_per_grasp") {
+        r.error(
+            "render.views_per_grasp",
+            v,
+            "was renamed: set render.views_per_environment (a grasp gets views_per_environment × environments views)",
+        );
+    }
     let render = RenderSettings {
         resolution: [resolution[0] as u32, resolution[1] as u32],
-        samples: r.int(&mut rd, "render.samples", "samples", 1..=65_536, Some(16)) as u32,
-        views_per_grasp: r.int(&mut rd, "render.views_per_grasp", "views_per_grasp", 1..=256, Some(2)) as u32,
-        environments: r.name_list(
+        samples: r.int(&mut rd, "render.samples", "samples", 1..=65_536, Some(32)) as u32,
+        denoise: r.boolean(&mut rd, "render.denoise", "denoise", false),
+        bounces: read_bounces(r, &mut rd),
+        views_per_environment: r.int(
             &mut rd,
-            "render",
-            "environments",
-            &["studio"],
-            |n| catalog::ENVIRONMENTS.contains(&n),
-            "one of Blender's bundled HDRIs (city, courtyard, forest, interior, night, studio, sunrise, sunset)",
-        ),
+            "render.views_per_environment",
+            "views_per_environment",
+            1..=i64::from(MAX_VIEWS_PER_GRASP),
+            Some(2),
+        ) as u32,
+        environments: read_environments(r, &mut rd),
         fov_deg: r.float(&mut rd, "render.fov_deg", "fov_deg", (5.0, 170.0), Some(60.0)),
         radius_m: r.float_range(&mut rd, "render", "radius_m", (0.05, 10.0), [0.35, 0.5]),
         elevation_deg: r.float_range(&mut rd, "render", "elevation_deg", (-90.0, 90.0), [15.0, 75.0]),
     };
+    if !render.environments.is_empty() && render.views_per_grasp() > MAX_VIEWS_PER_GRASP {
+        r.error(
+            "render.views_per_environment",
+            Value::Integer(i64::from(render.views_per_environment)),
+            format!(
+                "times {} environments must be at most {MAX_VIEWS_PER_GRASP} views per grasp",
+                render.environments.len()
+            ),
+        );
+    }
     r.finish(
         rd,
         "render",
-        &["resolution", "samples", "views_per_grasp", "environments", "fov_deg", "radius_m", "elevation_deg"],
+        &[
+            "resolution",
+            "samples",
+            "denoise",
+            "bounces",
+            "views_per_environment",
+            "environments",
+            "environment",
+            "fov_deg",
+            "radius_m",
+            "elevation_deg",
+        ],
     );
 
     let mut n = r.section(root, "noise");
@@ -281,7 +447,7 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
             "modalities",
             catalog::MODALITIES,
             |m| catalog::MODALITIES.contains(&m),
-            "one of rgb, depth, depth_noisy, mask, pose",
+            "one of rgb, depth, depth_noisy, mask, segmentation, pose",
         ),
     };
     r.finish(o, "outputs", &["modalities"]);
@@ -289,9 +455,138 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
     r.finish(
         std::mem::take(root),
         "",
-        &["dataset", "hands", "objects", "grasp", "touch", "render", "noise", "outputs"],
+        &["dataset", "hands", "objects", "hand", "object", "grasp", "touch", "render", "noise", "outputs"],
     );
-    DatasetSpec { dataset, hands, objects, grasp, touch, render, noise, outputs }
+    DatasetSpec { dataset, hands, objects, hand_defs, object_defs, grasp, touch, render, noise, outputs }
+}
+
+/// `[hand.NAME]` tables: `mjcf` and `taxels` file paths.
+fn read_user_hands(r: &mut Reader, root: &mut Table) -> BTreeMap<String, UserHand> {
+    let mut out = BTreeMap::new();
+    for (name, mut t) in r.definitions(root, "hand") {
+        let path = format!("hand.{name}");
+        let hand = UserHand {
+            mjcf: r.asset_path(&mut t, &path, "mjcf", &["xml"]),
+            taxels: r.asset_path(&mut t, &path, "taxels", &["csv"]),
+        };
+        r.finish(t, &path, &["mjcf", "taxels"]);
+        if catalog::hand(&name).is_some() {
+            r.error(&path, Value::String(name), "must not reuse the name of a built-in hand");
+        } else {
+            out.insert(name, hand);
+        }
+    }
+    out
+}
+
+/// `[object.NAME]` tables: a mesh file, its unit, mass, material and symmetry.
+fn read_user_objects(r: &mut Reader, root: &mut Table) -> BTreeMap<String, UserObject> {
+    let mut out = BTreeMap::new();
+    let units: Vec<&str> = MESH_UNITS.iter().map(|(u, _)| *u).collect();
+    for (name, mut t) in r.definitions(root, "object") {
+        let path = format!("object.{name}");
+        let object = UserObject {
+            mesh: r.asset_path(&mut t, &path, "mesh", &["obj", "stl", "ply"]),
+            unit: r.choice(&mut t, &path, "unit", &units, None),
+            mass_kg: r.float(&mut t, &format!("{path}.mass_kg"), "mass_kg", (0.0005, 20.0), None),
+            material: r.choice(&mut t, &path, "material", catalog::MATERIALS, None),
+            symmetry: r.choice(&mut t, &path, "symmetry", catalog::SYMMETRIES, Some("none")),
+        };
+        r.finish(t, &path, &["mesh", "unit", "mass_kg", "material", "symmetry"]);
+        if catalog::object(&name).is_some() {
+            r.error(&path, Value::String(name), "must not reuse the name of a built-in object");
+        } else {
+            out.insert(name, object);
+        }
+    }
+    out
+}
+
+const ENVIRONMENT_RULE: &str = "one of Blender's bundled HDRIs (city, courtyard, forest, interior, night, studio, \
+     sunrise, sunset) or a { name, file } table (your own HDRI)";
+
+/// `render.environments`: names or tables (`{ name, rotation_deg, strength, file }`), or the same
+/// tables as `[[render.environment]]`; default `["studio"]`. A table with a `file` (a `.hdr` or
+/// `.exr` relative to the spec) is the user's own HDRI, under a name no bundled one has.
+fn read_environments(r: &mut Reader, rd: &mut Table) -> Vec<Environment> {
+    let (path, items) = match (rd.remove("environments"), rd.remove("environment")) {
+        (Some(_), Some(v)) => {
+            r.error("render.environment", v, "give render.environments or [[render.environment]], not both");
+            return Vec::new();
+        }
+        (Some(v), None) => ("render.environments", v),
+        (None, Some(v)) => ("render.environment", v),
+        (None, None) => return vec![Environment::bundled("studio")],
+    };
+    let items = match items {
+        Value::Array(a) if !a.is_empty() => a,
+        v => {
+            r.error(path, v, "must be a non-empty array of environment names or tables");
+            return Vec::new();
+        }
+    };
+    let mut out: Vec<Environment> = Vec::new();
+    for (i, item) in items.into_iter().enumerate() {
+        let p = format!("{path}[{i}]");
+        let (name_path, env) = match item {
+            Value::Table(mut t) => {
+                let file = t.contains_key("file").then(|| {
+                    let field = format!("{p}.file");
+                    let path = r.asset_path(&mut t, &p, "file", HDRI_EXTENSIONS);
+                    AssetUse { field, path }
+                });
+                let name = r.name(&mut t, &p, "name", None);
+                let rotation_deg =
+                    r.float(&mut t, &format!("{p}.rotation_deg"), "rotation_deg", (-360.0, 360.0), Some(0.0));
+                let strength = r.float(&mut t, &format!("{p}.strength"), "strength", (0.0, 1000.0), Some(1.0));
+                r.finish(t, &p, &["name", "rotation_deg", "strength", "file"]);
+                if file.as_ref().is_some_and(|f| f.path.is_empty()) {
+                    continue; // a bad path, already reported
+                }
+                (format!("{p}.name"), Environment { name, rotation_deg, strength, file })
+            }
+            v => match r.check_name(&p, v) {
+                Some(name) => (p, Environment::bundled(&name)),
+                None => continue,
+            },
+        };
+        let bundled = catalog::ENVIRONMENTS.contains(&env.name.as_str());
+        if env.name.is_empty() {
+            continue; // already reported
+        } else if env.file.is_some() && bundled {
+            r.error(&name_path, Value::String(env.name), "must not reuse the name of a bundled HDRI");
+        } else if env.file.is_none() && !bundled {
+            r.error(&name_path, Value::String(env.name), format!("must be {ENVIRONMENT_RULE}"));
+        } else if out.iter().any(|e| e.name == env.name) {
+            r.error(&name_path, Value::String(env.name), "must not repeat an earlier environment");
+        } else {
+            out.push(env);
+        }
+    }
+    out
+}
+
+/// `[render.bounces]`: Cycles' caps, each 0..=1024.
+fn read_bounces(r: &mut Reader, rd: &mut Table) -> Bounces {
+    let mut b = match rd.remove("bounces") {
+        None => Table::new(),
+        Some(Value::Table(t)) => t,
+        Some(v) => {
+            r.error("render.bounces", v, "must be a table");
+            Table::new()
+        }
+    };
+    let mut cap =
+        |key: &str, default: i64| r.int(&mut b, &format!("render.bounces.{key}"), key, 0..=1024, Some(default)) as u32;
+    let bounces = Bounces {
+        total: cap("total", 12),
+        diffuse: cap("diffuse", 4),
+        glossy: cap("glossy", 4),
+        transmission: cap("transmission", 12),
+        transparent: cap("transparent", 8),
+    };
+    r.finish(b, "render.bounces", &["total", "diffuse", "glossy", "transmission", "transparent"]);
+    bounces
 }
 
 /// Collects errors while taking values out of TOML tables; what is left in a table at `finish` is
@@ -367,6 +662,17 @@ impl Reader {
             Some(v) => {
                 self.error(path, v, "must be an integer");
                 fallback
+            }
+        }
+    }
+
+    fn boolean(&mut self, t: &mut Table, path: &str, key: &str, default: bool) -> bool {
+        match t.remove(key) {
+            None => default,
+            Some(Value::Boolean(b)) => b,
+            Some(v) => {
+                self.error(path, v, "must be true or false");
+                default
             }
         }
     }
@@ -501,6 +807,68 @@ impl Reader {
                 default.unwrap_or_default().to_string()
             }
             Some(v) => self.check_name(&path, v).unwrap_or_default(),
+        }
+    }
+
+    /// A table of named definitions (`[hand.NAME]`): each name a valid identifier, each value a
+    /// table. A missing table defines nothing.
+    fn definitions(&mut self, root: &mut Table, key: &str) -> Vec<(String, Table)> {
+        let mut out = Vec::new();
+        for (name, v) in self.section(root, key) {
+            let path = join(key, &name);
+            if self.check_name(&path, Value::String(name.clone())).is_none() {
+                continue;
+            }
+            match v {
+                Value::Table(t) => out.push((name, t)),
+                v => self.error(&path, v, "must be a table"),
+            }
+        }
+        out
+    }
+
+    /// A file path relative to the spec file, with one of `extensions` (any case).
+    fn asset_path(&mut self, t: &mut Table, parent: &str, key: &str, extensions: &[&str]) -> String {
+        let path = join(parent, key);
+        let s = match t.remove(key) {
+            None => {
+                self.missing(&path);
+                return String::new();
+            }
+            Some(Value::String(s)) => s,
+            Some(v) => {
+                self.error(&path, v, "must be a string (a path relative to the spec file)");
+                return String::new();
+            }
+        };
+        let ext = s.rsplit_once('.').map(|(_, e)| e.to_ascii_lowercase()).unwrap_or_default();
+        if s.is_empty() || s.len() > 1024 || s.starts_with('/') || s.contains('\\') || s.contains('\0') {
+            self.error(&path, Value::String(s), "must be a path relative to the spec file, with / separators");
+            String::new()
+        } else if !extensions.contains(&ext.as_str()) {
+            let list: Vec<String> = extensions.iter().map(|e| format!(".{e}")).collect();
+            self.error(&path, Value::String(s), format!("must name a {} file", list.join(", ")));
+            String::new()
+        } else {
+            s
+        }
+    }
+
+    /// One of `choices`; `default` when absent (required when there is none).
+    fn choice(&mut self, t: &mut Table, parent: &str, key: &str, choices: &[&str], default: Option<&str>) -> String {
+        let path = join(parent, key);
+        match t.remove(key) {
+            None => {
+                if default.is_none() {
+                    self.missing(&path);
+                }
+                default.unwrap_or_default().to_string()
+            }
+            Some(Value::String(s)) if choices.contains(&s.as_str()) => s,
+            Some(v) => {
+                self.error(&path, v, format!("must be one of {}", choices.join(", ")));
+                default.unwrap_or_default().to_string()
+            }
         }
     }
 

@@ -106,8 +106,12 @@ fn negative_and_absurd_values_are_rejected() {
         "grasp.timestep_s: must be in [0.0001, 0.01], got 5.0",
     );
     assert_single_error(
-        &tiny_with("views_per_grasp = 2", "views_per_grasp = 100000"),
-        "render.views_per_grasp: must be 1..=256, got 100000",
+        &tiny_with("views_per_environment = 3", "views_per_environment = 100000"),
+        "render.views_per_environment: must be 1..=100, got 100000",
+    );
+    assert_single_error(
+        &tiny_with("views_per_environment = 3", "views_per_environment = 60"),
+        "render.views_per_environment: times 2 environments must be at most 100 views per grasp, got 60",
     );
     assert_single_error(
         &tiny_with("trials_per_pair = 2", "trials_per_pair = 0"),
@@ -156,7 +160,7 @@ fn ranges_must_be_ordered_and_bounded() {
 fn names_must_be_known_identifiers() {
     assert_single_error(
         &tiny_with("objects = [\"tomato_soup_can\", \"mustard_bottle\", \"mug\"]", "objects = [\"unobtainium\"]"),
-        "objects[0]: must be an object in the built-in catalog, got \"unobtainium\"",
+        "objects[0]: must be an object in the built-in catalog or one an [object.NAME] table defines, got \"unobtainium\"",
     );
     assert_single_error(
         &tiny_with("hands = [\"trx3\", \"allegro\"]", "hands = [\"trx3\", \"trx3\"]"),
@@ -171,15 +175,18 @@ fn names_must_be_known_identifiers() {
         "dataset.name: must be 1 to 64 characters of a-z, 0-9 and _, got \"Tiny Set\"",
     );
     assert_single_error(
-        &tiny_with("environments = [\"studio\", \"forest\"]", "environments = [\"moon\"]"),
-        "render.environments[0]: must be one of Blender's bundled HDRIs (city, courtyard, forest, interior, night, studio, sunrise, sunset), got \"moon\"",
+        &tiny_with(
+            "environments = [\"studio\", { name = \"forest\", rotation_deg = 0.0, strength = 1.2 }]",
+            "environments = [\"moon\"]",
+        ),
+        "render.environments[0]: must be one of Blender's bundled HDRIs (city, courtyard, forest, interior, night, studio, sunrise, sunset) or a { name, file } table (your own HDRI), got \"moon\"",
     );
     assert_single_error(
         &tiny_with(
-            "modalities = [\"rgb\", \"depth\", \"depth_noisy\", \"mask\", \"pose\"]",
+            "modalities = [\"rgb\", \"depth\", \"depth_noisy\", \"mask\", \"segmentation\", \"pose\"]",
             "modalities = [\"rgb\", \"normals\"]",
         ),
-        "outputs.modalities[1]: must be one of rgb, depth, depth_noisy, mask, pose, got \"normals\"",
+        "outputs.modalities[1]: must be one of rgb, depth, depth_noisy, mask, segmentation, pose, got \"normals\"",
     );
 }
 
@@ -240,5 +247,202 @@ fn grasp_procedure_settings_are_checked() {
             "grasp.standoff_ratio[1]: must be in [-0.2, 1], got -0.5",
             "grasp.shake_accel_mps2: must be in [0, 100], got -1.0"
         ]
+    );
+}
+
+/// A spec with a user hand and a user object, plus `extra` lines at the end.
+fn custom(extra: &str) -> String {
+    format!(
+        "hands = [\"grip\", \"trx3\"]\nobjects = [\"bowl\", \"mug\"]\n[dataset]\nname = \"c\"\nseed = 1\n\
+         [hand.grip]\nmjcf = \"assets/grip.xml\"\ntaxels = \"assets/grip_taxels.csv\"\n\
+         [object.bowl]\nmesh = \"assets/bowl.obj\"\nunit = \"mm\"\nmass_kg = 0.25\nmaterial = \"ceramic\"\n\
+         symmetry = \"continuous_z\"\n{extra}"
+    )
+}
+
+#[test]
+fn user_hands_and_objects_are_defined_by_tables_and_name_their_files() {
+    let spec = DatasetSpec::parse(&custom("")).unwrap();
+    assert_eq!(spec.hand_defs["grip"].mjcf, "assets/grip.xml");
+    assert_eq!(spec.object_defs["bowl"].scale(), 0.001);
+    let uses: Vec<String> = spec.asset_uses().iter().map(|u| format!("{}={}", u.field, u.path)).collect();
+    assert_eq!(
+        uses,
+        [
+            "hand.grip.mjcf=assets/grip.xml",
+            "hand.grip.taxels=assets/grip_taxels.csv",
+            "object.bowl.mesh=assets/bowl.obj"
+        ]
+    );
+    // Built-in names alone need no files.
+    assert!(DatasetSpec::parse(TINY).unwrap().asset_paths().is_empty());
+}
+
+#[test]
+fn a_listed_name_must_be_built_in_or_defined() {
+    let text = custom("").replace("hands = [\"grip\", \"trx3\"]", "hands = [\"gripper\"]");
+    assert_single_error(
+        &text,
+        "hands[0]: must be a hand in `vintctl hands` or one a [hand.NAME] table defines, got \"gripper\"",
+    );
+}
+
+#[test]
+fn a_user_definition_may_not_shadow_a_built_in_name() {
+    let text = custom(
+        "[hand.trx3]\nmjcf = \"a.xml\"\ntaxels = \"a.csv\"\n[object.mug]\nmesh = \"m.stl\"\nunit = \"m\"\nmass_kg = 0.3\nmaterial = \"ceramic\"\n",
+    );
+    assert_eq!(
+        errors(&text),
+        vec![
+            "hand.trx3: must not reuse the name of a built-in hand, got \"trx3\"",
+            "object.mug: must not reuse the name of a built-in object, got \"mug\"",
+        ]
+    );
+}
+
+#[test]
+fn user_definitions_check_paths_units_and_tags() {
+    let text = custom("")
+        .replace("unit = \"mm\"", "unit = \"inch\"")
+        .replace("mjcf = \"assets/grip.xml\"", "mjcf = \"/abs/grip.xml\"")
+        .replace("taxels = \"assets/grip_taxels.csv\"", "taxels = \"assets/grip_taxels.txt\"")
+        .replace("material = \"ceramic\"", "material = \"cheese\"")
+        .replace("mass_kg = 0.25", "mass_kg = 0.25\ncolour = \"red\"");
+    assert_eq!(
+        errors(&text),
+        vec![
+            "hand.grip.mjcf: must be a path relative to the spec file, with / separators, got \"/abs/grip.xml\"",
+            "hand.grip.taxels: must name a .csv file, got \"assets/grip_taxels.txt\"",
+            "object.bowl.unit: must be one of m, cm, mm, got \"inch\"",
+            "object.bowl.material: must be one of plastic, metal, glass, paper, cardboard, wood, ceramic, rubber, got \"cheese\"",
+            "object.bowl.colour: unknown key (known keys: mesh, unit, mass_kg, material, symmetry), got \"red\"",
+        ]
+    );
+    let missing = custom("").replace("mesh = \"assets/bowl.obj\"\n", "").replace("[hand.grip]", "[hand.Grip]");
+    assert_eq!(
+        errors(&missing),
+        vec![
+            "hand.Grip: must be 1 to 64 characters of a-z, 0-9 and _, got \"Grip\"",
+            "object.bowl.mesh: is required, got nothing",
+            "hands[0]: must be a hand in `vintctl hands` or one a [hand.NAME] table defines, got \"grip\"",
+        ]
+    );
+}
+
+#[test]
+fn environments_are_names_or_tables_with_rotation_and_strength() {
+    let spec = DatasetSpec::parse(TINY).unwrap();
+    let envs: Vec<(&str, f64, f64)> =
+        spec.render.environments.iter().map(|e| (e.name.as_str(), e.rotation_deg, e.strength)).collect();
+    assert_eq!(envs, [("studio", 0.0, 1.0), ("forest", 0.0, 1.2)]);
+    assert_eq!(spec.render.views_per_grasp(), 6);
+
+    let start = TINY.find("environments = [").unwrap();
+    let end = start + TINY[start..].find('\n').unwrap();
+    let tables = format!(
+        "{}{}",
+        TINY.replacen(&TINY[start..end], "", 1),
+        "[[render.environment]]\nname = \"studio\"\nrotation_deg = 30\nstrength = 1.2\n\
+         [[render.environment]]\nname = \"night\"\n"
+    );
+    let spec = DatasetSpec::parse(&tables).unwrap();
+    assert_eq!(spec.render.environments[0].rotation_deg, 30.0);
+    assert_eq!(spec.render.environments[1].name, "night");
+
+    assert_single_error(
+        &tiny_with("rotation_deg = 0.0", "rotation_deg = 900.0"),
+        "render.environments[1].rotation_deg: must be in [-360, 360], got 900.0",
+    );
+    assert_single_error(
+        &tiny_with("views_per_environment = 3", "views_per_grasp = 3"),
+        "render.views_per_grasp: was renamed: set render.views_per_environment (a grasp gets \
+         views_per_environment × environments views), got 3",
+    );
+}
+
+#[test]
+fn a_user_hdri_is_an_environment_table_with_a_file() {
+    let text = tiny_with(
+        "{ name = \"forest\", rotation_deg = 0.0, strength = 1.2 }",
+        "{ name = \"lab\", file = \"assets/lab.hdr\", rotation_deg = 45.0, strength = 1.5 }, \
+         { name = \"hall\", file = \"hdri/Hall.EXR\" }",
+    );
+    let spec = DatasetSpec::parse(&text).unwrap();
+    let lab = &spec.render.environments[1];
+    assert_eq!((lab.name.as_str(), lab.rotation_deg, lab.strength), ("lab", 45.0, 1.5));
+    assert_eq!(spec.render.views_per_grasp(), 9);
+    let uses: Vec<String> = spec.asset_uses().iter().map(|u| format!("{}={}", u.field, u.path)).collect();
+    assert_eq!(uses, ["render.environments[1].file=assets/lab.hdr", "render.environments[2].file=hdri/Hall.EXR"]);
+    // The spec as `vintctl validate --json` shows it: the file as written, bundled ones without one.
+    let shown = serde_json::to_value(&spec.render.environments).unwrap();
+    assert_eq!(shown[1]["file"], "assets/lab.hdr");
+    assert!(shown[0].get("file").is_none());
+
+    // As [[render.environment]] tables the field paths follow.
+    let start = TINY.find("environments = [").unwrap();
+    let end = start + TINY[start..].find('\n').unwrap();
+    let tables = format!(
+        "{}[[render.environment]]\nname = \"lab\"\nfile = \"lab.exr\"\n",
+        TINY.replacen(&TINY[start..end], "", 1)
+    );
+    assert_eq!(DatasetSpec::parse(&tables).unwrap().asset_uses()[0].field, "render.environment[0].file");
+}
+
+#[test]
+fn a_user_hdri_needs_an_hdr_or_exr_file_and_a_name_of_its_own() {
+    let with = |entry: &str| tiny_with("{ name = \"forest\", rotation_deg = 0.0, strength = 1.2 }", entry);
+    assert_single_error(
+        &with("{ name = \"lab\", file = \"assets/lab.png\" }"),
+        "render.environments[1].file: must name a .hdr, .exr file, got \"assets/lab.png\"",
+    );
+    assert_single_error(
+        &with("{ name = \"lab\", file = \"/hdri/lab.hdr\" }"),
+        "render.environments[1].file: must be a path relative to the spec file, with / separators, got \"/hdri/lab.hdr\"",
+    );
+    assert_single_error(
+        &with("{ name = \"forest\", file = \"forest.hdr\" }"),
+        "render.environments[1].name: must not reuse the name of a bundled HDRI, got \"forest\"",
+    );
+    assert_single_error(
+        &with("{ name = \"lab\", file = \"a.hdr\" }, { name = \"lab\", file = \"b.hdr\", strength = 2.0 }"),
+        "render.environments[2].name: must not repeat an earlier environment, got \"lab\"",
+    );
+    assert_single_error(&with("{ file = \"a.hdr\" }"), "render.environments[1].name: is required, got nothing");
+    assert_single_error(
+        &with("{ name = \"Lab Room\", file = \"a.hdr\" }"),
+        "render.environments[1].name: must be 1 to 64 characters of a-z, 0-9 and _, got \"Lab Room\"",
+    );
+    assert_single_error(
+        &with("\"lab\""),
+        &format!("render.environments[1]: must be {}, got \"lab\"", ENVIRONMENT_RULE),
+    );
+    // One file may light two environments (e.g. turned two ways); it travels once.
+    let twice = DatasetSpec::parse(&with(
+        "{ name = \"lab\", file = \"a.hdr\" }, { name = \"lab_turned\", file = \"a.hdr\", rotation_deg = 180 }",
+    ))
+    .unwrap();
+    assert_eq!((twice.asset_uses().len(), twice.asset_paths().len()), (2, 1));
+}
+
+const ENVIRONMENT_RULE: &str = "one of Blender's bundled HDRIs (city, courtyard, forest, interior, night, studio, \
+                                sunrise, sunset) or a { name, file } table (your own HDRI)";
+
+#[test]
+fn cycles_settings_have_defaults_and_ranges() {
+    let spec = DatasetSpec::parse(TINY).unwrap();
+    assert!(!spec.render.denoise);
+    assert_eq!((spec.render.bounces.total, spec.render.bounces.transmission), (12, 12));
+    let text = tiny_with("samples = 16", "samples = 16\ndenoise = true\nbounces = { glossy = 2, transparent = 0 }");
+    let spec = DatasetSpec::parse(&text).unwrap();
+    assert!(spec.render.denoise);
+    assert_eq!((spec.render.bounces.glossy, spec.render.bounces.transparent), (2, 0));
+    assert_single_error(
+        &tiny_with("samples = 16", "samples = 16\nbounces = { diffuse = 5000 }"),
+        "render.bounces.diffuse: must be 0..=1024, got 5000",
+    );
+    assert_single_error(
+        &tiny_with("samples = 16", "samples = 16\ndenoise = 1"),
+        "render.denoise: must be true or false, got 1",
     );
 }

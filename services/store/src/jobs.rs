@@ -5,7 +5,7 @@ use sqlx::{Any, Row, Transaction};
 use vint_core::plan::NewTask;
 use vint_core::{JobState, TaskState};
 
-use crate::{JobRecord, NewJob, Progress, Result, Store, StoreError, TaskRecord, parse, to_u32, trusted};
+use crate::{JobAsset, JobRecord, NewJob, Progress, Result, Store, StoreError, TaskRecord, parse, to_u32, trusted};
 
 const JOB_COLUMNS: &str = "id, name, seed, spec_toml, state, created_ms, finished_ms";
 pub(crate) const TASK_COLUMNS: &str = "id, job_id, key, stage, state, params_json, attempt, max_attempts, \
@@ -75,6 +75,20 @@ impl Store {
             let existing = self.job_by_idempotency_key(&job.idempotency_key).await?;
             return existing.map(|j| (j, false)).ok_or_else(|| StoreError::NotFound("job after conflict".into()));
         }
+        for a in &job.assets {
+            sqlx::query(
+                "INSERT INTO job_assets (job_id, path, sha256, size, media_type, object_key) \
+                 VALUES ($1, $2, $3, $4, $5, $6)",
+            )
+            .bind(&job.id)
+            .bind(&a.path)
+            .bind(&a.sha256)
+            .bind(a.size as i64)
+            .bind(&a.media_type)
+            .bind(&a.object_key)
+            .execute(&mut *tx)
+            .await?;
+        }
         self.insert_tasks(&mut tx, &job.id, tasks, now_ms).await?;
         tx.commit().await?;
         let created = self.job(&job.id).await?.ok_or_else(|| StoreError::NotFound(format!("job {}", job.id)))?;
@@ -85,6 +99,27 @@ impl Store {
         let sql = format!("SELECT {JOB_COLUMNS} FROM jobs WHERE idempotency_key = $1");
         let row = sqlx::query(trusted(sql)).bind(key).fetch_optional(&self.pool).await?;
         row.as_ref().map(job_from_row).transpose()
+    }
+
+    /// The user files a job's spec names, by path.
+    pub async fn job_assets(&self, job_id: &str) -> Result<Vec<JobAsset>> {
+        let rows = sqlx::query(
+            "SELECT path, sha256, size, media_type, object_key FROM job_assets WHERE job_id = $1 ORDER BY path",
+        )
+        .bind(job_id)
+        .fetch_all(&self.pool)
+        .await?;
+        rows.iter()
+            .map(|row| {
+                Ok(JobAsset {
+                    path: row.try_get("path")?,
+                    sha256: row.try_get("sha256")?,
+                    size: row.try_get::<i64, _>("size")? as u64,
+                    media_type: row.try_get("media_type")?,
+                    object_key: row.try_get("object_key")?,
+                })
+            })
+            .collect()
     }
 
     pub async fn job(&self, job_id: &str) -> Result<Option<JobRecord>> {

@@ -21,6 +21,7 @@ use std::time::Duration;
 use sqlx::any::{AnyPoolOptions, install_default_drivers};
 use sqlx::{AnyPool, Executor};
 
+pub use lineage::ASSET_TASK_KEY;
 pub use records::*;
 
 /// Which database a `Store` talks to.

@@ -6,7 +6,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use sqlx::Row;
 use sqlx::any::AnyRow;
 
-use crate::{ArtifactRecord, LineageEntry, Result, Store, StoreError, to_u32, trusted};
+use crate::{ArtifactRecord, JobAsset, LineageEntry, Result, Store, StoreError, to_u32, trusted};
 
 pub(crate) fn artifact_from_row(row: &AnyRow) -> Result<ArtifactRecord> {
     Ok(ArtifactRecord {
@@ -20,6 +20,9 @@ pub(crate) fn artifact_from_row(row: &AnyRow) -> Result<ArtifactRecord> {
     })
 }
 
+/// The `task_key` lineage gives a job's user files (they come with the submission, not a task).
+pub const ASSET_TASK_KEY: &str = "asset";
+
 const ARTIFACT_SELECT: &str = "SELECT a.task_id, t.key, a.name, a.sha256, a.size, a.media_type, a.object_key FROM artifacts a JOIN tasks t ON t.id = a.task_id";
 
 impl Store {
@@ -29,6 +32,7 @@ impl Store {
         let mut seen = BTreeSet::new();
         let mut queue = std::collections::VecDeque::from([task_id.to_string()]);
         let mut chain = Vec::new();
+        let mut job_assets: BTreeMap<String, Vec<JobAsset>> = BTreeMap::new();
         while let Some(id) = queue.pop_front() {
             if !seen.insert(id.clone()) {
                 continue;
@@ -42,7 +46,7 @@ impl Store {
                     .iter()
                     .map(|r| r.try_get("depends_on"))
                     .collect::<Result<_, _>>()?;
-            let inputs = sqlx::query(
+            let mut inputs = sqlx::query(
                 "SELECT a.task_id, t.key, a.name, a.sha256, a.size, a.media_type, a.object_key FROM lineage_edges e \
                  JOIN artifacts a ON a.task_id = e.input_task_id AND a.name = e.input_name \
                  JOIN tasks t ON t.id = a.task_id WHERE e.task_id = $1 ORDER BY t.key, a.name",
@@ -53,6 +57,21 @@ impl Store {
             .iter()
             .map(artifact_from_row)
             .collect::<Result<Vec<_>>>()?;
+            // A user file the task's parameters name (by hash) is an input too, "from" the job.
+            if !job_assets.contains_key(&task.job_id) {
+                job_assets.insert(task.job_id.clone(), self.job_assets(&task.job_id).await?);
+            }
+            let named =
+                job_assets.get(&task.job_id).into_iter().flatten().filter(|a| task.params_json.contains(&a.sha256));
+            inputs.extend(named.map(|a| ArtifactRecord {
+                task_id: String::new(),
+                task_key: ASSET_TASK_KEY.to_string(),
+                name: a.path.clone(),
+                sha256: a.sha256.clone(),
+                size: a.size,
+                media_type: a.media_type.clone(),
+                object_key: a.object_key.clone(),
+            }));
             let outputs = self.artifacts_of_task(&id).await?;
             queue.extend(depends_on.iter().cloned());
             chain.push(LineageEntry { task, depends_on, inputs, outputs });

@@ -11,6 +11,20 @@ pub struct NewJob {
     pub seed: u64,
     pub spec_toml: String,
     pub idempotency_key: String,
+    /// The user files the spec names, already in object storage.
+    pub assets: Vec<JobAsset>,
+}
+
+/// A user file of a job (a hand's MJCF model or taxel layout, an object's mesh; see
+/// `vint_core::asset`), stored content-addressed under `object_key`.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct JobAsset {
+    /// As the spec names it, relative to the spec file.
+    pub path: String,
+    pub sha256: String,
+    pub size: u64,
+    pub media_type: String,
+    pub object_key: String,
 }
 
 #[derive(Clone, Debug, PartialEq)]

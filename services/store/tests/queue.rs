@@ -64,7 +64,14 @@ fn task(key: &str, stage: Stage, deps: &[&str]) -> NewTask {
 }
 
 fn job(id: &str) -> NewJob {
-    NewJob { id: id.into(), name: "t".into(), seed: 1, spec_toml: "".into(), idempotency_key: format!("key-{id}") }
+    NewJob {
+        id: id.into(),
+        name: "t".into(),
+        seed: 1,
+        spec_toml: "".into(),
+        idempotency_key: format!("key-{id}"),
+        assets: vec![],
+    }
 }
 
 fn artifact(name: &str) -> NewArtifact {
@@ -293,4 +300,27 @@ store_test!(job_succeeds_when_every_task_has_and_lineage_reaches_the_root, |stor
     assert!(producers.iter().any(|a| a.task_key == "grasp/a"));
     let progress = store.progress("j").await.unwrap();
     assert_eq!((progress.total(), progress.count(TaskState::Succeeded), progress.samples), (3, 3, 1));
+});
+
+store_test!(a_jobs_assets_are_recorded_and_shown_as_inputs_of_the_tasks_naming_them, |store: Store| async move {
+    let sha = "ab".repeat(32);
+    let mut j = job("j");
+    j.assets = vec![vint_store::JobAsset {
+        path: "assets/bowl.obj".into(),
+        sha256: sha.clone(),
+        size: 42,
+        media_type: "model/obj".into(),
+        object_key: format!("sha256/ab/{sha}"),
+    }];
+    let mut grasp = task("grasp/a", Stage::Grasp, &[]);
+    grasp.params = json!({"object": {"shape": {"type": "mesh", "asset": sha}}});
+    store.submit_job(&j, &[grasp, task("grasp/b", Stage::Grasp, &[])], 0).await.unwrap();
+    let assets = store.job_assets("j").await.unwrap();
+    assert_eq!(assets, j.assets);
+    let chain = store.lineage("j/grasp/a").await.unwrap();
+    let inputs: Vec<(&str, &str, &str)> =
+        chain[0].inputs.iter().map(|a| (a.name.as_str(), a.sha256.as_str(), a.task_key.as_str())).collect();
+    assert_eq!(inputs, [("assets/bowl.obj", sha.as_str(), vint_store::ASSET_TASK_KEY)]);
+    assert!(store.lineage("j/grasp/b").await.unwrap()[0].inputs.is_empty(), "b names no asset");
+    assert!(store.job_assets("other").await.unwrap().is_empty());
 });

@@ -5,7 +5,8 @@ use std::path::Path;
 use anyhow::{Context, anyhow};
 use tonic::Code;
 use tonic::transport::Channel;
-use vint_core::DatasetSpec;
+use vint_core::asset::{MAX_ASSET_BYTES, MAX_ASSETS_TOTAL_BYTES};
+use vint_core::{DatasetSpec, SpecError, SpecErrors};
 use vint_proto::v1 as pb;
 use vint_proto::v1::get_lineage_request::Subject;
 use vint_proto::v1::job_service_client::JobServiceClient;
@@ -13,13 +14,78 @@ use vint_proto::v1::job_service_client::JobServiceClient;
 use crate::report;
 use crate::{CliResult, Failure, bad_input};
 
-/// Reads and validates a spec; every problem is reported and the exit code is 2.
-pub fn load_spec(path: &Path) -> Result<(String, DatasetSpec), Failure> {
+/// A spec as a submission carries it: its text, its parsed form and the user files it names.
+pub struct LoadedSpec {
+    pub text: String,
+    pub spec: DatasetSpec,
+    pub assets: Vec<pb::AssetFile>,
+}
+
+/// Reads and validates a spec and reads the files it names; every problem is reported and the
+/// exit code is 2.
+pub fn load_spec(path: &Path) -> Result<LoadedSpec, Failure> {
     let text = read_spec(path)?;
-    match DatasetSpec::parse(&text) {
-        Ok(spec) => Ok((text, spec)),
-        Err(errors) => Err(invalid_spec(path, &errors)),
+    let spec = DatasetSpec::parse(&text).map_err(|errors| invalid_spec(path, &errors))?;
+    let assets = read_assets(path, &spec).map_err(|errors| invalid_spec(path, &errors))?;
+    Ok(LoadedSpec { text, spec, assets })
+}
+
+/// The files the spec's own hands, objects and HDRIs name, read relative to the spec file's directory;
+/// a missing, unreadable or oversized file is a spec error naming the field and the path.
+fn read_assets(spec_path: &Path, spec: &DatasetSpec) -> Result<Vec<pb::AssetFile>, SpecErrors> {
+    let base = spec_path.parent().unwrap_or(Path::new("."));
+    let mut errors = Vec::new();
+    let mut files: Vec<pb::AssetFile> = Vec::new();
+    let mut total = 0u64;
+    for used in spec.asset_uses() {
+        if files.iter().any(|f| f.path == used.path) {
+            continue;
+        }
+        let error = |rule: String, value: String| SpecError { path: used.field.clone(), value, rule };
+        let file = base.join(&used.path);
+        let size = match std::fs::metadata(&file) {
+            Ok(m) if m.is_file() => m.len(),
+            Ok(_) => {
+                errors.push(error(
+                    format!("must name a file ({} is not one)", file.display()),
+                    format!("{:?}", used.path),
+                ));
+                continue;
+            }
+            Err(e) => {
+                errors.push(error(
+                    format!("must name a readable file ({}: {e})", file.display()),
+                    format!("{:?}", used.path),
+                ));
+                continue;
+            }
+        };
+        if size > MAX_ASSET_BYTES {
+            errors.push(error(
+                format!("must be a file of at most {MAX_ASSET_BYTES} bytes"),
+                format!("{:?} ({size} bytes)", used.path),
+            ));
+            continue;
+        }
+        match std::fs::read(&file) {
+            Ok(content) => {
+                total += content.len() as u64;
+                files.push(pb::AssetFile { path: used.path, content });
+            }
+            Err(e) => errors.push(error(
+                format!("must name a readable file ({}: {e})", file.display()),
+                format!("{:?}", used.path),
+            )),
+        }
     }
+    if total > MAX_ASSETS_TOTAL_BYTES {
+        errors.push(SpecError {
+            path: String::new(),
+            value: format!("{total} bytes"),
+            rule: format!("the spec's files add up to {total} bytes, more than the limit of {MAX_ASSETS_TOTAL_BYTES}"),
+        });
+    }
+    if errors.is_empty() { Ok(files) } else { Err(SpecErrors(errors)) }
 }
 
 fn read_spec(path: &Path) -> Result<String, Failure> {
@@ -27,7 +93,7 @@ fn read_spec(path: &Path) -> Result<String, Failure> {
 }
 
 /// Every problem of an invalid spec, as one bad-input failure (exit code 2).
-fn invalid_spec(path: &Path, errors: &vint_core::SpecErrors) -> Failure {
+fn invalid_spec(path: &Path, errors: &SpecErrors) -> Failure {
     let n = errors.0.len();
     bad_input(anyhow!(
         "{} is not a valid spec ({n} problem{}):\n{errors}",
@@ -38,7 +104,7 @@ fn invalid_spec(path: &Path, errors: &vint_core::SpecErrors) -> Failure {
 
 pub fn validate(path: &Path, json: bool) -> CliResult {
     let text = read_spec(path)?;
-    match DatasetSpec::parse(&text) {
+    match DatasetSpec::parse(&text).and_then(|spec| read_assets(path, &spec).map(|_| spec)) {
         Ok(spec) => {
             if json {
                 report::print_json(
@@ -51,7 +117,7 @@ pub fn validate(path: &Path, json: bool) -> CliResult {
                     spec.hands.len(),
                     spec.objects.len(),
                     spec.grasp.trials_per_pair,
-                    spec.render.views_per_grasp,
+                    spec.render.views_per_grasp(),
                     spec.max_samples()
                 );
             }
@@ -89,9 +155,13 @@ pub fn rpc_failure(what: &str, s: tonic::Status) -> Failure {
 }
 
 pub async fn submit(url: &str, path: &Path, key: Option<String>, json: bool) -> CliResult {
-    let (text, _spec) = load_spec(path)?;
+    let loaded = load_spec(path)?;
     let mut client = connect(url).await?;
-    let request = pb::SubmitJobRequest { spec_toml: text, idempotency_key: key.unwrap_or_default() };
+    let request = pb::SubmitJobRequest {
+        spec_toml: loaded.text,
+        idempotency_key: key.unwrap_or_default(),
+        assets: loaded.assets,
+    };
     let resp = client.submit_job(request).await.map_err(|s| rpc_failure("submit", s))?.into_inner();
     let job = resp.job.ok_or_else(|| anyhow!("coordinator returned no job"))?;
     if json {

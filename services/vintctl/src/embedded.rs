@@ -24,7 +24,7 @@ use crate::{CliResult, Failure, bad_input, report};
 const LOCAL_LEASE_MS: u32 = 10_000;
 
 pub async fn run(spec_path: &Path, out: &Path, state: &Path, workers: u32, json: bool) -> CliResult {
-    let (text, spec) = load_spec(spec_path)?;
+    let client::LoadedSpec { text, spec, assets } = load_spec(spec_path)?;
     if workers == 0 || workers > 64 {
         return Err(bad_input(anyhow!("--workers: must be 1..=64, got {workers}")));
     }
@@ -39,7 +39,9 @@ pub async fn run(spec_path: &Path, out: &Path, state: &Path, workers: u32, json:
     let store = Store::open(&db_url, retry).await.with_context(|| format!("opening {db_url}"))?;
     let (listener, addr) = vint_coordinator::bind(SocketAddr::from((Ipv4Addr::LOCALHOST, 0))).await?;
     let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-    let server = tokio::spawn(vint_coordinator::serve(store.clone(), CoordinatorConfig::default(), listener, async {
+    // The coordinator stores the spec's user files where the local workers read artifacts.
+    let config = CoordinatorConfig { artifacts: Some(artifacts.clone()), ..CoordinatorConfig::default() };
+    let server = tokio::spawn(vint_coordinator::serve(store.clone(), config, listener, async {
         let _ = stop_rx.await;
     }));
     let url = format!("http://{addr}");
@@ -47,7 +49,7 @@ pub async fn run(spec_path: &Path, out: &Path, state: &Path, workers: u32, json:
     let result = async {
         let mut client = client::connect(&url).await?;
         let submitted = client
-            .submit_job(pb::SubmitJobRequest { spec_toml: text, idempotency_key: String::new() })
+            .submit_job(pb::SubmitJobRequest { spec_toml: text, idempotency_key: String::new(), assets })
             .await
             .map_err(|s| client::rpc_failure("submit", s))?
             .into_inner();

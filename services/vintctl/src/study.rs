@@ -10,7 +10,7 @@ use tokio::process::Command;
 use crate::{CliResult, Failure, bad_input};
 
 /// Studies the engines implement.
-const SUBJECTS: &[&str] = &["grasp"];
+const SUBJECTS: &[&str] = &["grasp", "render"];
 
 pub async fn run(subject: &str, out: &Path, quick: bool, extra: &[String]) -> CliResult {
     if !SUBJECTS.contains(&subject) {

@@ -7,7 +7,7 @@ import os
 import struct
 import subprocess
 import sys
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -56,13 +56,22 @@ class EngineProcess:
         assert isinstance(message, dict)
         return message
 
-    def task(self, task_id: str, params: dict[str, Any], out_dir: Path, inputs: list[Path] = ()) -> dict:
+    def task(
+        self,
+        task_id: str,
+        params: dict[str, Any],
+        out_dir: Path,
+        inputs: Sequence[Path | tuple[str, Path]] = (),
+    ) -> dict:
+        """Run one task; an input is a file (named by its file name) or a (name, file) pair, as the
+        worker stages a user's file under its SHA-256."""
+        named = [item if isinstance(item, tuple) else (item.name, item) for item in inputs]
         self.send(
             {
                 "type": "task",
                 "task_id": task_id,
                 "params": params,
-                "inputs": [{"name": p.name, "task_key": "test/" + p.name, "path": str(p)} for p in inputs],
+                "inputs": [{"name": n, "task_key": "test/" + n, "path": str(p)} for n, p in named],
                 "out_dir": str(out_dir),
             }
         )
@@ -106,3 +115,21 @@ def new_dir(root: Path, name: str) -> Path:
     path = root / name
     path.mkdir(parents=True)
     return path
+
+
+def read_grasps_with_touch(out_dir: Path) -> dict[str, Any]:
+    """A grasp task's `grasps.json` with each accepted trial's full touch record from `touch.json`
+    put back in place of its summary (after checking that the two agree)."""
+    doc = json.loads((out_dir / "grasps.json").read_text())
+    touch = json.loads((out_dir / "touch.json").read_text())
+    assert touch["hand"] == doc["hand"]["name"] and touch["taxels"] == doc["hand"]["taxels"]
+    assert touch["touch"] == doc["touch"]
+    full = {entry.pop("grasp_index"): entry for entry in touch["trials"]}
+    accepted = [trial for trial in doc["trials"] if trial["accepted"]]
+    assert sorted(full) == sorted(trial["grasp_index"] for trial in accepted)
+    for trial in accepted:
+        record = full[trial["grasp_index"]]
+        assert set(trial["touch"]) == {"sensing_depth_m", "active_count"}
+        assert {key: record[key] for key in trial["touch"]} == trial["touch"]
+        trial["touch"] = record
+    return doc

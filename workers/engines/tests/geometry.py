@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
+
+Array = npt.NDArray[np.float64]
 
 
 def is_convex(vertices: np.ndarray, faces: np.ndarray, tolerance: float = 1e-9) -> bool:
@@ -43,3 +46,58 @@ def _segment_distance(p: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray
     edge = v - u
     t = np.clip(np.einsum("nmk,mk->nm", p - u, edge) / np.einsum("mk,mk->m", edge, edge), 0.0, 1.0)
     return np.linalg.norm(p - (u + t[..., None] * edge), axis=2)
+
+
+def rasterise_depth(points_c: np.ndarray, faces: np.ndarray, K: np.ndarray, width: int, height: int) -> Array:
+    """Z-buffer of a triangle mesh given in camera coordinates (OpenCV): the depth along the optical
+    axis of the nearest triangle through each pixel centre (integer pixel coordinates), inf where
+    none. Triangles reaching behind the camera are skipped (the tests keep meshes in front)."""
+    depth = np.full((height, width), np.inf)
+    z = points_c[:, 2]
+    uv = (K @ (points_c / z[:, None]).T).T[:, :2]
+    for face in faces:
+        if (z[face] <= 1e-6).any():
+            continue
+        (u0, v0), (u1, v1), (u2, v2) = uv[face]
+        us = _pixel_span(u0, u1, u2, width)
+        vs = _pixel_span(v0, v1, v2, height)
+        if not len(us) or not len(vs):
+            continue
+        uu, vv = np.meshgrid(us, vs)
+        area = (u1 - u0) * (v2 - v0) - (u2 - u0) * (v1 - v0)
+        if abs(area) < 1e-12:
+            continue
+        b1 = ((uu - u0) * (v2 - v0) - (u2 - u0) * (vv - v0)) / area
+        b2 = ((u1 - u0) * (vv - v0) - (uu - u0) * (v1 - v0)) / area
+        b0 = 1.0 - b1 - b2
+        inside = (b0 >= -1e-9) & (b1 >= -1e-9) & (b2 >= -1e-9)
+        # 1/z is linear in screen space: perspective-correct depth.
+        zz = 1.0 / (b0 / z[face[0]] + b1 / z[face[1]] + b2 / z[face[2]])
+        block = depth[vv, uu]
+        depth[vv, uu] = np.where(inside & (zz < block), zz, block)
+    return depth
+
+
+def _pixel_span(a: float, b: float, c: float, size: int) -> Array:
+    """Integer pixel coordinates within [0, size) between the smallest and largest of a, b, c."""
+    return np.arange(max(0, int(np.ceil(min(a, b, c)))), min(size - 1, int(np.floor(max(a, b, c)))) + 1)
+
+
+def signed_distance_to_primitive(points: np.ndarray, kind: str, size: list[float]) -> Array:
+    """Signed distance (negative inside) from points (n × 3, in the primitive's frame) to the
+    surface of a MuJoCo primitive: box (half extents), sphere [r], capsule and cylinder
+    [r, half length] along +z."""
+    if kind == "box":
+        q = np.abs(points) - np.asarray(size)
+        return np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0)
+    if kind == "sphere":
+        return np.linalg.norm(points, axis=1) - size[0]
+    radius, half = size
+    if kind == "capsule":
+        axis = np.clip(points[:, 2], -half, half)
+        return np.linalg.norm(points - np.outer(axis, [0.0, 0.0, 1.0]), axis=1) - radius
+    if kind == "cylinder":
+        dx = np.hypot(points[:, 0], points[:, 1]) - radius
+        dz = np.abs(points[:, 2]) - half
+        return np.minimum(np.maximum(dx, dz), 0.0) + np.hypot(np.maximum(dx, 0.0), np.maximum(dz, 0.0))
+    raise ValueError(kind)

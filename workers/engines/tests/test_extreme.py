@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from conftest import ENGINES_DIR, new_dir
+from conftest import ENGINES_DIR, new_dir, read_grasps_with_touch
 from geometry import distance_to_mesh
 
 from vint_engines.grasp.engine import GraspEngine
@@ -53,7 +53,7 @@ def run(
         "physics": physics,
     }
     result = engine.run(TaskRequest("t", params, (), new_dir(tmp_path, f"{obj}-{hand}")))
-    doc = json.loads(result.outputs[0].path.read_text())
+    doc = read_grasps_with_touch(result.outputs[0].path.parent)
     assert_valid_or_rejected(doc, Physics.parse(physics))
     return doc
 
@@ -110,9 +110,23 @@ def engine() -> GraspEngine:
 
 
 @pytest.mark.parametrize("hand", HANDS)
-def test_stirring_stick_is_approached_from_above(engine: GraspEngine, tmp_path: Path, hand: str) -> None:
+def test_stirring_stick_is_approached_from_above_and_too_thin_to_pinch(
+    engine: GraspEngine, tmp_path: Path, hand: str
+) -> None:
+    """1.5 mm high: round fingertips of 10–12 mm meet it beyond the friction cone."""
     doc = run(engine, tmp_path, "stirring_stick", hand, SHORT)
     assert {t["approach"]["mode"] for t in doc["trials"]} == {"top"}
+    assert all(t["reason"].startswith("too_thin:") for t in doc["trials"])
+
+
+def test_a_lying_marker_is_pinched_by_the_trx3(engine: GraspEngine, tmp_path: Path) -> None:
+    doc = run(engine, tmp_path, "large_marker", "trx3", SHORT, [SEEDS[0] + 7919 * i for i in range(4)])
+    assert {t["approach"]["mode"] for t in doc["trials"]} == {"top"}
+    pinched = [t for t in doc["trials"] if t["accepted"]]
+    assert pinched, [t["reason"] for t in doc["trials"]]
+    for trial in pinched:
+        assert {a["region"] for a in trial["touch"]["active"]} & {"tip", "pulp"}
+        assert trial["hold"]["object_rise_m"] > 0.5 * doc["physics"]["lift_height"]
 
 
 @pytest.mark.parametrize("hand", HANDS)
@@ -223,6 +237,7 @@ def test_reruns_and_shakes_are_deterministic(tmp_path: Path) -> None:
     texts = []
     for name in ("first", "second"):
         result = GraspEngine().run(TaskRequest("t", params, (), new_dir(tmp_path, name)))
-        texts.append(result.outputs[0].path.read_bytes())
+        texts.append(b"".join(output.path.read_bytes() for output in result.outputs))
     assert texts[0] == texts[1]
-    assert all(t["stability"]["retries"] == 1 for t in json.loads(texts[0])["trials"])
+    doc = json.loads((tmp_path / "first" / "grasps.json").read_text())
+    assert all(t["stability"]["retries"] == 1 for t in doc["trials"])

@@ -33,7 +33,7 @@ def grasp_params(seeds: list[int], **physics: float) -> dict[str, Any]:
 
 def run_grasp(engine: GraspEngine, params: dict[str, Any], out_dir: Path) -> tuple[str, dict[str, Any]]:
     result = engine.run(TaskRequest("t", params, (), out_dir))
-    assert [o.name for o in result.outputs] == ["grasps.json", "object.ply"]
+    assert [o.name for o in result.outputs] == ["grasps.json", "touch.json", "object.ply"]
     text = result.outputs[0].path.read_text()
     return text, json.loads(text)
 

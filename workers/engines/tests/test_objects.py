@@ -307,7 +307,7 @@ def grasps(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[dict[str
         }
         task_dir = new_dir(root, name)
         result = engine.run(TaskRequest(name, params, (), task_dir))
-        assert [o.name for o in result.outputs] == ["grasps.json", "object.ply"]
+        assert [o.name for o in result.outputs] == ["grasps.json", "touch.json", "object.ply"]
         out[name] = (json.loads((task_dir / "grasps.json").read_text()), task_dir)
     return out
 

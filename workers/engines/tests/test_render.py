@@ -3,6 +3,7 @@ protocol stream), on a grasp produced by the real grasp engine."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 from collections.abc import Iterator
 from pathlib import Path
@@ -100,7 +101,7 @@ def load_view(out: Path) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
 def test_view_writes_the_protocol_outputs(view: tuple[dict[str, Any], Path]) -> None:
     reply, out = view
     names = {o["name"] for o in reply["outputs"]}
-    assert names == {"v00_rgb.png", "v00_depth.npy", "v00_mask.png", "v00_camera.json"}
+    assert names == {"v00_rgb.png", "v00_depth.npy", "v00_mask.png", "v00_mask_full.png", "v00_camera.json"}
     rgb = cv2.imread(str(out / "v00_rgb.png"), cv2.IMREAD_UNCHANGED)
     depth, mask, camera = load_view(out)
     assert rgb.shape == (64, 64, 3) and rgb.dtype == np.uint8
@@ -153,7 +154,12 @@ def test_rgb_is_skipped_unless_requested(
     out = new_dir(workdir, "no_rgb")
     reply = render(engine, grasps, out, ["depth", "mask"])
     assert reply["ok"] is True
-    assert sorted(p.name for p in out.iterdir()) == ["v00_camera.json", "v00_depth.npy", "v00_mask.png"]
+    assert sorted(p.name for p in out.iterdir()) == [
+        "v00_camera.json",
+        "v00_depth.npy",
+        "v00_mask.png",
+        "v00_mask_full.png",
+    ]
 
 
 def test_unknown_grasp_or_environment_fails_without_retry(
@@ -189,7 +195,7 @@ def test_each_view_renders_under_its_own_environment(
     assert reply["ok"] is True, reply
     for index, environment in ((0, "studio"), (1, "forest")):
         camera = json.loads((mixed / f"v{index:02d}_camera.json").read_text())
-        assert camera["environment"] == environment
+        assert camera["environment"] == {"name": environment, "rotation_deg": 0.0, "strength": 1.0}
     assert np.array_equal(np.load(mixed / "v00_depth.npy"), np.load(mixed / "v01_depth.npy"))
     assert (mixed / "v00_rgb.png").read_bytes() != (mixed / "v01_rgb.png").read_bytes()
 
@@ -198,7 +204,7 @@ def test_each_view_renders_under_its_own_environment(
     reply = render(engine, grasps, alone, ["rgb"], render=forest, views=[{"view_index": 1, "seed": SEED}])
     assert reply["ok"] is True, reply
     assert (alone / "v01_rgb.png").read_bytes() == (mixed / "v01_rgb.png").read_bytes()
-    assert json.loads((alone / "v01_camera.json").read_text())["environment"] == "forest"
+    assert json.loads((alone / "v01_camera.json").read_text())["environment"]["name"] == "forest"
 
 
 def test_another_engine_process_renders_the_same_bytes(
@@ -209,7 +215,7 @@ def test_another_engine_process_renders_the_same_bytes(
     assert fresh.receive() is not None, fresh.stderr_tail()
     out = new_dir(workdir, "fresh")
     assert render(fresh, grasps, out, ["rgb", "depth", "mask"])["ok"] is True
-    for name in ("v00_rgb.png", "v00_depth.npy", "v00_mask.png", "v00_camera.json"):
+    for name in ("v00_rgb.png", "v00_depth.npy", "v00_mask.png", "v00_mask_full.png", "v00_camera.json"):
         assert (out / name).read_bytes() == (view[1] / name).read_bytes(), name
     assert fresh.shutdown(60) == 0
 
@@ -267,3 +273,117 @@ def test_a_compound_object_renders_from_the_grasp_engines_model_mesh(
     depth_rebuilt, mask_rebuilt, _ = load_view(rebuilt)
     assert np.array_equal(mask_staged, mask_rebuilt)
     assert np.allclose(depth_staged, depth_rebuilt, atol=1e-5)
+
+
+def write_hdri(path: Path, bgr: tuple[float, float, float]) -> tuple[Path, str]:
+    """A 16×8 Radiance HDRI of one linear colour (BGR), written by OpenCV (not by Blender), and
+    its SHA-256: the worker stages a job's file as an input named by that hash."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    assert cv2.imwrite(str(path), np.full((8, 16, 3), bgr, dtype=np.float32))
+    return path, hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def user_hdri_params(name: str, path: Path, sha: str, spec_path: str, **entry: float) -> dict[str, Any]:
+    return {
+        "environments": [{"name": name, "asset": sha, **entry}],
+        "assets": [{"path": spec_path, "sha256": sha, "size": path.stat().st_size}],
+    }
+
+
+SMALL = {**RENDER, "width": 32, "height": 32, "samples": 4}
+TWO_VIEWS = [
+    {"view_index": 0, "seed": SEED, "environment": "studio"},
+    {"view_index": 1, "seed": SEED, "environment": "lab"},  # the same camera, the user's light
+]
+
+
+def test_a_user_hdri_lights_the_rgb_image_and_not_the_geometry(
+    engine: EngineProcess, grasps: tuple[Path, int], workdir: Path
+) -> None:
+    """The same view under studio and under the user's red HDRI: identical depth, a different and
+    redder image (the background shows the HDRI itself), and camera.json names the file by hash.
+    The image is kept by content: the same file staged again elsewhere (the first copy gone) renders
+    the same bytes, while another file under the same name lights differently."""
+    red, sha = write_hdri(workdir / "staged" / "a" / "lab.hdr", (0.002, 0.002, 0.5))
+    out = new_dir(workdir, "user_hdri")
+    extra = user_hdri_params("lab", red, sha, "assets/lab.hdr", rotation_deg=90.0, strength=1.5)
+    reply = engine.task(
+        "user_hdri", {**base(grasps), **extra, "views": TWO_VIEWS}, out, [grasps[0], (sha, red)]
+    )
+    assert reply["ok"] is True, reply
+    assert np.array_equal(np.load(out / "v00_depth.npy"), np.load(out / "v01_depth.npy"))
+    studio = cv2.imread(str(out / "v00_rgb.png")).astype(float)
+    lab = cv2.imread(str(out / "v01_rgb.png")).astype(float)
+    background = np.load(out / "v01_depth.npy") == 0
+    assert background.any()
+    b, g, r = (lab[..., c][background].mean() for c in range(3))
+    assert r > 100 and r > 4 * g and r > 4 * b, (b, g, r)
+    assert abs(studio[..., 2] - studio[..., 1])[background].mean() < 10  # studio's backdrop is grey
+    camera = json.loads((out / "v01_camera.json").read_text())
+    assert camera["environment"] == {"name": "lab", "rotation_deg": 90.0, "strength": 1.5, "asset": sha}
+
+    red.unlink()  # the staged input of the last task is gone: the engine kept its own copy
+    again_file = red.parent.parent / "b" / "lab.hdr"
+    again_file.parent.mkdir()
+    write_hdri(again_file, (0.002, 0.002, 0.5))
+    again = new_dir(workdir, "user_hdri_again")
+    views = TWO_VIEWS[1:]
+    reply = engine.task(
+        "again", {**base(grasps), **extra, "views": views}, again, [grasps[0], (sha, again_file)]
+    )
+    assert reply["ok"] is True, reply
+    assert (again / "v01_rgb.png").read_bytes() == (out / "v01_rgb.png").read_bytes()
+
+    blue, blue_sha = write_hdri(workdir / "staged" / "c" / "lab.hdr", (0.5, 0.002, 0.002))
+    other = new_dir(workdir, "user_hdri_other")
+    extra = user_hdri_params("lab", blue, blue_sha, "assets/lab.hdr", rotation_deg=90.0, strength=1.5)
+    reply = engine.task(
+        "other", {**base(grasps), **extra, "views": views}, other, [grasps[0], (blue_sha, blue)]
+    )
+    assert reply["ok"] is True, reply
+    bgr = cv2.imread(str(other / "v01_rgb.png")).astype(float)
+    assert bgr[..., 0][background].mean() > 4 * bgr[..., 2][background].mean()
+
+
+def test_a_user_hdri_is_checked_before_any_view_renders(
+    engine: EngineProcess, grasps: tuple[Path, int], workdir: Path
+) -> None:
+    """A file Blender cannot read, a hash the task does not list, a user's file under a bundled
+    name: each fails the task, not retryable, naming what is wrong, with nothing written. Without
+    `rgb` the file is not needed at all (no HDRI is read)."""
+    broken = workdir / "staged" / "broken" / "lab.hdr"
+    broken.parent.mkdir(parents=True)
+    broken.write_bytes(b"#?RADIANCE\nthis is not a picture\n")
+    sha = hashlib.sha256(broken.read_bytes()).hexdigest()
+    extra = user_hdri_params("lab", broken, sha, "assets/broken.hdr")
+    out = new_dir(workdir, "broken_hdri")
+    reply = engine.task(
+        "broken", {**base(grasps), **extra, "views": TWO_VIEWS}, out, [grasps[0], (sha, broken)]
+    )
+    assert reply["ok"] is False and reply["retryable"] is False, reply
+    assert "'lab'" in reply["error"] and "assets/broken.hdr" in reply["error"], reply["error"]
+    assert not any(out.iterdir())
+
+    unlisted = {**base(grasps), "environments": extra["environments"], "views": TWO_VIEWS}
+    reply = engine.task("unlisted", unlisted, new_dir(workdir, "unlisted_hdri"), [grasps[0]])
+    assert reply["ok"] is False and reply["retryable"] is False
+    assert "params.environments[0].asset" in reply["error"] and "not among params.assets" in reply["error"]
+
+    shadowing = {**base(grasps), **extra, "environments": [{"name": "forest", "asset": sha}]}
+    reply = engine.task("shadow", shadowing, new_dir(workdir, "shadow_hdri"), [grasps[0], (sha, broken)])
+    assert (
+        reply["ok"] is False
+        and "params.environments[0].name" in reply["error"]
+        and "bundled" in reply["error"]
+    )
+
+    depth_only = {**unlisted, "outputs": ["depth"]}
+    out = new_dir(workdir, "depth_only_hdri")
+    reply = engine.task("depth_only", depth_only, out, [grasps[0]])
+    assert reply["ok"] is True, reply
+    assert json.loads((out / "v01_camera.json").read_text())["environment"]["asset"] == sha
+
+
+def base(grasps: tuple[Path, int]) -> dict[str, Any]:
+    """A render task of the accepted grasp at 32×32, RGB and depth."""
+    return {"grasp_index": grasps[1], "render": SMALL, "outputs": ["rgb", "depth"]}

@@ -4,7 +4,6 @@ state is checked against distances computed here, analytically, from the recorde
 from __future__ import annotations
 
 import hashlib
-import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,6 +12,7 @@ from typing import Any
 import mujoco
 import numpy as np
 import pytest
+from conftest import read_grasps_with_touch
 
 from vint_engines.grasp.engine import GraspEngine
 from vint_engines.grasp.hand import TOUCH_PROBE, add_touch_probe
@@ -61,7 +61,7 @@ def run(
 ) -> tuple[dict[str, Any], dict[str, float]]:
     out_dir.mkdir(parents=True, exist_ok=True)
     result = engine.run(TaskRequest("t", params, (), out_dir))
-    return json.loads((out_dir / "grasps.json").read_text()), result.metrics
+    return read_grasps_with_touch(out_dir), result.metrics
 
 
 @pytest.fixture(scope="module")

@@ -1,5 +1,5 @@
 """Command line: `python -m vint_engines serve --stage {grasp|render|noise}`, and
-`python -m vint_engines study grasp --out DIR` (the physics study, `vint_engines/study/`).
+`python -m vint_engines study {grasp|render} --out DIR` (the studies, `vint_engines/study/`).
 
 Only parses arguments and wires a stage's engine into the serve loop; heavy libraries are imported
 by the chosen stage alone, so a noise engine never pays for Blender.
@@ -39,6 +39,10 @@ def names(text: str) -> list[str]:
 
 
 def run_study(args: argparse.Namespace) -> int:
+    if args.study == "render":
+        from vint_engines.study import render
+
+        return render.main(args.out, args.quick)
     from vint_engines.study import grasp
 
     quick_objects = ("tomato_soup_can",) if args.quick else grasp.OBJECTS
@@ -54,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     serve_cmd = commands.add_parser("serve", help="serve tasks over stdin/stdout (PROTOCOL.md)")
     serve_cmd.add_argument("--stage", required=True, choices=STAGES)
     study_cmd = commands.add_parser("study", help="run a numerics study and write its report")
-    study_cmd.add_argument("study", choices=("grasp",))
+    study_cmd.add_argument("study", choices=("grasp", "render"))
     study_cmd.add_argument("--out", required=True, type=Path, help="directory for the CSVs, plot and table")
     study_cmd.add_argument("--quick", action="store_true", help="few seeds and configurations (< 60 s)")
     study_cmd.add_argument("--hands", type=names, help="comma-separated hands (default: trx3,allegro)")

@@ -83,6 +83,14 @@ def views(params: Mapping[str, Any]) -> list[tuple[int, int]]:
     return pairs
 
 
+def boolean(obj: Mapping[str, Any], key: str, where: str, default: bool | None = None) -> bool:
+    """A JSON boolean; `default` when the key is absent (if given)."""
+    value = obj.get(key, default)
+    if not isinstance(value, bool):
+        raise BadInput(f"{where}.{key}: expected true or false, got {_show(value)}")
+    return value
+
+
 def string(obj: Mapping[str, Any], key: str, where: str, default: str | None = None) -> str:
     value = obj.get(key, default)
     if not isinstance(value, str) or not value:

@@ -76,7 +76,7 @@ class OutputFile:
 @dataclass
 class TaskResult:
     outputs: list[OutputFile] = field(default_factory=list)
-    metrics: dict[str, float] = field(default_factory=dict)
+    metrics: dict[str, Any] = field(default_factory=dict)
 
     def add(self, path: Path, media_type: str) -> None:
         """Record a file the engine wrote into out_dir; its name is the file name."""

@@ -39,6 +39,19 @@ pub struct EngineCommand {
     pub task_timeout: Duration,
     /// Longest an engine may take to import its libraries and say hello.
     pub start_timeout: Duration,
+    /// When a warm engine is replaced by a fresh one.
+    pub recycle: RecyclePolicy,
+}
+
+/// Limits past which the worker replaces a warm engine with a fresh process, between tasks: a
+/// long-lived Blender or MuJoCo process must not carry a slow leak into the ten-thousandth task.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RecyclePolicy {
+    /// Tasks one engine process serves at most; `None` for no limit.
+    pub max_tasks: Option<u32>,
+    /// Resident set size (bytes) past which the engine is replaced after its current task; `None`
+    /// for no limit. Read from `/proc`, so it applies on Linux only.
+    pub max_rss_bytes: Option<u64>,
 }
 
 /// One file a task reads.
@@ -91,6 +104,8 @@ pub struct Engine {
     /// The engine's self-description from its hello (name, version, library versions).
     pub identity: Value,
     task_timeout: Duration,
+    recycle: RecyclePolicy,
+    tasks_served: u32,
 }
 
 impl Engine {
@@ -109,7 +124,16 @@ impl Engine {
         let crashed = |detail: &str| EngineError::Crashed { stage, detail: detail.to_string() };
         let stdin = child.stdin.take().ok_or_else(|| crashed("no stdin pipe"))?;
         let stdout = child.stdout.take().ok_or_else(|| crashed("no stdout pipe"))?;
-        let mut engine = Engine { stage, child, stdin, stdout, identity: Value::Null, task_timeout: cmd.task_timeout };
+        let mut engine = Engine {
+            stage,
+            child,
+            stdin,
+            stdout,
+            identity: Value::Null,
+            task_timeout: cmd.task_timeout,
+            recycle: cmd.recycle,
+            tasks_served: 0,
+        };
         let hello = match tokio::time::timeout(cmd.start_timeout, engine.read_frame()).await {
             Ok(r) => r?,
             Err(_) => {
@@ -136,6 +160,7 @@ impl Engine {
         inputs: &[EngineInput],
         out_dir: &Path,
     ) -> Result<EngineResult, EngineError> {
+        self.tasks_served = self.tasks_served.saturating_add(1);
         let msg = TaskMessage { kind: "task", task_id, params, inputs, out_dir };
         let body =
             serde_json::to_vec(&msg).map_err(|e| EngineError::Protocol { stage: self.stage, detail: e.to_string() })?;
@@ -158,6 +183,27 @@ impl Engine {
             });
         }
         Ok(result)
+    }
+
+    /// Tasks sent to this engine process so far.
+    pub fn tasks_served(&self) -> u32 {
+        self.tasks_served
+    }
+
+    /// The engine process's resident set size in bytes (Linux; `None` elsewhere or once it exited).
+    pub fn rss_bytes(&self) -> Option<u64> {
+        let status = std::fs::read_to_string(format!("/proc/{}/status", self.pid()?)).ok()?;
+        parse_vm_rss(&status)
+    }
+
+    /// Why this engine should be replaced before its next task, if it should.
+    pub fn recycle_reason(&self) -> Option<String> {
+        if let Some(max) = self.recycle.max_tasks.filter(|&max| self.tasks_served >= max) {
+            return Some(format!("served {} tasks (limit {max})", self.tasks_served));
+        }
+        let max = self.recycle.max_rss_bytes?;
+        let rss = self.rss_bytes().filter(|&rss| rss > max)?;
+        Some(format!("resident memory {} MiB over the limit of {} MiB", rss >> 20, max >> 20))
     }
 
     /// Asks the engine to exit and waits briefly; kills it otherwise.
@@ -221,5 +267,24 @@ impl Engine {
                 format!("engine pipe failed [{io_error}]; killed")
             }
         }
+    }
+}
+
+/// The `VmRSS` line of a `/proc/PID/status` text, in bytes.
+fn parse_vm_rss(status: &str) -> Option<u64> {
+    let line = status.lines().find(|l| l.starts_with("VmRSS:"))?;
+    let kib: u64 = line.trim_start_matches("VmRSS:").trim().trim_end_matches("kB").trim().parse().ok()?;
+    Some(kib * 1024)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn vm_rss_is_read_in_bytes() {
+        let status = "Name:\tpython\nVmPeak:\t  900 kB\nVmRSS:\t  123456 kB\nThreads:\t4\n";
+        assert_eq!(parse_vm_rss(status), Some(123_456 * 1024));
+        assert_eq!(parse_vm_rss("Name:\tx\n"), None);
     }
 }

@@ -72,6 +72,8 @@ const MODALITY_FILES: &[(&str, &str, &str, &str)] = &[
     ("depth", "depth.npy", "render", "v{v}_depth.npy"),
     ("depth_noisy", "depth_noisy.npy", "noise", "v{v}_depth_noisy.npy"),
     ("mask", "mask.png", "render", "v{v}_mask.png"),
+    ("mask", "mask_full.png", "render", "v{v}_mask_full.png"),
+    ("segmentation", "segmentation.png", "render", "v{v}_segmentation.png"),
 ];
 
 pub async fn package(
@@ -122,12 +124,18 @@ pub async fn package(
                 task_key: format!("grasp/{}/{}/…", id.object, id.hand),
                 name: "grasps.json".into(),
             })?;
-        if !grasp_docs.contains_key(&grasp_ref.sha256) {
-            let doc = read_json(store, grasp_ref, &s.sample_id).await?;
-            grasp_docs.insert(grasp_ref.sha256.clone(), doc);
+        // The touch readings come in their own artifact of the same grasp task (render tasks do not
+        // fetch it); grasp outputs from before the split carry them in grasps.json.
+        let touch_ref = by_origin.get(&(grasp_ref.task_key.as_str(), TOUCH_FILE)).copied();
+        for input in std::iter::once(grasp_ref).chain(touch_ref) {
+            if !grasp_docs.contains_key(&input.sha256) {
+                let doc = read_json(store, input, &s.sample_id).await?;
+                grasp_docs.insert(input.sha256.clone(), doc);
+            }
         }
         let grasps = &grasp_docs[&grasp_ref.sha256];
-        let meta = sample_meta(&id, grasps, &camera)?;
+        let touch = touch_ref.map(|t| &grasp_docs[&t.sha256]);
+        let meta = sample_meta(&id, grasps, touch, &camera)?;
         let bytes = serde_json::to_vec_pretty(&meta).map_err(|e| PackageError::Params(e.to_string()))?;
         let stored = store.put_bytes(bytes.into()).await?;
         files.push(PackagedFile {
@@ -149,8 +157,25 @@ async fn read_json(store: &ArtifactStore, input: &PackageInput, sample: &str) ->
     })
 }
 
-/// The sample's metadata: everything a training pipeline needs besides the pixels.
-fn sample_meta(id: &Sid, grasps: &Value, camera: &Value) -> Result<Value, PackageError> {
+/// The grasp task's artifact holding every accepted trial's full touch record.
+const TOUCH_FILE: &str = "touch.json";
+
+/// The touch record of the sample's trial in `touch.json` (its entry without `grasp_index`).
+fn trial_touch(id: &Sid, touch: &Value) -> Result<Value, PackageError> {
+    let entry = touch["trials"]
+        .as_array()
+        .and_then(|ts| ts.iter().find(|t| t["grasp_index"].as_u64() == Some(u64::from(id.grasp_index))))
+        .and_then(Value::as_object)
+        .ok_or_else(|| PackageError::BadInput {
+            sample: id.to_string(),
+            what: format!("{TOUCH_FILE} has no trial {}", id.grasp_index),
+        })?;
+    Ok(Value::Object(entry.iter().filter(|(k, _)| *k != "grasp_index").map(|(k, v)| (k.clone(), v.clone())).collect()))
+}
+
+/// The sample's metadata: everything a training pipeline needs besides the pixels. `touch` is the
+/// grasp task's `touch.json`, when it wrote one.
+fn sample_meta(id: &Sid, grasps: &Value, touch: Option<&Value>, camera: &Value) -> Result<Value, PackageError> {
     let trial = grasps["trials"]
         .as_array()
         .and_then(|ts| ts.iter().find(|t| t["grasp_index"].as_u64() == Some(u64::from(id.grasp_index))))
@@ -164,6 +189,10 @@ fn sample_meta(id: &Sid, grasps: &Value, camera: &Value) -> Result<Value, Packag
             what: format!("trial {} was not accepted", id.grasp_index),
         });
     }
+    let touch = match touch {
+        Some(doc) => trial_touch(id, doc)?,
+        None => trial["touch"].clone(),
+    };
     Ok(json!({
         "sample_id": id.to_string(),
         "object": grasps["object"],
@@ -171,6 +200,11 @@ fn sample_meta(id: &Sid, grasps: &Value, camera: &Value) -> Result<Value, Packag
         "grasp_index": id.grasp_index,
         "view_index": id.view_index,
         "camera": camera,
+        "visibility": {
+            "visible_px": camera["visible_px"],
+            "full_px": camera["full_px"],
+            "occlusion": camera["occlusion"],
+        },
         "grasp": {
             "seed": trial["seed"],
             "object_pose": trial["object_pose"],
@@ -179,7 +213,7 @@ fn sample_meta(id: &Sid, grasps: &Value, camera: &Value) -> Result<Value, Packag
             "joints": trial["joints"],
             "contacts": trial["contacts"],
             "hold": trial["hold"],
-            "touch": trial["touch"],
+            "touch": touch,
         },
         "physics": grasps["physics"],
         "conventions": {
@@ -187,6 +221,51 @@ fn sample_meta(id: &Sid, grasps: &Value, camera: &Value) -> Result<Value, Packag
             "pose": "p = position, q = quaternion [w, x, y, z], world frame",
             "camera": "OpenCV: x right, y down, z forward; R_w2c/t_w2c map world to camera",
             "depth": "float32 metres along the optical axis, 0 = no return",
+            "masks": "mask.png: the object's visible pixels; mask_full.png: the object alone, as if the hand were not there",
+            "segmentation": "segmentation.png: 0 background, 1 object, 2.. hand links; camera.segmentation maps id to name",
+            "occlusion": "1 - visible_px / full_px: the share of the object the hand hides (1 when out of view)",
         },
     }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grasps(touch: Value) -> Value {
+        json!({
+            "object": {"name": "mug"},
+            "hand": {"name": "trx3"},
+            "trials": [{"grasp_index": 3, "seed": 7, "accepted": true, "reason": null, "touch": touch}],
+            "physics": {},
+        })
+    }
+
+    fn sample() -> Sid {
+        "mug.trx3.g000003.v01".parse().expect("a valid sample id")
+    }
+
+    #[test]
+    fn meta_takes_the_full_touch_record_from_touch_json() {
+        let full =
+            json!({"sensing_depth_m": 0.003, "active_count": 1, "active": [{"taxel": 2}], "readings": [0.0, 0.0, 0.5]});
+        let touch = json!({"hand": "trx3", "trials": [
+            {"grasp_index": 1, "sensing_depth_m": 0.003, "active_count": 0, "active": [], "readings": [0.0, 0.0, 0.0]},
+            {"grasp_index": 3, "sensing_depth_m": 0.003, "active_count": 1, "active": [{"taxel": 2}], "readings": [0.0, 0.0, 0.5]},
+        ]});
+        let summary = grasps(json!({"sensing_depth_m": 0.003, "active_count": 1}));
+        let meta = sample_meta(&sample(), &summary, Some(&touch), &json!({})).expect("meta");
+        assert_eq!(meta["grasp"]["touch"], full);
+        // Grasp outputs from before touch.json carry the full record in grasps.json.
+        let meta = sample_meta(&sample(), &grasps(full.clone()), None, &json!({})).expect("meta");
+        assert_eq!(meta["grasp"]["touch"], full);
+    }
+
+    #[test]
+    fn a_trial_missing_from_touch_json_is_bad_input() {
+        let touch = json!({"trials": [{"grasp_index": 1, "active": []}]});
+        let summary = grasps(json!({"active_count": 1}));
+        let err = sample_meta(&sample(), &summary, Some(&touch), &json!({})).expect_err("no trial 3");
+        assert!(!err.retryable() && err.to_string().contains("touch.json has no trial 3"), "{err}");
+    }
 }

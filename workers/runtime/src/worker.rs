@@ -210,6 +210,14 @@ impl Worker {
                 .map_err(|e| TaskFailure::retryable(format!("fetching input {} of {}: {e}", a.name, a.task_key)))?;
             inputs.push(EngineInput { name: a.name.clone(), task_key: a.task_key.clone(), path });
         }
+        for asset in task_assets(&params)? {
+            let path = in_dir.join("assets").join(&asset.sha256).join(sanitize(asset.file_name()));
+            self.store
+                .get_to_file(&asset.sha256, &path)
+                .await
+                .map_err(|e| TaskFailure::retryable(format!("fetching asset {}: {e}", asset.path)))?;
+            inputs.push(EngineInput { name: asset.sha256, task_key: ASSET_INPUT_KEY.to_string(), path });
+        }
         let fetch_ms = ms(fetch_start.elapsed());
 
         let engine_start = Instant::now();
@@ -269,7 +277,15 @@ impl Worker {
     }
 
     /// The warm engine of `stage`, started on first use.
+    /// A warm engine past its recycle limits (tasks served, resident memory) is shut down first and
+    /// replaced by a fresh one.
     async fn engine(&mut self, stage: Stage) -> Result<&mut Engine, TaskFailure> {
+        if let Some(reason) = self.engines.get(&stage).and_then(Engine::recycle_reason)
+            && let Some(old) = self.engines.remove(&stage)
+        {
+            tracing::info!(stage = %stage, %reason, "recycling the engine");
+            old.shutdown().await;
+        }
         if !self.engines.contains_key(&stage) {
             // A missing interpreter or a crash at start-up may be a bad node: let another try.
             let engine =
@@ -331,7 +347,29 @@ impl Worker {
     }
 }
 
-/// Which staged inputs a stage's engine reads: nothing else is downloaded.
+/// The `task_key` of a staged user file: it comes with the job's submission, not from a task.
+const ASSET_INPUT_KEY: &str = "asset";
+
+/// The user files a task's parameters name (`params.assets`, written by the planner): each is
+/// staged under its file name and handed to the engine as an input named by its SHA-256.
+fn task_assets(params: &Value) -> Result<Vec<vint_core::asset::Asset>, TaskFailure> {
+    match params.get("assets") {
+        None => Ok(Vec::new()),
+        Some(list) => {
+            let assets: Vec<vint_core::asset::Asset> = serde_json::from_value(list.clone())
+                .map_err(|e| TaskFailure::permanent(format!("params.assets: {e}")))?;
+            match assets.iter().find(|a| vint_artifacts::key_for(&a.sha256).is_err()) {
+                Some(bad) => Err(TaskFailure::permanent(format!("params.assets: {:?} is not a sha256", bad.sha256))),
+                None => Ok(assets),
+            }
+        }
+    }
+}
+
+/// Which staged inputs a stage's engine reads: nothing else is downloaded. A render task reads
+/// the grasp chunk's poses and hand geometry (`grasps.json`) and the object's mesh, never its
+/// touch readings (`touch.json`, the bulk of a chunk's output), which only the package stage reads
+/// (from the store, in `package.rs`).
 fn stage_reads(stage: Stage, name: &str) -> bool {
     match stage {
         Stage::Render => name == "grasps.json" || name == "object.ply",
@@ -422,4 +460,17 @@ fn ms(d: Duration) -> f64 {
 /// A path component from an id: keeps `[A-Za-z0-9._-]`, replaces the rest.
 fn sanitize(s: &str) -> String {
     s.chars().map(|c| if c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-') { c } else { '_' }).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn render_tasks_download_poses_and_the_mesh_but_not_touch() {
+        assert!(stage_reads(Stage::Render, "grasps.json"));
+        assert!(stage_reads(Stage::Render, "object.ply"));
+        assert!(!stage_reads(Stage::Render, "touch.json"));
+        assert!(!stage_reads(Stage::Noise, "touch.json"));
+    }
 }

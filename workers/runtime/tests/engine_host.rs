@@ -5,13 +5,19 @@ use std::time::Duration;
 
 use serde_json::json;
 use vint_core::Stage;
-use vint_runtime::engine::{Engine, EngineCommand, EngineError, EngineInput};
+use vint_runtime::engine::{Engine, EngineCommand, EngineError, EngineInput, RecyclePolicy};
 
 fn command() -> EngineCommand {
     let (engines_dir, default_python) = vint_runtime::checkout_defaults();
     let python = std::env::var("VINT_PYTHON").map(PathBuf::from).unwrap_or(default_python);
     assert!(python.exists(), "engine Python {} is missing: run scripts/setup-python.sh", python.display());
-    EngineCommand { python, engines_dir, task_timeout: Duration::from_secs(60), start_timeout: Duration::from_secs(60) }
+    EngineCommand {
+        python,
+        engines_dir,
+        task_timeout: Duration::from_secs(60),
+        start_timeout: Duration::from_secs(60),
+        recycle: RecyclePolicy::default(),
+    }
 }
 
 /// A float32 `.npy` file of `h`×`w` metres, constant depth.
@@ -94,4 +100,25 @@ async fn a_missing_interpreter_is_a_clear_spawn_error() {
     let err = Engine::start(Stage::Grasp, &cmd).await.err().expect("must fail");
     assert!(matches!(err, EngineError::Spawn { .. }));
     assert!(err.to_string().contains("/nonexistent/python3.13"));
+}
+
+#[tokio::test]
+async fn an_engine_past_its_limits_asks_to_be_recycled() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut cmd = command();
+    cmd.recycle = RecyclePolicy { max_tasks: Some(2), max_rss_bytes: None };
+    let mut engine = Engine::start(Stage::Noise, &cmd).await.unwrap();
+    let rss = engine.rss_bytes().expect("resident memory of a live engine");
+    assert!(rss > 10 << 20, "a Python engine with numpy and OpenCV holds more than 10 MiB, got {rss}");
+    let (params, inputs, out) = noise_task(dir.path());
+    engine.run("t0", &params, &inputs, &out).await.unwrap();
+    assert_eq!(engine.recycle_reason(), None);
+    engine.run("t1", &params, &inputs, &out).await.unwrap();
+    assert!(engine.recycle_reason().unwrap().contains("served 2 tasks"));
+    engine.shutdown().await;
+
+    cmd.recycle = RecyclePolicy { max_tasks: None, max_rss_bytes: Some(1 << 20) };
+    let engine = Engine::start(Stage::Noise, &cmd).await.unwrap();
+    assert!(engine.recycle_reason().unwrap().contains("resident memory"));
+    engine.shutdown().await;
 }

@@ -16,6 +16,10 @@ struct Args {
     /// Address to listen on.
     #[arg(long, env = "VINT_LISTEN", default_value = "127.0.0.1:7700")]
     listen: SocketAddr,
+    /// Artifact store the workers use (file:///… or s3://…): where the user files of submitted
+    /// specs are stored. Without it, specs that name files of their own are refused.
+    #[arg(long, env = "VINT_STORE")]
+    store: Option<String>,
     /// Default lease length in milliseconds.
     #[arg(long, default_value_t = 30_000)]
     lease_ms: i64,
@@ -42,7 +46,11 @@ async fn main() -> anyhow::Result<()> {
         vint_coordinator::bind(args.listen).await.with_context(|| format!("binding {}", args.listen))?;
     tracing::info!(%addr, backend = ?store.backend(), "coordinator listening");
     println!("listening on {addr}");
-    let config = CoordinatorConfig { default_lease_ms: args.lease_ms, ..CoordinatorConfig::default() };
+    let artifacts = match &args.store {
+        Some(url) => Some(vint_artifacts::ArtifactStore::open(url).with_context(|| format!("opening store {url}"))?),
+        None => None,
+    };
+    let config = CoordinatorConfig { default_lease_ms: args.lease_ms, artifacts, ..CoordinatorConfig::default() };
     let shutdown = async {
         let _ = tokio::signal::ctrl_c().await;
         tracing::info!("shutting down");

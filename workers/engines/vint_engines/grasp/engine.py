@@ -1,5 +1,6 @@
-"""The grasp engine: parses a grasp task, runs its trials and writes `grasps.json` and the object's
-model mesh `object.ply` (millimetres).
+"""The grasp engine: parses a grasp task, runs its trials and writes `grasps.json` (poses, hand
+geometry, metrics: what the renderer reads), `touch.json` (each accepted trial's tactile reading:
+what only the package stage reads) and the object's model mesh `object.ply` (millimetres).
 
 Holds one compiled scene (and its `MjData`) per (hand, object), one object model per object, and
 each hand's taxel layout, read from the catalog, all built on first use.
@@ -18,7 +19,8 @@ import numpy as np
 
 from vint_engines import __version__
 from vint_engines import params as P
-from vint_engines.grasp.hands import HandDims, hand_dims
+from vint_engines.assets import StagedAsset, asset_file, staged_assets
+from vint_engines.grasp.hands import GraspHand, hand_dims, load_mjcf_hand
 from vint_engines.grasp.hands.catalog import CATALOG_DIR, read_hand_catalog
 from vint_engines.grasp.scene import (
     GraspScene,
@@ -35,6 +37,7 @@ from vint_engines.objects import MODEL_MEDIA_TYPE, ObjectModels
 from vint_engines.protocol import BadInput, Json, TaskRequest, TaskResult
 
 OUTPUT_NAME = "grasps.json"
+TOUCH_NAME = "touch.json"
 
 
 class GraspEngine:
@@ -42,6 +45,7 @@ class GraspEngine:
         self._scenes: dict[tuple[str, ObjectSpec], tuple[GraspScene, mujoco.MjData]] = {}
         self._models = ObjectModels()
         self._layouts: dict[str, tuple[TaxelLayout, dict[str, Any]]] = {}
+        self._user_hands: dict[str, GraspHand] = {}
 
     def hello(self) -> Json:
         return {
@@ -62,7 +66,8 @@ class GraspEngine:
         params = task.params
         obj_params = P.section(params, "object", "params")
         obj = ObjectSpec.parse(obj_params)
-        hand = hand_dims(P.string(P.section(params, "hand", "params"), "name", "params.hand"))
+        assets = staged_assets(task)
+        hand_key, hand = self._hand(P.section(params, "hand", "params"), assets)
         physics = Physics.parse(params.get("physics", {}))
         touch = TouchParams.parse(params.get("touch", {}))
         trials = [
@@ -71,8 +76,8 @@ class GraspEngine:
         if len({index for index, _ in trials}) != len(trials):
             raise BadInput("params.trials: grasp_index values must be unique")
 
-        scene, data = self._scene(hand, obj)
-        layout, layout_info = self._layout(hand)
+        scene, data = self._scene(hand_key, hand, obj, assets)
+        layout, layout_info = self._layout(hand_key, hand, P.section(params, "hand", "params"), assets)
         skin = Skin(scene, layout, touch)
         started = time.perf_counter()
         records = [run_trial(scene, data, physics, skin, index, seed) for index, seed in trials]
@@ -82,18 +87,23 @@ class GraspEngine:
             "hand": {
                 "name": hand.name,
                 "dof": hand.dof,
-                "fingers": len(hand.fingers),
+                "fingers": hand.finger_count,
                 "links": hand_geometry(scene),
                 "taxels": layout_info,
             },
-            "trials": records,
+            "trials": [without_readings(record) for record in records],
             "physics": physics.to_json(),
             "touch": touch.to_json(),
         }
         path = task.out_dir / OUTPUT_NAME
         path.write_text(json.dumps(document, indent=1, allow_nan=False))
+        touch_path = task.out_dir / TOUCH_NAME
+        touch_path.write_text(
+            json.dumps(touch_document(hand.name, layout_info, touch, records), allow_nan=False)
+        )
         result = TaskResult()
         result.add(path, "application/json")
+        result.add(touch_path, "application/json")
         result.add(write_object_model(scene, task.out_dir), MODEL_MEDIA_TYPE)
         accepted = [record for record in records if record["accepted"]]
         result.metrics.update(
@@ -106,16 +116,52 @@ class GraspEngine:
         )
         return result
 
-    def _scene(self, hand: HandDims, obj: ObjectSpec) -> tuple[GraspScene, mujoco.MjData]:
-        key = (hand.name, obj)
+    def _hand(self, params: Any, assets: dict[str, StagedAsset]) -> tuple[str, GraspHand]:
+        """The task's hand and its cache key: a built-in hand by name, or a user's hand from its
+        staged MJCF file (`params.hand.mjcf`, a SHA-256; the key includes it, so a changed file
+        is a different hand)."""
+        name = P.string(params, "name", "params.hand")
+        if "mjcf" not in params:
+            return name, hand_dims(name)
+        mjcf = P.string(params, "mjcf", "params.hand")
+        key = f"{name}@{mjcf}"
+        if key not in self._user_hands:
+            staged = asset_file(assets, mjcf, "params.hand.mjcf")
+            where = f"params.hand.mjcf ({staged.spec_path})"
+            self._user_hands[key] = load_mjcf_hand(name, staged.path.read_text(encoding="utf-8"), where)
+        return key, self._user_hands[key]
+
+    def _scene(
+        self, hand_key: str, hand: GraspHand, obj: ObjectSpec, assets: dict[str, StagedAsset]
+    ) -> tuple[GraspScene, mujoco.MjData]:
+        key = (hand_key, obj)
         if key not in self._scenes:
-            scene = build_scene(hand, obj, self._models.get(obj))
+            files = {sha: staged.path for sha, staged in assets.items()}
+            scene = build_scene(hand, obj, self._models.get(obj, assets=files))
             self._scenes[key] = (scene, mujoco.MjData(scene.model))
         return self._scenes[key]
 
-    def _layout(self, hand: HandDims) -> tuple[TaxelLayout, dict[str, Any]]:
-        """The hand's taxel layout from the catalog, and how `grasps.json` names it (path, count,
-        SHA-256 of the file, so a dataset records which layout its readings index)."""
+    def _layout(
+        self, hand_key: str, hand: GraspHand, params: Any, assets: dict[str, StagedAsset]
+    ) -> tuple[TaxelLayout, dict[str, Any]]:
+        """The hand's taxel layout — the catalog's, or a user's hand's staged file
+        (`params.hand.taxels`, a SHA-256) — checked against the hand's links, and how
+        `grasps.json` names it (path, count, SHA-256 of the file, so a dataset records which
+        layout its readings index)."""
+        if hand_key in self._layouts:
+            return self._layouts[hand_key]
+        if "mjcf" in params:
+            staged = asset_file(assets, P.string(params, "taxels", "params.hand"), "params.hand.taxels")
+            raw = staged.path.read_bytes()
+            where = f"params.hand.taxels ({staged.spec_path})"
+            layout = parse_layout(raw.decode("utf-8"), hand.link_names(), where)
+            info = {
+                "layout": staged.spec_path,
+                "count": len(layout),
+                "sha256": hashlib.sha256(raw).hexdigest(),
+            }
+            self._layouts[hand_key] = (layout, info)
+            return self._layouts[hand_key]
         if hand.name not in self._layouts:
             entry = read_hand_catalog().get(hand.name)
             if entry is None:
@@ -128,6 +174,32 @@ class GraspEngine:
             info = {"layout": entry.taxels, "count": len(layout), "sha256": hashlib.sha256(raw).hexdigest()}
             self._layouts[hand.name] = (layout, info)
         return self._layouts[hand.name]
+
+
+def without_readings(record: dict[str, Any]) -> dict[str, Any]:
+    """A trial as `grasps.json` carries it: its touch cut to a summary (the full reading goes to
+    `touch.json`, which every render task would otherwise download for nothing)."""
+    if "touch" not in record:
+        return record
+    touch = record["touch"]
+    summary = {"sensing_depth_m": touch["sensing_depth_m"], "active_count": touch["active_count"]}
+    return {**record, "touch": summary}
+
+
+def touch_document(
+    hand: str, layout_info: dict[str, Any], params: TouchParams, records: list[dict[str, Any]]
+) -> dict[str, Any]:
+    """`touch.json`: the full touch record of every accepted trial, by grasp index."""
+    return {
+        "hand": hand,
+        "taxels": layout_info,
+        "touch": params.to_json(),
+        "trials": [
+            {"grasp_index": record["grasp_index"], **record["touch"]}
+            for record in records
+            if "touch" in record
+        ],
+    }
 
 
 def parse_trial(trial: Any, where: str) -> tuple[int, int]:

@@ -7,7 +7,9 @@ fingertip (`f{i}_tip_pad`). Every joint has armature, damping, a limited range a
 actuator with a force limit (`forcerange`) and a control range equal to the joint range.
 
 Frames and names are defined in `hands/model.py` (palm frame: +z palm normal, +y up across the
-palm, +x finger edge → thumb edge).
+palm, +x finger edge → thumb edge). A user's MJCF hand (`hands/mjcf.py`) is copied from its
+compiled model instead: the palm's subtree with its inertias, hinges and position actuators, every
+geom given the skin; the arm weld and the touch probe are the same.
 """
 
 from __future__ import annotations
@@ -17,10 +19,10 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from vint_engines.grasp.hands import ALLEGRO, TRX3, HandDims, hand_dims
+from vint_engines.grasp.hands import ALLEGRO, TRX3, GraspHand, HandDims, MjcfHand, hand_dims
 from vint_engines.grasp.hands.model import Finger, Vec3
 
-__all__ = ["ALLEGRO", "TRX3", "HandDims", "add_hand", "hand_dims", "palm_frame_facing"]
+__all__ = ["ALLEGRO", "TRX3", "GraspHand", "HandDims", "add_hand", "hand_dims", "palm_frame_facing"]
 
 # Collision filtering: hand geoms collide with the object and the ground but never with each other.
 HAND_CONTYPE, HAND_CONAFFINITY = 2, 1
@@ -47,10 +49,27 @@ SKIN: dict[str, Any] = {
 JOINT_AXES: dict[str, list[float]] = {"flex": [0.0, 1.0, 0.0], "abduct": [1.0, 0.0, 0.0]}
 
 
-def add_hand(spec: mujoco.MjSpec, dims: HandDims) -> None:
+def add_hand(spec: mujoco.MjSpec, hand: GraspHand) -> None:
     """Add the mocap target `hand_target`, the welded palm, the fingers with their actuators and
     the touch probe."""
     spec.worldbody.add_body(name="hand_target", mocap=True)
+    if isinstance(hand, MjcfHand):
+        _add_mjcf_hand(spec, hand)
+    else:
+        assert isinstance(hand, HandDims)
+        _add_built_in_hand(spec, hand)
+    spec.add_equality(
+        type=mujoco.mjtEq.mjEQ_WELD,
+        name="arm",
+        name1="hand_target",
+        name2="palm",
+        objtype=mujoco.mjtObj.mjOBJ_BODY,
+        solref=[0.01, 1.0],
+    )
+    add_touch_probe(spec)
+
+
+def _add_built_in_hand(spec: mujoco.MjSpec, dims: HandDims) -> None:
     palm = spec.worldbody.add_body(name="palm", gravcomp=1.0)
     palm.add_freejoint(name="hand_free")
     palm.add_geom(
@@ -62,15 +81,65 @@ def add_hand(spec: mujoco.MjSpec, dims: HandDims) -> None:
     )
     for i, finger in enumerate(dims.fingers):
         _add_finger(spec, palm, dims, i, finger)
-    spec.add_equality(
-        type=mujoco.mjtEq.mjEQ_WELD,
-        name="arm",
-        name1="hand_target",
-        name2="palm",
-        objtype=mujoco.mjtObj.mjOBJ_BODY,
-        solref=[0.01, 1.0],
-    )
-    add_touch_probe(spec)
+
+
+def _add_mjcf_hand(spec: mujoco.MjSpec, hand: MjcfHand) -> None:
+    """Copy the user's compiled hand: bodies (palm at the origin, with the arm's free joint),
+    explicit inertias, primitive geoms with the skin, hinges, and position actuators."""
+    model = hand.model
+    added: dict[int, mujoco.MjsBody] = {}
+    for b in hand.bodies():
+        name = model.body(b).name
+        if name == "palm":
+            body = spec.worldbody.add_body(name="palm", gravcomp=1.0)
+            body.add_freejoint(name="hand_free")
+        else:
+            parent = added[int(model.body_parentid[b])]
+            body = parent.add_body(
+                name=name, pos=list(model.body_pos[b]), quat=list(model.body_quat[b]), gravcomp=1.0
+            )
+        added[b] = body
+        body.explicitinertial = True
+        body.mass = float(model.body_mass[b])
+        body.ipos = [float(v) for v in model.body_ipos[b]]
+        body.iquat = [float(v) for v in model.body_iquat[b]]
+        body.inertia = [float(v) for v in model.body_inertia[b]]
+        for g in np.flatnonzero(model.geom_bodyid == b):
+            body.add_geom(
+                type=mujoco.mjtGeom(int(model.geom_type[g])),
+                size=[float(v) for v in model.geom_size[g]],
+                pos=[float(v) for v in model.geom_pos[g]],
+                quat=[float(v) for v in model.geom_quat[g]],
+                mass=0.0,
+                **SKIN,
+            )
+        for j in range(int(model.body_jntadr[b]), int(model.body_jntadr[b] + model.body_jntnum[b])):
+            dof = int(model.jnt_dofadr[j])
+            body.add_joint(
+                name=model.joint(j).name,
+                type=mujoco.mjtJoint.mjJNT_HINGE,
+                axis=[float(v) for v in model.jnt_axis[j]],
+                pos=[float(v) for v in model.jnt_pos[j]],
+                range=[float(v) for v in model.jnt_range[j]],
+                limited=mujoco.mjtLimited.mjLIMITED_TRUE,
+                armature=float(model.dof_armature[dof]),
+                damping=float(model.dof_damping[dof]),
+                frictionloss=float(model.dof_frictionloss[dof]),
+            )
+    for j, joint in enumerate(hand.joints):
+        a = hand.actuator_of(model.joint(joint).id)
+        low, high = (float(v) for v in model.actuator_forcerange[a])
+        actuator = spec.add_actuator(
+            name=f"{joint}_actuator",
+            target=joint,
+            trntype=mujoco.mjtTrn.mjTRN_JOINT,
+            forcelimited=mujoco.mjtLimited.mjLIMITED_TRUE,
+            forcerange=[low, high],
+            ctrllimited=mujoco.mjtLimited.mjLIMITED_TRUE,
+            ctrlrange=list(hand.ctrl_ranges[j]),
+        )
+        kp, kv = float(model.actuator_gainprm[a, 0]), -float(model.actuator_biasprm[a, 2])
+        actuator.set_to_position(kp=kp, kv=kv if kv > 0 else -1)
 
 
 def add_touch_probe(spec: mujoco.MjSpec) -> None:

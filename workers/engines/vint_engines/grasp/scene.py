@@ -16,7 +16,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from vint_engines.grasp.hand import WORLD_CONAFFINITY, WORLD_CONTYPE, HandDims, add_hand
+from vint_engines.grasp.hand import WORLD_CONAFFINITY, WORLD_CONTYPE, GraspHand, add_hand
 from vint_engines.objects import MODEL_FILE, ObjectModel, ObjectSpec, build_model
 from vint_engines.poses import matrix_to_quat
 
@@ -71,7 +71,7 @@ class GraspScene:
     """A compiled model plus the ids a trial needs."""
 
     model: mujoco.MjModel
-    hand: HandDims
+    hand: GraspHand
     obj: SceneObject
     object_body: int
     object_geoms: tuple[int, ...]
@@ -96,7 +96,7 @@ class GraspScene:
         return name if name in self.link_bodies else None
 
 
-def build_scene(hand: HandDims, obj: ObjectSpec, object_model: ObjectModel | None = None) -> GraspScene:
+def build_scene(hand: GraspHand, obj: ObjectSpec, object_model: ObjectModel | None = None) -> GraspScene:
     """Compile the scene; `object_model` is the object's built model when the caller caches them."""
     placed = SceneObject(object_model if object_model is not None else build_model(obj))
     spec = mujoco.MjSpec()
@@ -135,7 +135,7 @@ def build_scene(hand: HandDims, obj: ObjectSpec, object_model: ObjectModel | Non
         mocap=int(model.body_mocapid[model.body("hand_target").id]),
         link_bodies={name: model.body(name).id for name in hand.link_names()},
         joint_qpos={name: qpos_of(name) for name in hand.joint_names()},
-        joint_ctrl={name: model.actuator(name.replace("_j", "_a")).id for name in hand.joint_names()},
+        joint_ctrl={model.joint(int(model.actuator_trnid[a, 0])).name: a for a in range(model.nu)},
         hand_geoms=tuple(int(g) for g in np.flatnonzero(np.isin(model.geom_bodyid, hand_bodies))),
         object_mass=float(model.body_mass[object_body]),
         object_inertia=tuple(float(v) for v in model.body_inertia[object_body]),

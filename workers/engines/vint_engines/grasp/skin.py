@@ -17,6 +17,10 @@ sphere swallows the end of its capsule or the thumb's base lies on the palm). Th
 count (620 for `trx3`, 679 for `allegro`, as on the real sensors) is shared out between patches in
 proportion to their area (largest remainder), and each patch's taxels are picked by farthest-point
 sampling, which spreads them evenly. No randomness: the result depends on the model alone.
+
+A user's MJCF hand (`hands/mjcf.py`) is sampled the same way (`scripts/gen_taxels.py --mjcf`) when
+it follows the built-in hands' link convention (link +x on the palmar side, +z along the link) and
+uses boxes, capsules and spheres; its fingertip links are the ends of its chains.
 """
 
 from __future__ import annotations
@@ -29,7 +33,7 @@ import numpy as np
 import numpy.typing as npt
 
 from vint_engines.grasp.hand import add_hand
-from vint_engines.grasp.hands import HandDims
+from vint_engines.grasp.hands import GraspHand
 from vint_engines.grasp.taxels import TaxelLayout
 
 Array = npt.NDArray[np.float64]
@@ -52,9 +56,11 @@ class Patch:
     area: float
 
 
-def generate_layout(dims: HandDims) -> TaxelLayout:
+def generate_layout(dims: GraspHand, count: int | None = None) -> TaxelLayout:
+    """`count` taxels (default: the built-in hand's real sensor's) on the hand's skin patches."""
     patches = hand_patches(dims)
-    counts = share_out(SENSOR_TAXELS[dims.name], np.array([patch.area for patch in patches]))
+    total = SENSOR_TAXELS[dims.name] if count is None else count
+    counts = share_out(total, np.array([patch.area for patch in patches]))
     links: list[str] = []
     positions, normals, regions = [], [], []
     for patch, count in zip(patches, counts, strict=True):
@@ -68,21 +74,21 @@ def generate_layout(dims: HandDims) -> TaxelLayout:
     return TaxelLayout(tuple(links), np.vstack(positions), np.vstack(normals), tuple(regions))
 
 
-def compile_hand(dims: HandDims) -> mujoco.MjModel:
+def compile_hand(dims: GraspHand) -> mujoco.MjModel:
     spec = mujoco.MjSpec()
     spec.compiler.degree = False
     add_hand(spec, dims)
     return spec.compile()
 
 
-def hand_patches(dims: HandDims) -> list[Patch]:
+def hand_patches(dims: GraspHand) -> list[Patch]:
     model = compile_hand(dims)
     data = mujoco.MjData(model)
-    for (name, _), angle in zip(dims.joints(), dims.open_pose(), strict=True):
+    for name, angle in zip(dims.joint_names(), dims.open_pose(), strict=True):
         data.qpos[model.joint(name).qposadr[0]] = angle
     mujoco.mj_kinematics(model, data)  # the open hand; the palm sits at the world origin
     solid = [g for g in range(model.ngeom) if model.geom_contype[g]]  # not the touch probe
-    last_links = {f"f{i}_tip" for i in range(len(dims.fingers))}
+    last_links = set(dims.fingertips())
     patches = []
     for link in dims.link_names():
         body = model.body(link).id
@@ -108,9 +114,15 @@ def share_out(total: int, areas: Array) -> npt.NDArray[np.int64]:
 
 def farthest_points(points: Array, count: int) -> npt.NDArray[np.intp]:
     """`count` indices of `points`, greedily each farthest from those already picked, starting
-    from the point nearest the centroid."""
+    from the point nearest the centroid.
+
+    Points are rounded to the nanometre first: candidates on symmetric surfaces tie exactly in
+    exact arithmetic, and the last bits of their coordinates (trigonometry, MuJoCo's compiler)
+    differ between machines and SIMD paths; rounded, the tie goes to the lowest index everywhere,
+    so the committed layouts are what the generator writes on any machine."""
     if count <= 0:
         return np.zeros(0, dtype=np.intp)
+    points = np.round(points, 9)
     first = int(np.argmin(((points - points.mean(axis=0)) ** 2).sum(axis=1)))
     chosen = [first]
     nearest = ((points - points[first]) ** 2).sum(axis=1)

@@ -19,7 +19,7 @@ what it took in `stability`.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
@@ -27,7 +27,7 @@ import mujoco
 import numpy as np
 
 from vint_engines import params as P
-from vint_engines.grasp.hand import palm_frame_facing
+from vint_engines.grasp.hand import SKIN, palm_frame_facing
 from vint_engines.grasp.scene import GraspScene
 from vint_engines.grasp.touch import Skin
 from vint_engines.poses import matrix_to_quat, pose_json, quat_to_matrix
@@ -41,8 +41,11 @@ STAGGER = 0.5
 LIFT_S = 0.60
 
 # Approach sampling: where along the object the palm centre sits (side approach), how far from the
-# middle of a low object's long axis (top approach), and the hand's clearance above the ground.
+# middle of a low object's long axis (top approach), and the hand's clearance above the ground. A
+# hand whose palm centre cannot sit below SIDE_MAX_FRACTION of the object's height without its
+# lower edge touching the ground approaches from the top.
 HEIGHT_FRACTION = (0.45, 0.62)
+SIDE_MAX_FRACTION = 0.8
 AZIMUTH_TRIES = 8
 TOP_OFFSET_FRACTION = 0.25
 TOP_YAW_JITTER = 0.2
@@ -52,6 +55,14 @@ GROUND_CLEARANCE_M = 0.004
 STANDOFF_ITERATIONS = 6
 STANDOFF_TOLERANCE_M = 2e-4
 GAP_SEARCH_M = 0.1
+# The top approach's pre-shape: the closing path is searched at PRESHAPE_STEPS evenly spaced points,
+# then refined by PRESHAPE_BISECTIONS halvings.
+PRESHAPE_STEPS = 24
+PRESHAPE_BISECTIONS = 5
+# A pinch's lowest point (the fingertips) stays this far above the ground.
+PINCH_CLEARANCE_M = 0.001
+PINCH_ALIGNMENTS = 2
+PINCH_MAX_TILT = 0.2
 
 # The stability monitor looks at the state every CHECK_EVERY steps.
 CHECK_EVERY = 5
@@ -171,7 +182,7 @@ def configure(scene: GraspScene, data: mujoco.MjData, physics: Physics, timestep
 
 def finger_reach(scene: GraspScene) -> float:
     """The longest finger's length, base to fingertip: the scale of `standoff_ratio`."""
-    return max(sum(link.length for link in f.links) + f.tip_radius for f in scene.hand.fingers)
+    return scene.hand.reach()
 
 
 def resting_vertices(scene: GraspScene) -> np.ndarray:
@@ -183,12 +194,15 @@ def resting_vertices(scene: GraspScene) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Approach:
-    """Where the open hand starts. `side`: palm normal horizontal, towards the object's vertical
-    axis from `azimuth`, palm centre at `height`. `top` (objects too low for the side approach):
-    palm normal down, the palm's +y along the object's long horizontal axis turned by `azimuth`,
-    centred `offset` metres along that axis. Either way the hand slides along its palm normal
-    until its nearest geom is `standoff` metres from the object (`Rollout.place`), and rises if
-    its open fingers would touch the ground."""
+    """Where the hand starts. `side`: palm normal horizontal, towards the object's vertical axis
+    from `azimuth`, palm centre at `height`; the open hand slides along its palm normal until its
+    nearest geom is `standoff` metres from the object, and rises if its open fingers would touch
+    the ground (a power grasp follows). `top` (objects too low for the side approach, e.g. a marker
+    lying down): palm normal down, the palm's +y along the object's long horizontal axis turned by
+    `azimuth`, centred `offset` metres along that axis; the fingers are pre-shaped along their
+    closing path so that their lowest points sit at the object's mid-height (not below the ground
+    clearance) and the nearest geom is `standoff` metres from the object: a fingertip pinch
+    across the long axis follows (`Rollout.place_for_pinch`)."""
 
     azimuth: float
     height: float
@@ -203,7 +217,7 @@ class Approach:
         standoff = float(rng.uniform(*ratio)) * finger_reach(scene)
         # The palm's lower edge must clear the ground: a wide palm holds a short object higher up.
         floor = scene.hand.palm_half[1] + GROUND_CLEARANCE_M + scene.hand.grasp_centre[1]
-        if floor > HEIGHT_FRACTION[1] * scene.obj.height:
+        if floor > SIDE_MAX_FRACTION * scene.obj.height:
             axis = long_axis(scene)
             half_length = float(np.ptp(resting_vertices(scene)[:, :2] @ axis)) / 2
             return Approach(
@@ -344,6 +358,8 @@ def attempt(rollout: Rollout, approach: Approach, skin: Skin) -> dict[str, Any]:
     """One rollout of the procedure; raises `TrialRejected` (or `Unstable`) on failure."""
     scene, data, physics = rollout.scene, rollout.data, rollout.physics
     rollout.check_timestep()
+    if approach.mode == "top":
+        check_pinchable(scene)
     rollout.place(approach)
     rollout.close_fingers()
     if not finger_contacts(scene, data):
@@ -364,6 +380,23 @@ def attempt(rollout: Rollout, approach: Approach, skin: Skin) -> dict[str, Any]:
     return {**readout(scene, data), "contacts": contacts, "hold": hold, "touch": touch}
 
 
+def check_pinchable(scene: GraspScene) -> None:
+    """Reject an object too thin for a fingertip pinch from the table. A round fingertip of radius
+    r resting on the ground meets an object of height h at most h above the ground, where its
+    surface normal leans arcsin((r - h) / r) from the horizontal; beyond the friction cone
+    (45° at the skin's friction 1) the squeeze pushes the object down instead of holding it.
+    A 1.5 mm stirring stick under 10–12 mm fingertips is such an object: a hand would have to
+    slide a nail under it."""
+    radius = scene.hand.fingertip_radius()
+    cone = math.atan(float(SKIN["friction"][0]))
+    needed = radius * (1.0 - math.cos(cone))
+    if scene.obj.height < needed:
+        raise TrialRejected(
+            f"too_thin: {1e3 * scene.obj.height:.3g} mm high, fingertips of radius {1e3 * radius:.3g} mm"
+            f" pinch from {1e3 * needed:.3g} mm"
+        )
+
+
 class Rollout:
     """Steps one trial through its phases, watching the simulation's health as it goes."""
 
@@ -378,6 +411,13 @@ class Rollout:
         self.qadr = np.array([scene.joint_qpos[j] for j in self.dims.joint_names()])
         self.open = np.array(self.dims.open_pose())
         self.closed = np.array(self.dims.closed_pose())
+        # Proximal joints lead and distal ones follow, so a finger wraps the object instead of
+        # hooking it with its tip: along the closing path s in [0, 1], joint k of a finger ramps
+        # over [lead_k, lead_k + 1 - STAGGER].
+        self.lead = STAGGER * np.array(self.dims.close_phases())
+        self.preshape = 0.0  # where on the closing path the fingers start (`place_for_pinch`)
+        tips = {scene.link_bodies[link] for link in self.dims.fingertips()}
+        self.tip_geoms = [g for g in scene.hand_geoms if int(scene.model.geom_bodyid[g]) in tips]
         self.stability = Stability(timestep_used=self.timestep)
         model = scene.model
         self.object_dof = int(model.jnt_dofadr[model.body_jntadr[scene.object_body]])
@@ -394,6 +434,11 @@ class Rollout:
                 f" got {1e3 * self.timestep:.3g} ms"
             )
 
+    def closing_pose(self, s: float) -> np.ndarray:
+        """Finger joint targets at `s` along the closing path (0: open, 1: closed)."""
+        progress = np.clip((s - self.lead) / (1.0 - STAGGER), 0.0, 1.0)
+        return self.open + progress * (self.closed - self.open)
+
     def place(self, approach: Approach) -> None:
         scene, data, model = self.scene, self.data, self.scene.model
         mujoco.mj_resetData(model, data)
@@ -402,6 +447,11 @@ class Rollout:
         data.qpos[scene.object_qpos : scene.object_qpos + 7] = [0, 0, obj.rest_height, *obj.rest_quat]
         palm_pos, rot = palm_pose(scene, approach)
         quat = matrix_to_quat(rot)
+        self.preshape = 0.0
+        if approach.mode == "top" and self.place_for_pinch(approach, palm_pos, quat):
+            data.ctrl[self.ctrl] = self.closing_pose(self.preshape)
+            self.run(SETTLE_S)
+            return
         data.qpos[self.qadr] = self.open
         self._set_palm(palm_pos, quat)
         # The standoff is the gap between the whole open hand and the object, not only the palm
@@ -422,6 +472,91 @@ class Rollout:
         data.ctrl[self.ctrl] = self.open
         self.run(SETTLE_S)
 
+    def place_for_pinch(self, approach: Approach, palm_pos: np.ndarray, quat: np.ndarray) -> bool:
+        """Pre-shape the fingers for a fingertip pinch of a low object: the end of the first
+        stretch of the closing path on which the hand, lowered until its fingertips' lowest point
+        is at the object's mid-height less the fingertip radius (at least PINCH_CLEARANCE_M above
+        the ground), clears the ground and is at least `standoff` from the object. Then, up to
+        PINCH_ALIGNMENTS times, the palm is tilted about its +y (the object's long axis, by at
+        most PINCH_MAX_TILT) so that the fingertips on either side are level — a shorter thumb
+        would otherwise meet a lying cylinder above its equator and squeeze it out — and shifted
+        along its +x so that they straddle the object's centre, and the pre-shape is searched
+        again. Sets `preshape`, the joints and the palm; False when no point of the path fits
+        (the hand then starts open, as for a side approach)."""
+        tip = self.dims.fingertip_radius()
+        floor = max(PINCH_CLEARANCE_M, self.scene.obj.height / 2 - tip)
+
+        def fits(s: float, pos: np.ndarray, quat: np.ndarray) -> bool:
+            self.data.qpos[self.qadr] = self.closing_pose(s)
+            self._set_palm(pos, quat)
+            self._set_palm(pos - np.array([0.0, 0.0, self.lowest_hand_point(self.tip_geoms) - floor]), quat)
+            return (
+                self.lowest_hand_point() >= 0.0
+                and self.hand_object_gap(approach.standoff) >= approach.standoff
+            )
+
+        def search(pos: np.ndarray, quat: np.ndarray) -> float | None:
+            low: float | None = None
+            for s in np.linspace(0.0, 1.0, PRESHAPE_STEPS + 1):
+                if fits(float(s), pos, quat):
+                    low = float(s)
+                elif low is not None:
+                    break
+            if low is None:
+                return None
+            high = min(1.0, low + 1.0 / PRESHAPE_STEPS)
+            for _ in range(PRESHAPE_BISECTIONS if high > low else 0):
+                middle = 0.5 * (low + high)
+                low, high = (middle, high) if fits(middle, pos, quat) else (low, middle)
+            fits(low, pos, quat)
+            return low
+
+        found = search(palm_pos, quat)
+        if found is None:
+            return False
+        for _ in range(PINCH_ALIGNMENTS):
+            alignment = self.pinch_alignment()
+            if alignment is None:
+                break
+            tilt, shift = alignment
+            turned = np.zeros(4)
+            mujoco.mju_mulQuat(turned, quat, tilt)
+            moved = palm_pos + shift
+            again = search(moved, turned)
+            if again is None:
+                break
+            found, palm_pos, quat = again, moved, turned
+        fits(found, palm_pos, quat)
+        self.preshape = found
+        return True
+
+    def pinch_alignment(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """How to level and centre the fingertips over the object: a rotation about the palm's +y
+        (a quaternion in the palm frame) that makes the straight line through the fingertips'
+        lowest points (height against palm x) horizontal, and a horizontal shift that puts the
+        middle of their palm-x span over the object's centre. None when they all lie at one palm x."""
+        data, scene = self.data, self.scene
+        rot = data.xmat[scene.palm_body].reshape(3, 3)
+        lowest: dict[int, np.ndarray] = {}
+        for geom in self.tip_geoms:
+            body = int(scene.model.geom_bodyid[geom])
+            if body not in lowest or data.geom_xpos[geom][2] < lowest[body][2]:
+                lowest[body] = data.geom_xpos[geom].copy()
+        points = np.array(list(lowest.values()))
+        across = rot[:, 0] - rot[2, 0] * np.array([0.0, 0.0, 1.0])
+        across /= np.linalg.norm(across)
+        xs = (points - data.xpos[scene.object_body]) @ across
+        if np.ptp(xs) < 1e-3:
+            return None
+        slope = float(np.polyfit(xs, points[:, 2], 1)[0])
+        # With the palm normal down, turning the palm by +a about its +y lowers points at palm
+        # +x; the palm's +x is `across` or its opposite.
+        sign = 1.0 if rot[:, 0] @ across > 0 else -1.0
+        angle = -sign * math.atan(slope) * (1.0 if rot[2, 2] < 0 else -1.0)
+        angle = min(PINCH_MAX_TILT, max(-PINCH_MAX_TILT, angle))
+        tilt = np.array([math.cos(angle / 2), 0.0, math.sin(angle / 2), 0.0])
+        return tilt, -0.5 * (xs.max() + xs.min()) * across
+
     def _set_palm(self, pos: np.ndarray, quat: np.ndarray) -> None:
         scene, data = self.scene, self.data
         data.qpos[scene.palm_qpos : scene.palm_qpos + 7] = [*pos, *quat]
@@ -439,10 +574,11 @@ class Rollout:
             for obj in self.scene.object_geoms
         )
 
-    def lowest_hand_point(self) -> float:
+    def lowest_hand_point(self, geoms: Iterable[int] | None = None) -> float:
+        """Height of the lowest point of the hand's geoms (or of `geoms`)."""
         model, data = self.scene.model, self.data
         lowest = math.inf
-        for geom in self.scene.hand_geoms:
+        for geom in self.scene.hand_geoms if geoms is None else geoms:
             kind, size = model.geom_type[geom], model.geom_size[geom]
             centre, axis = data.geom_xpos[geom], data.geom_xmat[geom].reshape(3, 3)
             if kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
@@ -455,15 +591,12 @@ class Rollout:
         return lowest
 
     def close_fingers(self) -> None:
-        # Proximal joints lead and distal ones follow, so a finger wraps the object instead of
-        # hooking it with its tip: joint k of a finger ramps over [start_k, start_k + 1 - STAGGER].
-        start = np.array(
-            [STAGGER * k / max(1, len(f.links) - 1) for f in self.dims.fingers for k in range(len(f.links))]
-        )
+        """Follow the closing path from the pre-shape (0 unless pinching) to the closed pose,
+        then squeeze."""
+        start = self.preshape
 
         def close(s: float) -> None:
-            progress = np.clip((s - start) / (1.0 - STAGGER), 0.0, 1.0)
-            self.data.ctrl[self.ctrl] = self.open + progress * (self.closed - self.open)
+            self.data.ctrl[self.ctrl] = self.closing_pose(start + s * (1.0 - start))
 
         self.ramp(CLOSE_S, close)
         self.run(SQUEEZE_S)

@@ -9,6 +9,7 @@ symmetric shapes it is the usual centre.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -60,9 +61,15 @@ class ObjectModel:
         }
 
 
-def build_model(spec: ObjectSpec, root: Path = CATALOG_DIR, where: str = "params.object") -> ObjectModel:
-    """Build the object's model; `root` resolves mesh-file paths, `where` names it in errors."""
-    raw = shape_mesh(spec.shape, root, f"{where}.shape")
+def build_model(
+    spec: ObjectSpec,
+    root: Path = CATALOG_DIR,
+    where: str = "params.object",
+    assets: Mapping[str, Path] | None = None,
+) -> ObjectModel:
+    """Build the object's model; `root` resolves mesh-file paths and `assets` (SHA-256 to staged
+    file) a user's mesh, `where` names it in errors."""
+    raw = shape_mesh(spec.shape, root, f"{where}.shape", assets)
     low, high = raw.vertices.min(axis=0), raw.vertices.max(axis=0)
     to_object = np.eye(4)
     to_object[:3, 3] = -(low + high) / 2
@@ -119,10 +126,14 @@ class ObjectModels:
         self.capacity = capacity
         self._models: dict[ObjectSpec, ObjectModel] = {}
 
-    def get(self, spec: ObjectSpec, where: str = "params.object") -> ObjectModel:
+    def get(
+        self, spec: ObjectSpec, where: str = "params.object", assets: Mapping[str, Path] | None = None
+    ) -> ObjectModel:
+        """The object's model, built on first use; a mesh asset is keyed by its hash, so the same
+        content is built once whatever file it was staged as."""
         model = self._models.get(spec)
         if model is None:
-            model = build_model(spec, self.root, where)
+            model = build_model(spec, self.root, where, assets)
             if len(self._models) >= self.capacity:
                 del self._models[next(iter(self._models))]
             self._models[spec] = model

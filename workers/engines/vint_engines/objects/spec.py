@@ -25,6 +25,7 @@ MATERIALS = ("plastic", "metal", "glass", "paper", "cardboard", "wood", "ceramic
 SYMMETRIES = ("none", "continuous_z", "discrete_z2", "discrete_z4")
 MESH_SUFFIXES = (".obj", ".stl", ".ply")
 NAME = re.compile(r"[a-z0-9_]+")
+SHA256 = re.compile(r"[0-9a-f]{64}")
 
 LENGTH_M = (0.0005, 1.0)  # any single dimension: half a millimetre to a metre
 MASS_KG = (0.0005, 20.0)
@@ -79,11 +80,13 @@ class Compound:
 
 @dataclass(frozen=True)
 class MeshFile:
-    """A triangle mesh file (OBJ, STL or PLY) relative to the catalog directory; `scale` takes file
-    units to metres."""
+    """A triangle mesh file (OBJ, STL or PLY): `path` relative to the catalog directory, or, for a
+    user's object, `asset`, the SHA-256 of a file that came with the job (the engine finds it among
+    its task's inputs); `scale` takes file units to metres."""
 
     path: str
     scale: float
+    asset: str = ""
 
 
 Shape = Cylinder | Box | Revolved | Compound | MeshFile
@@ -141,7 +144,7 @@ SHAPE_KEYS = {
     "box": ("type", "size_m"),
     "revolved": ("type", "profile_m"),
     "compound": ("type", "parts"),
-    "mesh": ("type", "path", "scale"),
+    "mesh": ("type", "path", "asset", "scale"),
 }
 PART_TYPES = ("cylinder", "box", "revolved")
 PLACEMENT_KEYS = ("pos_m", "euler_deg")
@@ -184,6 +187,8 @@ def shape_json(shape: Shape) -> dict[str, Any]:
                 for p in shape.parts
             ],
         }
+    if shape.asset:
+        return {"type": "mesh", "asset": shape.asset, "scale": shape.scale}
     return {"type": "mesh", "path": shape.path, "scale": shape.scale}
 
 
@@ -214,13 +219,21 @@ def _part(obj: Any, where: str) -> Part:
 
 
 def _mesh_file(obj: Mapping[str, Any], where: str) -> MeshFile:
+    scale = P.number(obj, "scale", where, 1.0, low=1e-6, high=1e3)
+    if "asset" in obj:
+        if "path" in obj:
+            raise BadInput(f"{where}: give either path or asset, not both")
+        asset = P.string(obj, "asset", where)
+        if not SHA256.fullmatch(asset):
+            raise BadInput(f"{where}.asset: {asset!r} is not a SHA-256 (64 lowercase hex digits)")
+        return MeshFile(path="", scale=scale, asset=asset)
     path = P.string(obj, "path", where)
     pure = PurePosixPath(path)
     if pure.is_absolute() or ".." in pure.parts or "\\" in path:
         raise BadInput(f"{where}.path: {path!r} must be relative to the catalog directory, without '..'")
     if pure.suffix.lower() not in MESH_SUFFIXES:
         raise BadInput(f"{where}.path: {path!r} is not one of {list(MESH_SUFFIXES)}")
-    return MeshFile(path=path, scale=P.number(obj, "scale", where, 1.0, low=1e-6, high=1e3))
+    return MeshFile(path=path, scale=scale)
 
 
 def _profile(obj: Mapping[str, Any], key: str, where: str) -> tuple[tuple[float, float], ...]:

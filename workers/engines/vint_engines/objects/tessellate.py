@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -54,13 +54,21 @@ class TriangleMesh:
         return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
 
 
-def shape_mesh(shape: Shape, root: Path, where: str) -> TriangleMesh:
-    """The shape's surface in its own frame; `root` resolves mesh-file paths, `where` names the
-    shape in errors."""
+def shape_mesh(
+    shape: Shape, root: Path, where: str, assets: Mapping[str, Path] | None = None
+) -> TriangleMesh:
+    """The shape's surface in its own frame; `root` resolves mesh-file paths and `assets` (SHA-256
+    to staged file) mesh assets, `where` names the shape in errors."""
     if isinstance(shape, Compound):
         return union([part_mesh(part) for part in shape.parts], f"{where}.parts")
     if isinstance(shape, MeshFile):
-        vertices, faces = meshio.load_mesh(root / shape.path, shape.scale, f"{where}.path")
+        if shape.asset:
+            staged = (assets or {}).get(shape.asset)
+            if staged is None:
+                raise BadInput(f"{where}.asset: the file {shape.asset} was not staged for this task")
+            vertices, faces = meshio.load_mesh(staged, shape.scale, f"{where}.asset")
+        else:
+            vertices, faces = meshio.load_mesh(root / shape.path, shape.scale, f"{where}.path")
         return canonical(vertices, faces)
     return primitive_mesh(shape)
 

@@ -1,16 +1,22 @@
-"""The render engine: for each view of a grasp, render RGB/depth/mask and write the camera.
+"""The render engine: for each view of a grasp, render what the task's outputs need and write the
+camera.
 
-Builds the Blender scene once (and renders a tiny warm-up frame so the first task does not pay
+Builds the Blender scenes once (and renders a tiny warm-up frame so the first task does not pay
 for kernel loading); per task it reads `grasps.json` (and the object's model mesh `object.ply`
-when the worker staged it), poses the hand and the object, then renders
-each view under its own environment (`render.environment` unless the view names one) from a
-camera sampled with the view's seed.
+when the worker staged it), poses the hand and the object, then renders each view from a camera
+sampled with the view's seed (or given by the view): always the geometry passes (depth, pass
+indices, the object's full mask; no path tracing), and the path-traced RGB image under the view's
+environment only when `rgb` is requested, with bounce caps pruned to what the materials can use.
+Views are rendered grouped by environment, starting with the one already loaded (every view's
+output depends on its own parameters only, so the order changes no pixel). An environment is a
+bundled HDRI or a user's file staged with the task (`params.assets`), known by its SHA-256.
 """
 
 from __future__ import annotations
 
 import json
 import platform
+import re
 import shutil
 import tempfile
 import time
@@ -25,21 +31,23 @@ import numpy as np
 
 from vint_engines import __version__
 from vint_engines import params as P
+from vint_engines.assets import StagedAsset, asset_file, staged_assets
 from vint_engines.objects import MODEL_FILE
 from vint_engines.poses import quat_to_matrix, read_pose
 from vint_engines.protocol import BadInput, Json, TaskRequest, TaskResult
-from vint_engines.render.camera import Intrinsics, look_at, sample_on_hemisphere
-from vint_engines.render.passes import Passes
-from vint_engines.render.scene import OBJECT_PASS_INDEX, BlenderScene, check_environment
+from vint_engines.render.camera import CameraPose, Intrinsics, look_at, sample_on_hemisphere
+from vint_engines.render.cycles import Bounces, PathTracing
+from vint_engines.render.scene import OBJECT_PASS_INDEX, BlenderScene, Geometry, Hdri, environments
 
 GRASPS_INPUT = "grasps.json"
-OUTPUT_KINDS = ("rgb", "depth", "mask")
+OUTPUT_KINDS = ("rgb", "depth", "mask", "segmentation")
 
 
 @dataclass(frozen=True)
 class RenderSettings:
     intrinsics: Intrinsics
-    samples: int
+    tracing: PathTracing
+    prune_bounces: bool
     environment: str
     radius_m: tuple[float, float]
     elevation_deg: tuple[float, float]
@@ -53,35 +61,133 @@ class RenderSettings:
                 height=P.integer(obj, "height", where, 128, low=8, high=8192),
                 fov_deg=P.number(obj, "fov_deg", where, 60.0, low=5.0, high=150.0),
             ),
-            samples=P.integer(obj, "samples", where, 16, low=1, high=65536),
-            environment=environment_param(obj, "environment", where, "studio"),
-            radius_m=P.number_range(obj, "radius_m", where, (0.35, 0.5), low=0.05),
+            tracing=PathTracing(
+                samples=P.integer(obj, "samples", where, 32, low=1, high=65536),
+                denoise=P.boolean(obj, "denoise", where, False),
+                bounces=Bounces.parse(obj.get("bounces", {}), f"{where}.bounces"),
+            ),
+            prune_bounces=P.boolean(obj, "prune_bounces", where, True),
+            environment=P.string(obj, "environment", where, "studio"),  # checked with the views
+            radius_m=P.number_range(obj, "radius_m", where, (0.35, 0.5), low=0.01),
             elevation_deg=P.number_range(obj, "elevation_deg", where, (15.0, 75.0), low=-90.0),
         )
+
+
+SHA256 = re.compile(r"[0-9a-f]{64}")
+
+
+@dataclass(frozen=True)
+class Environment:
+    """An HDRI and how it is turned (about world +z) and scaled: a bundled one by name, or a
+    user's file (`asset`, its SHA-256) under a name of the spec's own."""
+
+    name: str
+    rotation_deg: float = 0.0
+    strength: float = 1.0
+    asset: str | None = None
+
+    @property
+    def key(self) -> str:
+        """What identifies the image: the bundled name or the file's content hash."""
+        return self.asset or self.name
+
+    def to_json(self) -> dict[str, Any]:
+        record: dict[str, Any] = {
+            "name": self.name,
+            "rotation_deg": self.rotation_deg,
+            "strength": self.strength,
+        }
+        if self.asset is not None:
+            record["asset"] = self.asset
+        return record
+
+    @staticmethod
+    def parse_all(
+        params: Mapping[str, Any], assets: dict[str, StagedAsset], rgb: bool
+    ) -> dict[str, Environment]:
+        """`params.environments` by name (optional: a bundled HDRI not listed is lit as is). An
+        entry with `asset` is a user's HDRI; its file must be among `params.assets` when the task
+        renders `rgb` (the only time it is read)."""
+        found: dict[str, Environment] = {}
+        if "environments" not in params:
+            return found
+        for i, raw in enumerate(P.items(params, "environments", "params")):
+            where = f"params.environments[{i}]"
+            name = P.string(raw, "name", where)
+            asset = None
+            if "asset" in raw:
+                asset = P.string(raw, "asset", where)
+                if not SHA256.fullmatch(asset):
+                    raise BadInput(
+                        f"{where}.asset: expected a SHA-256 (64 lowercase hex digits), got {asset!r}"
+                    )
+                if name in environments():
+                    raise BadInput(
+                        f"{where}.name: {name!r} is a bundled HDRI; a user's file needs a name of its own"
+                    )
+                if rgb:
+                    asset_file(assets, asset, f"{where}.asset")
+            else:
+                Hdri.bundled(name, f"{where}.name")
+            if name in found:
+                raise BadInput(f"{where}.name: {name!r} is listed twice")
+            found[name] = Environment(
+                name,
+                P.number(raw, "rotation_deg", where, 0.0, low=-360.0, high=360.0),
+                P.number(raw, "strength", where, 1.0, low=0.0, high=1000.0),
+                asset,
+            )
+        return found
 
 
 @dataclass(frozen=True)
 class RenderView:
     index: int
     seed: int
-    environment: str
+    environment: Environment
+    camera: CameraPose | None  # given by the task, else sampled with `seed`
 
     @staticmethod
-    def parse_all(params: Mapping[str, Any], default_environment: str) -> list[RenderView]:
-        """`params.views`; a view without `environment` renders under `default_environment`."""
+    def parse_all(
+        params: Mapping[str, Any], default_environment: str, assets: dict[str, StagedAsset], rgb: bool
+    ) -> list[RenderView]:
+        """`params.views`; a view without `environment` renders under `default_environment`. Every
+        environment named must be listed in `params.environments` or be a bundled HDRI."""
+        listed = Environment.parse_all(params, assets, rgb)
+
+        def resolve(name: str, where: str) -> Environment:
+            if name in listed:
+                return listed[name]
+            Hdri.bundled(name, where)
+            return Environment(name)
+
+        default = resolve(default_environment, "params.render.environment")
         views = []
         raw_views = P.items(params, "views", "params")
         for i, ((index, seed), raw) in enumerate(zip(P.views(params), raw_views, strict=True)):
-            environment = environment_param(raw, "environment", f"params.views[{i}]", default_environment)
-            views.append(RenderView(index, seed, environment))
+            where = f"params.views[{i}]"
+            environment = default
+            if "environment" in raw:
+                environment = resolve(P.string(raw, "environment", where), f"{where}.environment")
+            camera = camera_param(raw["camera"], f"{where}.camera") if "camera" in raw else None
+            views.append(RenderView(index, seed, environment, camera))
         return views
 
 
-def environment_param(obj: Mapping[str, Any], key: str, where: str, default: str) -> str:
-    """The bundled HDRI named at `obj[key]` (or `default`); BadInput for an unknown name."""
-    name = P.string(obj, key, where, default)
-    check_environment(name, f"{where}.{key}")
-    return name
+def camera_param(obj: Any, where: str) -> CameraPose:
+    """An explicit camera `{"R_w2c": 3×3, "t_w2c": 3}` (OpenCV convention); R must be a rotation."""
+    if not isinstance(obj, Mapping):
+        raise BadInput(f"{where}: expected an object with R_w2c and t_w2c")
+    try:
+        R = np.array(obj["R_w2c"], dtype=np.float64)
+        t = np.array(obj["t_w2c"], dtype=np.float64)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise BadInput(f"{where}: expected R_w2c (3×3) and t_w2c (3 numbers) ({exc!r})") from exc
+    if R.shape != (3, 3) or t.shape != (3,) or not (np.isfinite(R).all() and np.isfinite(t).all()):
+        raise BadInput(f"{where}: expected R_w2c (3×3) and t_w2c (3 finite numbers)")
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+        raise BadInput(f"{where}.R_w2c: not a rotation matrix")
+    return CameraPose(R, t)
 
 
 class RenderEngine:
@@ -106,10 +212,11 @@ class RenderEngine:
         shutil.rmtree(self.scratch, ignore_errors=True)
 
     def _warm_up(self) -> None:
-        """Render one tiny empty frame: loads the Cycles kernels and the default HDRI's map."""
-        self.scene.set_environment("studio")
-        eye = np.array([0.0, -1.0, 0.5])
-        self.scene.render(look_at(eye, np.zeros(3)), Intrinsics(8, 8, 60.0), 1, 0, rgb=False)
+        """Render one tiny empty frame per scene: loads the Cycles kernels (but no HDRI: only the
+        environments a task's views use are ever loaded)."""
+        self.scene.place_camera(look_at(np.array([0.0, -1.0, 0.5]), np.zeros(3)), Intrinsics(8, 8, 60.0))
+        self.scene.render_geometry()
+        self.scene.render_rgb(PathTracing(1, False, Bounces(0, 0, 0, 0, 0)), 0)
 
     def run(self, task: TaskRequest) -> TaskResult:
         params = task.params
@@ -118,8 +225,14 @@ class RenderEngine:
         if not isinstance(outputs, list) or not set(outputs) <= set(OUTPUT_KINDS):
             raise BadInput(f"params.outputs: expected a subset of {list(OUTPUT_KINDS)}, got {outputs!r}")
         grasp_index = P.integer(params, "grasp_index", "params", low=0)
-        views = RenderView.parse_all(params, settings.environment)
+        assets = staged_assets(task)
+        views = RenderView.parse_all(params, settings.environment, assets, "rgb" in outputs)
         grasps = load_grasps(task.input_path(GRASPS_INPUT))
+        hdris = (
+            {view.environment: hdri(view.environment, assets) for view in views} if "rgb" in outputs else {}
+        )
+        for image in hdris.values():  # an unreadable file fails the task before any view renders
+            self.scene.load_environment(image)
 
         trial = find_trial(grasps, grasp_index)
         self.scene.set_hand(grasps["hand"])
@@ -128,44 +241,85 @@ class RenderEngine:
         links = {name: read_pose(pose, f"link_poses.{name}") for name, pose in trial["link_poses"].items()}
         self.scene.pose(object_pose, links)
 
+        tracing = settings.tracing
+        if settings.prune_bounces:
+            bounces = tracing.bounces.pruned(self.scene.lobes())
+            tracing = PathTracing(tracing.samples, tracing.denoise, bounces)
         result = TaskResult()
-        render_s = 0.0
-        for view in views:
+        geometry_s = rgb_s = 0.0
+        for view in self._render_order(views):
             started = time.perf_counter()
-            self.scene.set_environment(view.environment)
-            self._render_view(task.out_dir, view, settings, outputs, object_pose, result)
-            render_s += time.perf_counter() - started
-        result.metrics.update(views=len(views), render_ms_per_view=round(1e3 * render_s / len(views), 3))
+            camera = view.camera or sample_on_hemisphere(
+                np.random.default_rng(view.seed), object_pose[0], settings.radius_m, settings.elevation_deg
+            )
+            self.scene.place_camera(camera, settings.intrinsics)
+            geometry = self.scene.render_geometry()
+            geometry_s += time.perf_counter() - started
+            if "rgb" in outputs:
+                started = time.perf_counter()
+                environment = view.environment
+                self.scene.set_environment(hdris[environment], environment.rotation_deg, environment.strength)
+                image = self.scene.render_rgb(tracing, view.seed)
+                result.add(write_png(task.out_dir / f"v{view.index:02d}_rgb.png", image), "image/png")
+                rgb_s += time.perf_counter() - started
+            self._write_view(task.out_dir, view, camera, settings, outputs, object_pose, geometry, result)
+        n = len(views)
+        result.metrics.update(
+            views=n,
+            render_ms_per_view=round(1e3 * (geometry_s + rgb_s) / n, 3),
+            geometry_ms_per_view=round(1e3 * geometry_s / n, 3),
+            rgb_ms_per_view=round(1e3 * rgb_s / n, 3),
+            device=self.scene.device,
+            threads=self.scene.threads,
+            bounces=vars(tracing.bounces) if "rgb" in outputs else None,
+        )
         return result
 
-    def _render_view(
+    def _render_order(self, views: list[RenderView]) -> list[RenderView]:
+        """Views grouped by environment (first appearance order), the loaded one first: each switch
+        re-syncs the world shader."""
+        groups: dict[Environment, list[RenderView]] = {}
+        for view in views:
+            groups.setdefault(view.environment, []).append(view)
+        loaded = self.scene.environment
+        return sorted(
+            (view for group in groups.values() for view in group),
+            key=lambda view: (
+                (view.environment.key, view.environment.rotation_deg, view.environment.strength) != loaded
+            ),
+        )
+
+    def _write_view(
         self,
         out_dir: Path,
         view: RenderView,
+        camera: CameraPose,
         settings: RenderSettings,
         outputs: list[str],
         object_pose: tuple[np.ndarray, np.ndarray],
+        geometry: Geometry,
         result: TaskResult,
     ) -> None:
         prefix = f"v{view.index:02d}"
-        p_obj, q_obj = object_pose
-        camera = sample_on_hemisphere(
-            np.random.default_rng(view.seed), p_obj, settings.radius_m, settings.elevation_deg
-        )
-        passes = self.scene.render(
-            camera, settings.intrinsics, settings.samples, view.seed, rgb="rgb" in outputs
-        )
-        mask = object_mask(passes)
-        if passes.rgb is not None:
-            result.add(write_png(out_dir / f"{prefix}_rgb.png", passes.rgb), "image/png")
+        visible = geometry.index == OBJECT_PASS_INDEX
         if "depth" in outputs:
             path = out_dir / f"{prefix}_depth.npy"
-            np.save(path, passes.depth)
+            np.save(path, geometry.depth)
             result.add(path, "application/x-npy")
         if "mask" in outputs:
-            result.add(write_png(out_dir / f"{prefix}_mask.png", mask), "image/png")
+            result.add(write_png(out_dir / f"{prefix}_mask.png", as_mask(visible)), "image/png")
+            full = write_png(out_dir / f"{prefix}_mask_full.png", as_mask(geometry.object_full))
+            result.add(full, "image/png")
+        labels = self.scene.segmentation_labels()
+        if "segmentation" in outputs:
+            dtype = np.uint8 if max(labels) <= np.iinfo(np.uint8).max else np.uint16
+            path = write_png(out_dir / f"{prefix}_segmentation.png", geometry.index.astype(dtype))
+            result.add(path, "image/png")
+        p_obj, q_obj = object_pose
         R_m2c, t_m2c = camera.object_in_camera(quat_to_matrix(q_obj), p_obj)
         intrinsics = settings.intrinsics
+        visible_px = int(np.count_nonzero(visible))
+        full_px = int(np.count_nonzero(geometry.object_full | visible))
         record = {
             "K": intrinsics.matrix().tolist(),
             "width": intrinsics.width,
@@ -174,17 +328,33 @@ class RenderEngine:
             "t_w2c": camera.t_w2c.tolist(),
             "R_m2c": R_m2c.tolist(),
             "t_m2c": t_m2c.tolist(),
-            "visible_px": int(np.count_nonzero(mask)),
-            "environment": view.environment,
+            "visible_px": visible_px,
+            "full_px": full_px,
+            "occlusion": occlusion(visible_px, full_px),
+            "segmentation": {"0": "background", **{str(k): name for k, name in labels.items()}},
+            "environment": view.environment.to_json(),
         }
         path = out_dir / f"{prefix}_camera.json"
         path.write_text(json.dumps(record, indent=1))
         result.add(path, "application/json")
 
 
-def object_mask(passes: Passes) -> np.ndarray:
-    """uint8 mask, 255 where the object is the visible surface."""
-    return np.where(passes.index == OBJECT_PASS_INDEX, 255, 0).astype(np.uint8)
+def hdri(environment: Environment, assets: dict[str, StagedAsset]) -> Hdri:
+    """The image `environment` is lit by: a bundled HDRI, or the user's staged file."""
+    if environment.asset is None:
+        return Hdri.bundled(environment.name, "environment")
+    staged = asset_file(assets, environment.asset, f"environment {environment.name!r}")
+    return Hdri.user(environment.asset, staged.path, f"environment {environment.name!r} ({staged.spec_path})")
+
+
+def occlusion(visible_px: int, full_px: int) -> float:
+    """1 - visible/full: the share of the object the hand hides; 1 when none of it is in view."""
+    return 1.0 if full_px == 0 else round(1.0 - visible_px / full_px, 6)
+
+
+def as_mask(pixels: np.ndarray) -> np.ndarray:
+    """uint8 mask, 255 where `pixels` is true."""
+    return np.where(pixels, 255, 0).astype(np.uint8)
 
 
 def write_png(path: Path, image: np.ndarray) -> Path:

@@ -43,6 +43,30 @@ LABELLED = ("paper", "cardboard")
 INK: RGBA = (0.05, 0.05, 0.06, 1.0)
 
 
+def lobes(inputs: Mapping[str, Any]) -> frozenset[str]:
+    """The kinds of scattering a Principled BSDF with `inputs` has, as Cycles counts bounces:
+    diffuse unless fully metallic or transmissive, glossy always (specular, metal and coat layers),
+    transmission when it transmits, transparent when its alpha is below 1."""
+    metallic = float(inputs.get("Metallic", 0.0))
+    transmission = float(inputs.get("Transmission Weight", 0.0))
+    kinds = {"glossy"}
+    if metallic < 1.0 and transmission < 1.0:
+        kinds.add("diffuse")
+    if transmission > 0.0:
+        kinds.add("transmission")
+    if float(inputs.get("Alpha", 1.0)) < 1.0:
+        kinds.add("transparent")
+    return frozenset(kinds)
+
+
+def object_lobes(tag: str) -> frozenset[str]:
+    """The lobes of an object with catalog material `tag` (unknown tags look like plastic)."""
+    return lobes(TAGS[tag if tag in TAGS else "plastic"])
+
+
+HAND_LOBES = lobes(HAND)
+
+
 def principled(name: str, inputs: Mapping[str, Any]) -> bpy.types.Material:
     """A node material whose Principled BSDF takes `inputs`."""
     material = bpy.data.materials.new(name)

@@ -1,15 +1,16 @@
-"""Depth and object-index passes (and the RGB image) from Cycles into numpy.
+"""Render passes from Cycles into numpy: depth and object index from a scene's compositor, and the
+RGB image.
 
-The compositor writes both passes as 32-bit float EXRs into a scratch directory; we load them
-through `bpy.data.images`, copy the pixels out, then remove the images and files so nothing piles
-up over thousands of views. (A Viewer node produces no image in background mode.) The RGB PNG is
-read back too: Blender stamps render times into its PNGs, and outputs must be byte-identical for a
-seed, so the engine re-encodes the pixels itself.
+The compositor writes each pass as a 32-bit float EXR into a scratch directory, one file prefix
+per scene; we load them through `bpy.data.images`, copy the pixels out, then remove the images and
+files so nothing piles up over thousands of views. (A Viewer node produces no image in background
+mode.) The RGB PNG is read back too: Blender stamps render times into its PNGs, and outputs must be
+byte-identical for a seed, so the engine re-encodes the pixels itself.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
 from pathlib import Path
 
 import bpy
@@ -17,53 +18,52 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-PASSES = {"depth": "Depth", "index": "Object Index"}
-FILE_PREFIX = "pass_"
+SOCKETS = {"depth": "Depth", "index": "Object Index"}
 
 # Blender marks background depth with 1e10; anything this far is "nothing hit".
 BACKGROUND_DEPTH = 1e9
 
 
-@dataclass(frozen=True)
-class Passes:
-    depth: npt.NDArray[np.float32]  # metres along the optical axis, 0 where nothing is hit
-    index: npt.NDArray[np.int32]  # object pass index, 0 for background
-    rgb: npt.NDArray[np.uint8] | None  # H×W×3 sRGB in OpenCV's BGR order, when rendered
-
-
-def add_pass_outputs(scene: bpy.types.Scene, scratch: Path) -> None:
-    """Enable the passes and wire Render Layers → File Output (EXR, full float) into `scratch`."""
+def add_pass_outputs(scene: bpy.types.Scene, scratch: Path, prefix: str, passes: Sequence[str]) -> None:
+    """Enable `passes` (keys of SOCKETS) and wire Render Layers → File Output (EXR, full float)
+    into `scratch`, files named `<prefix><pass>.exr`."""
     layer = scene.view_layers[0]
-    layer.use_pass_z = True
-    layer.use_pass_object_index = True
-    tree = bpy.data.node_groups.new("vint_passes", "CompositorNodeTree")
+    layer.use_pass_z = "depth" in passes
+    layer.use_pass_object_index = "index" in passes
+    tree = bpy.data.node_groups.new(f"{prefix}passes", "CompositorNodeTree")
     scene.compositing_node_group = tree
     render_layers = tree.nodes.new("CompositorNodeRLayers")
+    render_layers.scene = scene
     output = tree.nodes.new("CompositorNodeOutputFile")
     output.format.media_type = "IMAGE"  # must precede file_format
     output.format.file_format = "OPEN_EXR"
     output.format.color_depth = "32"
     output.format.color_mode = "RGB"
     output.directory = str(scratch)
-    output.file_name = FILE_PREFIX
-    for item, socket in PASSES.items():
+    output.file_name = prefix
+    for item in passes:
         output.file_output_items.new("FLOAT", item)
-        tree.links.new(render_layers.outputs[socket], output.inputs[item])
+        tree.links.new(render_layers.outputs[SOCKETS[item]], output.inputs[item])
 
 
-def read_passes(scratch: Path, rgb_file: str | None) -> Passes:
-    """Load what the last render wrote (rows top to bottom, as images are stored) and delete it."""
-    depth = _read_exr(scratch / f"{FILE_PREFIX}depth.exr")
-    index = _read_exr(scratch / f"{FILE_PREFIX}index.exr")
-    depth = np.where(depth < BACKGROUND_DEPTH, depth, 0.0).astype(np.float32)
-    rgb = None
-    if rgb_file is not None:
-        path = scratch / rgb_file
-        rgb = cv2.imread(str(path), cv2.IMREAD_COLOR)
-        if rgb is None:
-            raise RuntimeError(f"Blender wrote no readable image at {path}")
-        path.unlink()
-    return Passes(depth=depth, index=np.rint(index).astype(np.int32), rgb=rgb)
+def read_depth(scratch: Path, prefix: str) -> npt.NDArray[np.float32]:
+    """Metres along the optical axis, 0 where nothing is hit (rows top to bottom)."""
+    depth = _read_exr(scratch / f"{prefix}depth.exr")
+    return np.where(depth < BACKGROUND_DEPTH, depth, 0.0).astype(np.float32)
+
+
+def read_index(scratch: Path, prefix: str) -> npt.NDArray[np.int32]:
+    """Object pass index per pixel, 0 for background (rows top to bottom)."""
+    return np.rint(_read_exr(scratch / f"{prefix}index.exr")).astype(np.int32)
+
+
+def read_rgb(path: Path) -> npt.NDArray[np.uint8]:
+    """H×W×3 sRGB in OpenCV's BGR order; the file is deleted."""
+    rgb = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if rgb is None:
+        raise RuntimeError(f"Blender wrote no readable image at {path}")
+    path.unlink()
+    return rgb
 
 
 def _read_exr(path: Path) -> npt.NDArray[np.float32]:

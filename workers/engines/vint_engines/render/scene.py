@@ -1,11 +1,21 @@
-"""The Blender scene of the render engine: built once, then only moved.
+"""The Blender scenes of the render engine: built once, then only moved.
 
-Owns all Blender datablocks: render settings, the world (one environment texture node whose image
-is swapped between bundled HDRIs, each loaded once), one camera, the hand's link objects (rebuilt
-only when the hand geometry changes) and the object: one Blender object whose mesh is swapped
-between object meshes, each made once per object name (with its material) from the grasp engine's
-model PLY or, without one, from the shape in the catalog entry. Knows nothing about tasks or files
-beyond the pass scratch directory and the model PLY it is handed.
+Three Cycles scenes share one camera and the same objects, and each keeps its own persistent render
+session, so a re-render after a move costs only the render:
+- `vint_rgb` path-traces the image under the world (one environment texture node whose image is
+  swapped between HDRIs — bundled ones and users' files — each loaded once and kept by name or
+  content hash; a mapping node rotates it about world z and the background's strength scales it).
+  Rendered only when a task asks for RGB.
+- `vint_geometry` holds the object and the hand and renders depth and the object index pass with
+  no path tracing (one ray per pixel centre, no bounces, no world, one flat override material).
+- `vint_object` holds the object alone and renders its index pass the same way: the object's full
+  mask, as if the hand were not there.
+
+Objects: the hand's link objects (rebuilt only when the hand geometry changes; link k has pass
+index 2 + k, the object 1) and the object: one Blender object whose mesh is swapped between object
+meshes, each made once per object name (with its material) from the grasp engine's model PLY or,
+without one, from the shape in the catalog entry. Knows nothing about tasks or files beyond the
+pass scratch directory and the model PLY and HDRI files it is handed.
 """
 
 from __future__ import annotations
@@ -13,29 +23,45 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import shutil
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import addon_utils
 import bpy
 import numpy as np
+import numpy.typing as npt
 from mathutils import Matrix
 
 from vint_engines.objects import ObjectSpec, build_model
 from vint_engines.objects.meshio import read_ply_m
 from vint_engines.poses import pose_matrix
 from vint_engines.protocol import BadInput
-from vint_engines.render import materials, meshes
+from vint_engines.render import cycles, materials, meshes
 from vint_engines.render.camera import CameraPose, Intrinsics
-from vint_engines.render.passes import Passes, add_pass_outputs, read_passes
+from vint_engines.render.cycles import PathTracing
+from vint_engines.render.passes import add_pass_outputs, read_depth, read_index, read_rgb
 
 OBJECT_PASS_INDEX = 1
-HAND_PASS_INDEX = 2
+FIRST_LINK_PASS_INDEX = 2  # link k of the hand (in grasps.json order) has pass index 2 + k
 RGB_FILE = "rgb.png"
+GEOMETRY_PREFIX = "geometry_"
+OBJECT_PREFIX = "object_"
 ENVIRONMENT_MAP_RESOLUTION = 256  # importance map for the HDRI: 0.3 s to build instead of ~2 s
 OBJECT_MESH_CAPACITY = 64  # object meshes kept for reuse (the catalog has fewer objects)
+TURNED_IMAGE_CAPACITY = 8  # turned copies of HDRIs kept
 SHARP_EDGE_DEG = 30.0  # model meshes shade smooth except across edges sharper than this
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """What the geometry passes of one view saw."""
+
+    depth: npt.NDArray[np.float32]  # metres along the optical axis, 0 where nothing is hit
+    index: npt.NDArray[np.int32]  # pass index of the visible surface, 0 for background
+    object_full: npt.NDArray[np.bool_]  # where the object would be seen without the hand
 
 
 def environment_dir() -> Path:
@@ -43,6 +69,7 @@ def environment_dir() -> Path:
 
 
 def environments() -> list[str]:
+    """The bundled HDRIs' names."""
     return sorted(path.stem for path in environment_dir().glob("*.exr"))
 
 
@@ -52,33 +79,68 @@ def check_environment(name: str, where: str) -> None:
         raise BadInput(f"{where}: unknown environment {name!r} (have {environments()})")
 
 
+@dataclass(frozen=True)
+class Hdri:
+    """An HDRI image to light the RGB scene with: a bundled one (`key` its name) or a user's file
+    staged with the task (`key` the file's SHA-256). `label` names it in error messages."""
+
+    key: str
+    path: Path
+    label: str
+    staged: bool = False
+
+    @staticmethod
+    def bundled(name: str, where: str) -> Hdri:
+        check_environment(name, where)
+        return Hdri(name, environment_dir() / f"{name}.exr", f"environment {name!r}")
+
+    @staticmethod
+    def user(sha256: str, path: Path, label: str) -> Hdri:
+        return Hdri(sha256, path, label, staged=True)
+
+
 class BlenderScene:
     def __init__(self, scratch: Path) -> None:
         self.scratch = scratch
         bpy.ops.wm.read_factory_settings(use_empty=True)
         addon_utils.enable("cycles")
-        self.scene = bpy.context.scene
-        self._configure_render()
+        self.device = cycles.select_device()
+        self.threads = cycles.render_threads()
+        self.rgb_scene = bpy.context.scene
+        self.rgb_scene.name = "vint_rgb"
+        self.geometry_scene = bpy.data.scenes.new("vint_geometry")
+        self.object_scene = bpy.data.scenes.new("vint_object")
+        self.scenes = (self.rgb_scene, self.geometry_scene, self.object_scene)
+        for scene in self.scenes:
+            cycles.configure_scene(scene, self.device, self.threads)
+        self._configure_rgb()
+        self._configure_geometry()
         self.camera = self._add_camera()
-        self._environment_node = self._add_world()
-        self._environment_images: dict[str, bpy.types.Image] = {}
-        self.environment: str | None = None
-        add_pass_outputs(self.scene, scratch)
+        self._environment_node, self._background_node = self._add_world()
+        self._turned_images: dict[tuple[str, float], bpy.types.Image] = {}  # (key, turn) → image, LRU
+        self._environment_images: dict[str, bpy.types.Image] = {}  # by `Hdri.key`
+        self.environment: tuple[str, float, float] | None = None  # (Hdri.key, rotation_deg, strength)
         self._hand_key: str | None = None
         self._links: dict[str, bpy.types.Object] = {}
         self._object: bpy.types.Object | None = None
         self._object_meshes: dict[str, tuple[str, bpy.types.Mesh]] = {}  # name → (content key, mesh)
+        self._object_tag = "plastic"
         self._hand_material = materials.principled("vint_hand", materials.HAND)
 
-    def _configure_render(self) -> None:
-        scene = self.scene
-        scene.render.engine = "CYCLES"
-        scene.cycles.device = "CPU"
-        scene.cycles.use_denoising = False
-        scene.cycles.use_adaptive_sampling = False
-        scene.cycles.use_animated_seed = False
-        scene.render.use_persistent_data = True  # re-renders after moves are several times faster
-        scene.render.resolution_percentage = 100
+    def _configure_geometry(self) -> None:
+        """Both geometry scenes: no path tracing, and one flat material for every surface, so no
+        object's node tree is compiled or evaluated (the first hit does not depend on it)."""
+        flat = materials.principled("vint_flat", {"Base Color": (0.5, 0.5, 0.5, 1.0)})
+        for scene, prefix, passes in (
+            (self.geometry_scene, GEOMETRY_PREFIX, ("depth", "index")),
+            (self.object_scene, OBJECT_PREFIX, ("index",)),
+        ):
+            cycles.configure_geometry_pass(scene)
+            scene.view_layers[0].material_override = flat
+            add_pass_outputs(scene, self.scratch, prefix, passes)
+
+    def _configure_rgb(self) -> None:
+        scene = self.rgb_scene
         scene.view_settings.view_transform = "Standard"  # plain sRGB output
         settings = scene.render.image_settings
         settings.media_type = "IMAGE"
@@ -92,35 +154,95 @@ class BlenderScene:
         data.clip_start = 0.01
         data.clip_end = 100.0
         camera = bpy.data.objects.new("vint_camera", data)
-        self.scene.collection.objects.link(camera)
-        self.scene.camera = camera
+        for scene in self.scenes:
+            scene.collection.objects.link(camera)
+            scene.camera = camera
         return camera
 
-    def _add_world(self) -> bpy.types.ShaderNodeTexEnvironment:
+    def _add_world(self) -> tuple[bpy.types.Node, bpy.types.Node]:
+        """The RGB scene's world: environment texture → background (strength). The geometry
+        scenes have no world. An environment is turned by rolling its image's columns
+        (`_turned_image`) rather than by a Mapping node turning the texture lookup; an unturned
+        environment renders exactly as without the feature.
+
+        Known limit (measured, docs/rendering.md): under a *turned* HDRI, Cycles' importance map
+        for it is not byte-stable between processes — one pixel of one tiny.toml view (allegro
+        in the mug, forest turned 90°) differed in 7 of 24 fresh processes. Unturned HDRIs have
+        been byte-stable in every run, which is what the determinism tests exercise."""
         world = bpy.data.worlds.new("vint_world")
         world.use_nodes = True
         world.cycles.sampling_method = "MANUAL"
         world.cycles.sample_map_resolution = ENVIRONMENT_MAP_RESOLUTION
         tree = world.node_tree
-        node = tree.nodes.new("ShaderNodeTexEnvironment")
-        tree.links.new(node.outputs["Color"], tree.nodes["Background"].inputs["Color"])
-        self.scene.world = world
-        return node
+        environment = tree.nodes.new("ShaderNodeTexEnvironment")
+        background = tree.nodes["Background"]
+        tree.links.new(environment.outputs["Color"], background.inputs["Color"])
+        self.rgb_scene.world = world
+        return environment, background
 
     # -- scene content ---------------------------------------------------------------------------
 
-    def set_environment(self, name: str) -> None:
-        """Light the scene with the bundled HDRI `name`. Each HDRI is loaded on first use and kept,
-        so switching between views only swaps the texture's image."""
-        if name == self.environment:
+    def load_environment(self, hdri: Hdri) -> None:
+        """Load `hdri` unless an HDRI with its key is loaded already (a user's file is known by
+        its content, so the same file staged for another task is not read again). A user's file
+        is copied into the scratch directory first: the image must outlive the task's staged
+        inputs. BadInput when Blender cannot read the file as an image."""
+        if hdri.key in self._environment_images:
             return
-        image = self._environment_images.get(name)
-        if image is None:
-            check_environment(name, "environment")
-            image = bpy.data.images.load(str(environment_dir() / f"{name}.exr"), check_existing=True)
-            self._environment_images[name] = image
-        self._environment_node.image = image
-        self.environment = name
+        path = hdri.path
+        if hdri.staged:
+            path = self.scratch / "hdri" / f"{hdri.key}{hdri.path.suffix.lower()}"
+            path.parent.mkdir(exist_ok=True)
+            shutil.copyfile(hdri.path, path)
+        image = bpy.data.images.load(str(path), check_existing=True)
+        if image.size[0] == 0 or image.size[1] == 0:  # Blender loads lazily; size reads the pixels
+            bpy.data.images.remove(image)
+            path.unlink(missing_ok=True)
+            raise BadInput(f"{hdri.label}: Blender cannot read the file as an image")
+        self._environment_images[hdri.key] = image
+
+    def set_environment(self, hdri: Hdri, rotation_deg: float = 0.0, strength: float = 1.0) -> None:
+        """Light the RGB scene with `hdri`, turned by `rotation_deg` about world +z
+        (counter-clockwise seen from above) and scaled by `strength`. Each HDRI is loaded on first
+        use and kept, so switching between views only swaps the texture's image."""
+        if (hdri.key, rotation_deg, strength) == self.environment:
+            return
+        self.load_environment(hdri)
+        self._environment_node.image = self._turned_image(hdri.key, rotation_deg)
+        self._background_node.inputs["Strength"].default_value = strength
+        self.environment = (hdri.key, rotation_deg, strength)
+
+    def _turned_image(self, key: str, rotation_deg: float) -> bpy.types.Image:
+        """The loaded HDRI `key` turned by `rotation_deg` about world +z: its columns rolled.
+
+        Cycles maps azimuth φ (from +x towards +y) to u = 0.5 - φ/2π, so turning the environment
+        by +θ (what was at φ is now at φ + θ) shows at column u what was at u + θ/2π. A turn
+        that is not a whole number of columns interpolates linearly between the two nearest.
+        Turned copies are kept (a few, least recently used dropped first)."""
+        base = self._environment_images[key]
+        turn = rotation_deg % 360.0
+        if turn == 0.0:
+            return base
+        cached = self._turned_images.pop((key, turn), None)
+        if cached is None:
+            width, height = base.size
+            pixels = np.empty(width * height * 4, np.float32)
+            base.pixels.foreach_get(pixels)
+            pixels = pixels.reshape(height, width, 4)
+            shift = turn / 360.0 * width
+            whole = math.floor(shift)
+            part = np.float32(shift - whole)
+            turned = np.roll(pixels, -whole, axis=1)
+            if part > 0.0:
+                turned = (1.0 - part) * turned + part * np.roll(pixels, -(whole + 1), axis=1)
+            name = f"{base.name}_turned_{turn:g}"
+            cached = bpy.data.images.new(name, width, height, alpha=True, float_buffer=True)
+            cached.colorspace_settings.name = base.colorspace_settings.name
+            cached.pixels.foreach_set(turned.astype(np.float32).ravel())
+        self._turned_images[(key, turn)] = cached
+        while len(self._turned_images) > TURNED_IMAGE_CAPACITY:
+            bpy.data.images.remove(self._turned_images.pop(next(iter(self._turned_images))))
+        return cached
 
     def set_hand(self, hand: Mapping[str, Any]) -> None:
         """Create the hand's link objects, unless this exact geometry is already loaded."""
@@ -131,9 +253,10 @@ class BlenderScene:
             _remove_object(obj)
         self._links, self._hand_key = {}, None
         try:
-            for link in hand["links"]:
+            for k, link in enumerate(hand["links"]):
                 geoms = [(g["type"], g["size"], meshes.geom_matrix(g["p"], g["q"])) for g in link["geoms"]]
-                obj = self._add_object(f"link_{link['name']}", geoms, self._hand_material, HAND_PASS_INDEX)
+                index = FIRST_LINK_PASS_INDEX + k
+                obj = self._add_object(f"link_{link['name']}", geoms, self._hand_material, index)
                 self._links[link["name"]] = obj
         except (KeyError, TypeError, ValueError) as exc:
             raise BadInput(f"grasps.json: malformed hand geometry ({exc!r})") from exc
@@ -155,10 +278,12 @@ class BlenderScene:
             mesh = meshes.triangle_mesh(f"object_{spec.name}", vertices, faces, SHARP_EDGE_DEG)
             mesh.materials.append(materials.object_material(spec.name, spec.material))
         self._object_meshes[spec.name] = (key, mesh)
+        self._object_tag = spec.material
         if self._object is None:
             self._object = bpy.data.objects.new("object", mesh)
             self._object.pass_index = OBJECT_PASS_INDEX
-            self.scene.collection.objects.link(self._object)
+            for scene in self.scenes:
+                scene.collection.objects.link(self._object)
         else:
             self._object.data = mesh
         if cached is not None and cached[1] is not mesh:
@@ -182,20 +307,41 @@ class BlenderScene:
 
     # -- rendering -------------------------------------------------------------------------------
 
-    def render(
-        self, camera: CameraPose, intrinsics: Intrinsics, samples: int, seed: int, rgb: bool
-    ) -> Passes:
-        """Render one view and return its passes (with the 8-bit sRGB image when `rgb`)."""
-        scene = self.scene
-        scene.render.resolution_x = intrinsics.width
-        scene.render.resolution_y = intrinsics.height
+    def segmentation_labels(self) -> dict[int, str]:
+        """Pass index → name: the object, then each hand link as `hand/<link>`."""
+        labels = {OBJECT_PASS_INDEX: "object"}
+        for k, name in enumerate(self._links):
+            labels[FIRST_LINK_PASS_INDEX + k] = f"hand/{name}"
+        return labels
+
+    def lobes(self) -> frozenset[str]:
+        """The scattering lobes of every material in the RGB scene (see `cycles.Bounces.pruned`)."""
+        lobes = materials.object_lobes(self._object_tag)
+        return lobes | materials.HAND_LOBES if self._links else lobes
+
+    def place_camera(self, camera: CameraPose, intrinsics: Intrinsics) -> None:
+        for scene in self.scenes:
+            scene.render.resolution_x = intrinsics.width
+            scene.render.resolution_y = intrinsics.height
         self.camera.data.angle = math.radians(intrinsics.fov_deg)
         self.camera.matrix_world = Matrix(camera.blender_matrix_world().tolist())
-        scene.cycles.samples = samples
-        scene.cycles.seed = seed % 2**31  # Cycles takes a 32-bit signed seed
+
+    def render_geometry(self) -> Geometry:
+        """Depth and pass indices of the placed camera's view, and the object's full mask."""
+        bpy.ops.render.render(scene=self.geometry_scene.name)
+        depth = read_depth(self.scratch, GEOMETRY_PREFIX)
+        index = read_index(self.scratch, GEOMETRY_PREFIX)
+        bpy.ops.render.render(scene=self.object_scene.name)
+        full = read_index(self.scratch, OBJECT_PREFIX) == OBJECT_PASS_INDEX
+        return Geometry(depth=depth, index=index, object_full=full)
+
+    def render_rgb(self, tracing: PathTracing, seed: int) -> npt.NDArray[np.uint8]:
+        """The placed camera's path-traced 8-bit sRGB image (BGR order) under the environment."""
+        scene = self.rgb_scene
+        tracing.apply(scene, seed)
         scene.render.filepath = str(self.scratch / RGB_FILE)
-        bpy.ops.render.render(write_still=rgb)
-        return read_passes(self.scratch, rgb_file=RGB_FILE if rgb else None)
+        bpy.ops.render.render(write_still=True, scene=scene.name)
+        return read_rgb(self.scratch / RGB_FILE)
 
     # -- helpers ---------------------------------------------------------------------------------
 
@@ -206,7 +352,8 @@ class BlenderScene:
         mesh.materials.append(material)
         obj = bpy.data.objects.new(name, mesh)
         obj.pass_index = pass_index
-        self.scene.collection.objects.link(obj)
+        for scene in (self.rgb_scene, self.geometry_scene):
+            scene.collection.objects.link(obj)
         return obj
 
 

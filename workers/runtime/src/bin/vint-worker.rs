@@ -7,7 +7,7 @@ use anyhow::Context;
 use clap::Parser;
 use vint_artifacts::ArtifactStore;
 use vint_core::Stage;
-use vint_runtime::engine::EngineCommand;
+use vint_runtime::engine::{EngineCommand, RecyclePolicy};
 use vint_runtime::worker::{Worker, WorkerConfig};
 
 #[derive(Parser)]
@@ -37,6 +37,13 @@ struct Args {
     /// Longest one task may run in an engine, in seconds.
     #[arg(long, default_value_t = 1_800)]
     task_timeout_s: u64,
+    /// Replace an engine process after this many tasks (0: never).
+    #[arg(long, env = "VINT_ENGINE_MAX_TASKS", default_value_t = 0)]
+    engine_max_tasks: u32,
+    /// Replace an engine process, between tasks, once its resident memory exceeds this many MiB
+    /// (0: never). Blender and MuJoCo hold their scenes between tasks; this bounds any slow leak.
+    #[arg(long, env = "VINT_ENGINE_MAX_RSS_MIB", default_value_t = 8_192)]
+    engine_max_rss_mib: u64,
     /// Worker id (default: host name, process id and a random suffix).
     #[arg(long)]
     worker_id: Option<String>,
@@ -68,6 +75,10 @@ async fn main() -> anyhow::Result<()> {
             engines_dir: args.engines_dir.unwrap_or(default_engines),
             task_timeout: Duration::from_secs(args.task_timeout_s),
             start_timeout: Duration::from_secs(120),
+            recycle: RecyclePolicy {
+                max_tasks: Some(args.engine_max_tasks).filter(|&n| n > 0),
+                max_rss_bytes: Some(args.engine_max_rss_mib << 20).filter(|&n| n > 0),
+            },
         },
         max_idle_poll: Duration::from_millis(500),
     };

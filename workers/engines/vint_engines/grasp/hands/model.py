@@ -19,7 +19,7 @@ Names: links `palm`, `f{i}_{link}` (e.g. `f0_prox`); joints `f{i}_j{k}`; actuato
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, Protocol
 
 Vec3 = tuple[float, float, float]
 JointKind = Literal["flex", "abduct"]
@@ -110,3 +110,55 @@ class HandDims:
 
     def closed_pose(self) -> list[float]:
         return [joint.closed for _, joint in self.joints()]
+
+    @property
+    def finger_count(self) -> int:
+        return len(self.fingers)
+
+    def reach(self) -> float:
+        """The longest finger's length, base joint to fingertip."""
+        return max(sum(link.length for link in f.links) + f.tip_radius for f in self.fingers)
+
+    def close_phases(self) -> list[float]:
+        """Per joint (actuator order), when it starts closing: 0 at a finger's base, 1 at its tip."""
+        return [k / max(1, len(f.links) - 1) for f in self.fingers for k in range(len(f.links))]
+
+    def fingertips(self) -> list[str]:
+        return [f"f{i}_tip" for i in range(len(self.fingers))]
+
+    def fingertip_radius(self) -> float:
+        return min(finger.tip_radius for finger in self.fingers)
+
+
+class GraspHand(Protocol):
+    """What a grasp trial reads of a hand: a built-in `HandDims` or a user's `mjcf.MjcfHand`.
+
+    `palm_half` bounds the palm in the palm frame (the palmar face at z = palm_half[2]);
+    `grasp_centre` is where on that face a power grasp centres the object; `reach` is the longest
+    finger's length (the scale of standoffs); `close_phases` orders the staggered close. Poses and
+    phases follow `joint_names()`; `link_names()` starts with `palm`.
+    """
+
+    @property
+    def name(self) -> str: ...
+    @property
+    def palm_half(self) -> Vec3: ...
+    @property
+    def grasp_centre(self) -> tuple[float, float]: ...
+    @property
+    def dof(self) -> int: ...
+    @property
+    def finger_count(self) -> int: ...
+    def link_names(self) -> list[str]: ...
+    def joint_names(self) -> list[str]: ...
+    def open_pose(self) -> list[float]: ...
+    def closed_pose(self) -> list[float]: ...
+    def reach(self) -> float: ...
+    def close_phases(self) -> list[float]: ...
+    def fingertips(self) -> list[str]:
+        """The links at the ends of the fingers."""
+        ...
+
+    def fingertip_radius(self) -> float:
+        """The smallest fingertip's radius."""
+        ...
