@@ -276,9 +276,8 @@ impl Worker {
         })
     }
 
-    /// The warm engine of `stage`, started on first use.
-    /// A warm engine past its recycle limits (tasks served, resident memory) is shut down first and
-    /// replaced by a fresh one.
+    /// The warm engine of `stage`, started on first use. A warm engine past its recycle limits
+    /// (tasks served, resident memory) is shut down first and replaced by a fresh one.
     async fn engine(&mut self, stage: Stage) -> Result<&mut Engine, TaskFailure> {
         if let Some(reason) = self.engines.get(&stage).and_then(Engine::recycle_reason)
             && let Some(old) = self.engines.remove(&stage)
