@@ -126,12 +126,17 @@ fn log_file(dir: &Path, name: &str) -> Stdio {
 
 /// Starts `vint-coordinator` on `port` and waits until it accepts connections.
 pub fn start_coordinator(database: &str, port: u16, logs: &Path, name: &str) -> Proc {
-    let child = Command::new(bin("vint-coordinator"))
-        .args(["--database", database, "--listen", &format!("127.0.0.1:{port}"), "--backoff-ms", "200"])
-        .stdout(Stdio::null())
-        .stderr(log_file(logs, name))
-        .spawn()
-        .expect("start coordinator");
+    start_coordinator_with_store(database, port, logs, name, None)
+}
+
+/// `start_coordinator`, with an artifact store for the files a submission carries.
+pub fn start_coordinator_with_store(database: &str, port: u16, logs: &Path, name: &str, store: Option<&str>) -> Proc {
+    let mut cmd = Command::new(bin("vint-coordinator"));
+    cmd.args(["--database", database, "--listen", &format!("127.0.0.1:{port}"), "--backoff-ms", "200"]);
+    if let Some(store) = store {
+        cmd.args(["--store", store]);
+    }
+    let child = cmd.stdout(Stdio::null()).stderr(log_file(logs, name)).spawn().expect("start coordinator");
     let deadline = Instant::now() + Duration::from_secs(30);
     while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
         assert!(Instant::now() < deadline, "coordinator did not start; see {}", logs.display());

@@ -335,3 +335,24 @@ async fn artifacts_in_s3_give_the_same_dataset() {
     let out = c.export(&job);
     assert_same_as_embedded(&out);
 }
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_submitted_user_file_has_lineage_by_its_hash() {
+    let c = Cluster::new("userfile").await;
+    let _coordinator = start_coordinator_with_store(&c.database, c.port, &c.logs(), "coordinator", Some(&c.store_url));
+    let spec = repo_root().join("examples").join("custom.toml");
+    let o = vintctl(&["submit", spec.to_str().unwrap(), "--coordinator", &c.coordinator]);
+    assert!(o.status.success(), "submit: {}", stderr(&o));
+    let job = stdout(&o).trim().to_string();
+    let cup = repo_root().join("examples").join("assets").join("cup.obj");
+    let sha = hex::encode(<sha2::Sha256 as sha2::Digest>::digest(std::fs::read(cup).unwrap()));
+    let o = vintctl(&["--json", "lineage", &sha, "--artifact", "--coordinator", &c.coordinator]);
+    assert!(o.status.success(), "lineage: {}", stderr(&o));
+    let lineage: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    assert_eq!(lineage["job_id"], job.as_str());
+    assert_eq!(lineage["user_files"][0]["path"], "assets/cup.obj");
+    let keys: Vec<&str> = lineage["tasks"].as_array().unwrap().iter().map(|t| t["key"].as_str().unwrap()).collect();
+    assert!(!keys.is_empty() && keys.iter().all(|k| k.starts_with("grasp/cup/")), "{keys:?}");
+    let unknown = vintctl(&["lineage", &"0".repeat(64), "--artifact", "--coordinator", &c.coordinator]);
+    assert!(!unknown.status.success());
+}

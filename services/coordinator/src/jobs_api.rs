@@ -109,7 +109,31 @@ impl JobApi {
             }
             tasks.push(self.lineage_task(entry).await?);
         }
-        Ok(pb::Lineage { job_id, subject: sample_id.to_string(), tasks })
+        Ok(pb::Lineage { job_id, subject: sample_id.to_string(), tasks, user_files: Vec::new() })
+    }
+
+    /// Lineage of content no task produced: a file a user submitted with a job, and the tasks
+    /// whose parameters name it.
+    async fn user_file_lineage(&self, sha: String, job: Option<&str>) -> Result<pb::Lineage, Status> {
+        let files = self.store.user_files_with(&sha, job).await.map_err(status)?;
+        let job_id = files
+            .first()
+            .map(|(j, _)| j.clone())
+            .ok_or_else(|| Status::not_found(format!("no artifact and no submitted file with sha256 {sha}")))?;
+        let mut tasks = Vec::new();
+        for t in self.store.tasks_of_job(&job_id).await.map_err(status)? {
+            if t.params_json.contains(&sha)
+                && let Some(entry) = self.store.lineage(&t.id).await.map_err(status)?.into_iter().next()
+            {
+                tasks.push(self.lineage_task(entry).await?);
+            }
+        }
+        let user_files = files
+            .into_iter()
+            .filter(|(j, _)| *j == job_id)
+            .map(|(_, a)| pb::UserFile { path: a.path, sha256: a.sha256, size: a.size, media_type: a.media_type })
+            .collect();
+        Ok(pb::Lineage { job_id, subject: sha, tasks, user_files })
     }
 
     async fn lineage_task(&self, e: LineageEntry) -> Result<pb::LineageTask, Status> {
@@ -275,18 +299,17 @@ impl JobService for JobApi {
                 let job = (!req.job_id.is_empty()).then_some(req.job_id.as_str());
                 let producers = self.store.producers_of(&sha, job).await.map_err(status)?;
                 // Packaging copies content; the task that first made it is its origin.
-                let first = producers
-                    .iter()
-                    .find(|a| !a.task_key.starts_with("package/"))
-                    .or(producers.first())
-                    .ok_or_else(|| Status::not_found(format!("no artifact with sha256 {sha}")))?;
+                let Some(first) = producers.iter().find(|a| !a.task_key.starts_with("package/")).or(producers.first())
+                else {
+                    return Ok(Response::new(self.user_file_lineage(sha, job).await?));
+                };
                 let chain = self.store.lineage(&first.task_id).await.map_err(status)?;
                 let job_id = chain.first().map(|e| e.task.job_id.clone()).unwrap_or_default();
                 let mut tasks = Vec::new();
                 for e in chain {
                     tasks.push(self.lineage_task(e).await?);
                 }
-                Ok(Response::new(pb::Lineage { job_id, subject: sha, tasks }))
+                Ok(Response::new(pb::Lineage { job_id, subject: sha, tasks, user_files: Vec::new() }))
             }
             None => Err(Status::invalid_argument("lineage needs a sample_id or an artifact_sha256")),
         }

@@ -122,6 +122,30 @@ impl Store {
             .collect()
     }
 
+    /// Submitted user files with this content, as (job id, file), optionally within one job.
+    pub async fn user_files_with(&self, sha256: &str, job_id: Option<&str>) -> Result<Vec<(String, JobAsset)>> {
+        let rows = sqlx::query(
+            "SELECT job_id, path, sha256, size, media_type, object_key FROM job_assets \
+             WHERE sha256 = $1 AND ($2 = '' OR job_id = $2) ORDER BY job_id, path",
+        )
+        .bind(sha256)
+        .bind(job_id.unwrap_or(""))
+        .fetch_all(&self.pool)
+        .await?;
+        rows.iter()
+            .map(|row| {
+                let asset = JobAsset {
+                    path: row.try_get("path")?,
+                    sha256: row.try_get("sha256")?,
+                    size: row.try_get::<i64, _>("size")? as u64,
+                    media_type: row.try_get("media_type")?,
+                    object_key: row.try_get("object_key")?,
+                };
+                Ok((row.try_get("job_id")?, asset))
+            })
+            .collect()
+    }
+
     pub async fn job(&self, job_id: &str) -> Result<Option<JobRecord>> {
         let sql = format!("SELECT {JOB_COLUMNS} FROM jobs WHERE id = $1");
         let row = sqlx::query(trusted(sql)).bind(job_id).fetch_optional(&self.pool).await?;

@@ -323,4 +323,11 @@ store_test!(a_jobs_assets_are_recorded_and_shown_as_inputs_of_the_tasks_naming_t
     assert_eq!(inputs, [("assets/bowl.obj", sha.as_str(), vint_store::ASSET_TASK_KEY)]);
     assert!(store.lineage("j/grasp/b").await.unwrap()[0].inputs.is_empty(), "b names no asset");
     assert!(store.job_assets("other").await.unwrap().is_empty());
+    let by_hash = store.user_files_with(&sha, None).await.unwrap();
+    assert_eq!(
+        by_hash.iter().map(|(job, a)| (job.as_str(), a.path.as_str())).collect::<Vec<_>>(),
+        [("j", "assets/bowl.obj")]
+    );
+    assert!(store.user_files_with(&sha, Some("other")).await.unwrap().is_empty());
+    assert!(store.user_files_with(&"0".repeat(64), None).await.unwrap().is_empty());
 });

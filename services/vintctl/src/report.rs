@@ -134,10 +134,18 @@ pub fn lineage(l: &pb::Lineage, json: bool) {
                 })
             })
             .collect();
-        print_json(&json!({"job_id": l.job_id, "subject": l.subject, "tasks": tasks}));
+        let files: Vec<Value> = l
+            .user_files
+            .iter()
+            .map(|f| json!({"path": f.path, "sha256": f.sha256, "size": f.size, "media_type": f.media_type}))
+            .collect();
+        print_json(&json!({"job_id": l.job_id, "subject": l.subject, "user_files": files, "tasks": tasks}));
         return;
     }
     println!("lineage of {} (job {})", l.subject, l.job_id);
+    for f in &l.user_files {
+        println!("  submitted with the job as {} ({} B, {}); read by the tasks below", f.path, f.size, f.media_type);
+    }
     for t in &l.tasks {
         let engine: Value = serde_json::from_str(&t.engine_json).unwrap_or(Value::Null);
         let libs = engine.get("libs").map(|v| v.to_string()).unwrap_or_default();
@@ -148,8 +156,10 @@ pub fn lineage(l: &pb::Lineage, json: bool) {
             engine.get("version").and_then(Value::as_str).unwrap_or("?"),
             libs
         );
-        let params =
-            if t.params_json.len() > 300 { format!("{}…", &t.params_json[..300]) } else { t.params_json.clone() };
+        let params = match t.params_json.char_indices().nth(300) {
+            Some((cut, _)) => format!("{}…", &t.params_json[..cut]),
+            None => t.params_json.clone(),
+        };
         println!("  params: {params}");
         for a in &t.inputs {
             println!("  in  {:<24} sha256:{} (from {})", a.name, a.sha256, a.task_key);
