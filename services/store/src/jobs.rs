@@ -109,17 +109,7 @@ impl Store {
         .bind(job_id)
         .fetch_all(&self.pool)
         .await?;
-        rows.iter()
-            .map(|row| {
-                Ok(JobAsset {
-                    path: row.try_get("path")?,
-                    sha256: row.try_get("sha256")?,
-                    size: row.try_get::<i64, _>("size")? as u64,
-                    media_type: row.try_get("media_type")?,
-                    object_key: row.try_get("object_key")?,
-                })
-            })
-            .collect()
+        rows.iter().map(asset_from_row).collect()
     }
 
     /// Submitted user files with this content, as (job id, file), optionally within one job.
@@ -132,18 +122,7 @@ impl Store {
         .bind(job_id.unwrap_or(""))
         .fetch_all(&self.pool)
         .await?;
-        rows.iter()
-            .map(|row| {
-                let asset = JobAsset {
-                    path: row.try_get("path")?,
-                    sha256: row.try_get("sha256")?,
-                    size: row.try_get::<i64, _>("size")? as u64,
-                    media_type: row.try_get("media_type")?,
-                    object_key: row.try_get("object_key")?,
-                };
-                Ok((row.try_get("job_id")?, asset))
-            })
-            .collect()
+        rows.iter().map(|row| Ok((row.try_get("job_id")?, asset_from_row(row)?))).collect()
     }
 
     pub async fn job(&self, job_id: &str) -> Result<Option<JobRecord>> {
@@ -311,4 +290,15 @@ impl Store {
         }
         Ok(())
     }
+}
+
+/// A `job_assets` row (path, sha256, size, media_type, object_key).
+fn asset_from_row(row: &AnyRow) -> Result<JobAsset> {
+    Ok(JobAsset {
+        path: row.try_get("path")?,
+        sha256: row.try_get("sha256")?,
+        size: row.try_get::<i64, _>("size")? as u64,
+        media_type: row.try_get("media_type")?,
+        object_key: row.try_get("object_key")?,
+    })
 }
