@@ -28,7 +28,7 @@ use std::time::{Duration, Instant};
 use serde_json::json;
 use tonic::transport::{Channel, Endpoint};
 use vint_coordinator::{CoordinatorConfig, now_ms};
-use vint_core::plan::initial_tasks;
+use vint_core::plan::{JobPlan, initial_tasks};
 use vint_core::{DatasetSpec, JobState, Stage, TaskState};
 use vint_proto::v1 as pb;
 use vint_proto::v1::work_service_client::WorkServiceClient;
@@ -211,6 +211,8 @@ async fn run_case(case: &Case, repeat: usize) -> Run {
                 id: job_id.clone(),
                 name: spec.dataset.name.clone(),
                 seed: spec.dataset.seed,
+                plan_json: serde_json::to_string(&JobPlan::new(&spec, &[]).expect("the bench spec plans"))
+                    .expect("a plan serializes"),
                 spec_toml,
                 idempotency_key: job_id.clone(),
                 assets: vec![],

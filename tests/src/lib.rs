@@ -190,20 +190,62 @@ pub fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
 
-/// Checks every file of an exported dataset against manifest.jsonl; returns the manifest's lines.
+/// Largest JSON a sample may carry: its view, not its grasp's shared record (issue 8).
+pub const MAX_SAMPLE_JSON_BYTES: usize = 16 * 1024;
+
+/// Checks every file of an exported dataset against manifest.jsonl, and that every sample's
+/// `meta.json` is at most `MAX_SAMPLE_JSON_BYTES` and refers to a grasp record of the dataset by
+/// its SHA-256; returns the manifest's sample lines.
 pub fn verify_dataset(dir: &Path) -> Vec<serde_json::Value> {
     let manifest = std::fs::read_to_string(dir.join("manifest.jsonl")).expect("manifest.jsonl");
     let lines: Vec<serde_json::Value> =
         manifest.lines().map(|l| serde_json::from_str(l).expect("manifest line")).collect();
+    let mut records = std::collections::BTreeMap::new();
     for line in &lines {
-        let sample = line["sample_id"].as_str().expect("sample_id");
+        let id = line["sample_id"].as_str().or(line["grasp_id"].as_str()).expect("sample_id or grasp_id");
         for (name, f) in line["files"].as_object().expect("files") {
-            let bytes = std::fs::read(dir.join(sample).join(name)).unwrap_or_else(|e| panic!("{sample}/{name}: {e}"));
-            assert_eq!(hex::encode(Sha256::digest(&bytes)), f["sha256"].as_str().unwrap(), "{sample}/{name} hash");
-            assert_eq!(bytes.len() as u64, f["size"].as_u64().unwrap(), "{sample}/{name} size");
+            let bytes = std::fs::read(dir.join(id).join(name)).unwrap_or_else(|e| panic!("{id}/{name}: {e}"));
+            assert_eq!(hex::encode(Sha256::digest(&bytes)), f["sha256"].as_str().unwrap(), "{id}/{name} hash");
+            assert_eq!(bytes.len() as u64, f["size"].as_u64().unwrap(), "{id}/{name} size");
+        }
+        if line["grasp_id"].is_string() {
+            records.insert(
+                id.to_string(),
+                line["files"]["grasp.json"]["sha256"].as_str().expect("grasp.json").to_string(),
+            );
         }
     }
-    lines
+    let samples: Vec<serde_json::Value> = lines.into_iter().filter(|l| l["sample_id"].is_string()).collect();
+    for line in &samples {
+        let sample = line["sample_id"].as_str().unwrap_or_default();
+        let json_bytes: u64 = line["files"]
+            .as_object()
+            .into_iter()
+            .flatten()
+            .filter(|(name, _)| name.ends_with(".json"))
+            .map(|(_, f)| f["size"].as_u64().unwrap_or(u64::MAX))
+            .sum();
+        assert!(json_bytes as usize <= MAX_SAMPLE_JSON_BYTES, "{sample}: {json_bytes} bytes of JSON");
+        let meta: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(dir.join(sample).join("meta.json")).expect("meta.json")).unwrap();
+        let grasp = meta["grasp_id"].as_str().expect("grasp_id");
+        assert!(sample.starts_with(&format!("{grasp}.v")), "{sample} is not a view of {grasp}");
+        assert_eq!(meta["grasp"]["record"], format!("../{grasp}/grasp.json"), "{sample}");
+        assert_eq!(
+            meta["grasp"]["sha256"].as_str(),
+            records.get(grasp).map(String::as_str),
+            "{sample}: its grasp record"
+        );
+    }
+    samples
+}
+
+/// A sample's grasp record, as `meta.json` refers to it.
+pub fn grasp_record(dir: &Path, sample: &str) -> serde_json::Value {
+    let meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join(sample).join("meta.json")).expect("meta.json")).unwrap();
+    let record = dir.join(sample).join(meta["grasp"]["record"].as_str().expect("grasp.record"));
+    serde_json::from_slice(&std::fs::read(&record).unwrap_or_else(|e| panic!("{}: {e}", record.display()))).unwrap()
 }
 
 pub fn manifest_sha256(dir: &Path) -> String {

@@ -35,11 +35,14 @@ fn tiny_spec_produces_verified_samples_identical_for_any_worker_count_and_engine
                     .unwrap();
             assert_eq!(meta["sample_id"], sample);
             assert_eq!(meta["camera"]["K"].as_array().unwrap().len(), 3);
-            assert!(
-                meta["grasp"]["object_pose"]["p"].as_array().unwrap().iter().all(|x| x.as_f64().unwrap().is_finite())
-            );
-            assert!(!meta["grasp"]["link_poses"].as_object().unwrap().is_empty());
-            assert!(!meta["grasp"]["joints"].as_object().unwrap().is_empty());
+            assert!(meta["poses"]["object"]["p"].as_array().unwrap().iter().all(|x| x.as_f64().unwrap().is_finite()));
+            let record = grasp_record(&dir.join("out"), sample);
+            assert_eq!(record["trial"]["object_pose"], meta["poses"]["object"], "{sample}: one pose, two places");
+            assert!(!record["trial"]["link_poses"].as_object().unwrap().is_empty());
+            assert!(!record["trial"]["joints"].as_object().unwrap().is_empty());
+            let readings = record["touch"]["readings"].as_array().unwrap();
+            let active = readings.iter().filter(|r| r.as_f64().unwrap() > 0.0).count() as u64;
+            assert_eq!(record["touch"]["active_count"].as_u64(), Some(active), "{sample}");
             let occlusion = meta["visibility"]["occlusion"].as_f64().unwrap();
             assert!((0.0..=1.0).contains(&occlusion), "{sample}: occlusion {occlusion}");
             let view: usize = sample.rsplit_once(".v").unwrap().1.parse().unwrap();
@@ -192,11 +195,10 @@ async fn a_spec_with_its_own_hand_mesh_object_and_hdri_runs_end_to_end_with_touc
     };
     let (cup_sha, lab_sha) = (file_sha("cup.obj"), file_sha("lab.hdr"));
     for sample in samples.iter().filter(|s| s.starts_with("cup.gripper.")) {
-        let meta: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(out.join(sample).join("meta.json")).unwrap()).unwrap();
-        assert!(meta["grasp"]["touch"]["active_count"].as_u64().unwrap() >= 3, "{sample}: no touch");
-        assert_eq!(meta["object"]["shape"]["asset"], cup_sha.as_str(), "{sample}: the mesh is named by its hash");
-        let links = meta["grasp"]["link_poses"].as_object().unwrap();
+        let record = grasp_record(&out, sample);
+        assert!(record["touch"]["active_count"].as_u64().unwrap() >= 3, "{sample}: no touch");
+        assert_eq!(record["object"]["shape"]["asset"], cup_sha.as_str(), "{sample}: the mesh is named by its hash");
+        let links = record["trial"]["link_poses"].as_object().unwrap();
         assert!(links.contains_key("left_tip") && links.contains_key("palm"), "{sample}: {links:?}");
     }
     // View 1 of every grasp is lit by the user's HDRI, named by its hash.

@@ -81,11 +81,19 @@ impl JobApi {
             sample_id.parse().map_err(|e: vint_core::sample::BadSampleId| Status::invalid_argument(e.to_string()))?;
         let (job_id, package_task) = self.job_of_sample(job_id, sample_id).await?;
         let job = self.job_record(&job_id).await?;
-        let spec = DatasetSpec::parse(&job.spec_toml).map_err(|e| Status::internal(e.to_string()))?;
+        let assets: Vec<Asset> = self
+            .store
+            .job_assets(&job.id)
+            .await
+            .map_err(status)?
+            .into_iter()
+            .map(|a| Asset { path: a.path, sha256: a.sha256, size: a.size })
+            .collect();
+        let job_plan = crate::planner::job_plan(&job, &assets).map_err(|e| Status::internal(e.to_string()))?;
         let own: BTreeSet<String> = [
             plan::noise_key(&id.object, &id.hand, id.grasp_index),
             plan::render_key(&id.object, &id.hand, id.grasp_index),
-            plan::chunk_of(&spec, &id.object, &id.hand, id.grasp_index).key(),
+            job_plan.chunk_of(&id.object, &id.hand, id.grasp_index).key(),
         ]
         .into_iter()
         .collect();
@@ -213,12 +221,15 @@ impl JobService for JobApi {
         let planned: Vec<Asset> =
             assets.iter().map(|a| Asset { path: a.path.clone(), sha256: a.sha256.clone(), size: a.size }).collect();
         let tasks = plan::initial_tasks(&spec, &planned).map_err(|e| Status::invalid_argument(e.to_string()))?;
+        let job_plan = plan::JobPlan::new(&spec, &planned).map_err(|e| Status::invalid_argument(e.to_string()))?;
+        let plan_json = serde_json::to_string(&job_plan).map_err(|e| Status::internal(e.to_string()))?;
         let uuid = uuid::Uuid::new_v4().simple().to_string();
         let new_job = NewJob {
             id: format!("j{}", &uuid[..12]),
             name: spec.dataset.name.clone(),
             seed: spec.dataset.seed,
             spec_toml: req.spec_toml,
+            plan_json,
             idempotency_key: key,
             assets,
         };
@@ -329,6 +340,14 @@ impl JobService for JobApi {
             .into_iter()
             .map(|(sample_id, files)| pb::Sample { sample_id, files: files.iter().map(convert::artifact).collect() })
             .collect();
-        Ok(Response::new(pb::ListSamplesResponse { samples }))
+        let grasps = self
+            .store
+            .grasp_records(&job_id)
+            .await
+            .map_err(status)?
+            .into_iter()
+            .map(|(grasp_id, file)| pb::GraspRecord { grasp_id, file: Some(convert::artifact(&file)) })
+            .collect();
+        Ok(Response::new(pb::ListSamplesResponse { samples, grasps }))
     }
 }

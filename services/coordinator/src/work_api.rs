@@ -133,14 +133,19 @@ impl WorkService for WorkApi {
                 .await
                 .map_err(status)?
                 .ok_or_else(|| Status::not_found(format!("job {} not found", task.job_id)))?;
-            // Only a grasp chunk unlocks tasks, and their parameters may name the job's files.
-            let assets: Vec<Asset> = if task.stage == Stage::Grasp {
-                let stored = self.store.job_assets(&job.id).await.map_err(status)?;
-                stored.into_iter().map(|a| Asset { path: a.path, sha256: a.sha256, size: a.size }).collect()
+            // Only a grasp chunk unlocks tasks, planned from the job's plan.
+            let plan = if task.stage == Stage::Grasp {
+                let assets: Vec<Asset> = if job.plan_json.is_none() {
+                    let stored = self.store.job_assets(&job.id).await.map_err(status)?;
+                    stored.into_iter().map(|a| Asset { path: a.path, sha256: a.sha256, size: a.size }).collect()
+                } else {
+                    Vec::new()
+                };
+                Some(planner::job_plan(&job, &assets).map_err(|e| Status::internal(e.to_string()))?)
             } else {
-                Vec::new()
+                None
             };
-            let unlocked = planner::on_complete(&job, &task, &req.result_json, &outputs, &assets)
+            let unlocked = planner::on_complete(&job, plan.as_ref(), &task, &req.result_json, &outputs)
                 .map_err(|e| Status::invalid_argument(e.to_string()))?;
             let completion = Completion {
                 fence: Fence { task_id: req.task_id.clone(), worker_id: req.worker_id.clone(), attempt: req.attempt },

@@ -22,7 +22,8 @@ pub struct AssetUse {
 }
 
 /// An asset as submitted and stored: its spec path, content hash and size.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields)]
 pub struct Asset {
     pub path: String,
     pub sha256: String,

@@ -19,21 +19,9 @@ const TAXEL_LAYOUTS: &[(&str, &str)] = &[
     ("hands/allegro/taxels.csv", include_str!("../../../catalog/hands/allegro/taxels.csv")),
 ];
 
-/// A graspable object, exactly as `catalog/objects.toml` describes it.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ObjectEntry {
-    pub name: String,
-    pub ycb_id: String,
-    pub mass_kg: f64,
-    /// Surface class the renderer maps to a material.
-    pub material: String,
-    /// Symmetry class pose metrics use (ADD-S for symmetric objects).
-    pub symmetry: String,
-    pub description: String,
-    /// Procedural shape (or mesh reference), passed to the engines unchanged.
-    pub shape: serde_json::Value,
-}
+/// A graspable object, exactly as `catalog/objects.toml` describes it: the grasp stage's object
+/// parameter (`contract::object`), so the catalog is checked against that schema when it loads.
+pub use crate::contract::object::ObjectEntry;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -120,15 +108,6 @@ pub fn hand(name: &str) -> Option<&'static HandModel> {
 /// HDRI environments bundled with Blender (`studiolights/world`).
 pub const ENVIRONMENTS: &[&str] = &["city", "courtyard", "forest", "interior", "night", "studio", "sunrise", "sunset"];
 
-/// Surface classes an object can have (the renderer maps each to a material).
-pub const MATERIALS: &[&str] = &["plastic", "metal", "glass", "paper", "cardboard", "wood", "ceramic", "rubber"];
-
-/// Symmetry classes of an object about its z axis (BOP-style; pose metrics use them).
-pub const SYMMETRIES: &[&str] = &["none", "continuous_z", "discrete_z2", "discrete_z4"];
-
-/// Modalities a spec can request.
-pub const MODALITIES: &[&str] = &["rgb", "depth", "depth_noisy", "mask", "segmentation", "pose"];
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -146,9 +125,7 @@ mod tests {
             assert!(o.name.bytes().all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_'), "{}", o.name);
             assert!(seen.insert(&o.name), "duplicate {}", o.name);
             assert!(o.mass_kg > 0.0 && o.mass_kg < 10.0, "{}: mass {}", o.name, o.mass_kg);
-            assert!(o.shape.get("type").and_then(|t| t.as_str()).is_some(), "{}: shape without type", o.name);
-            assert!(MATERIALS.contains(&o.material.as_str()), "{}: material {}", o.name, o.material);
-            assert!(SYMMETRIES.contains(&o.symmetry.as_str()), "{}: symmetry {}", o.name, o.symmetry);
+            assert!(crate::contract::object::MASS_KG.contains(o.mass_kg), "{}: mass {}", o.name, o.mass_kg);
         }
     }
 

@@ -6,6 +6,7 @@
 
 pub mod asset;
 pub mod catalog;
+pub mod contract;
 pub mod plan;
 pub mod sample;
 pub mod seed;
@@ -13,7 +14,7 @@ pub mod spec;
 pub mod stage;
 pub mod state;
 
-pub use sample::SampleId;
+pub use sample::{GraspId, SampleId};
 pub use spec::{DatasetSpec, SpecError, SpecErrors};
 pub use stage::Stage;
 pub use state::{JobState, TaskState};

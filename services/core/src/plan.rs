@@ -9,22 +9,36 @@
 //! Task keys are deterministic and unique within a job; a task's parameters hold everything its
 //! engine needs, seeds included, so a task can be re-run anywhere with the same result.
 
-use serde_json::{Value, json};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
 
 use crate::asset::Asset;
 use crate::catalog;
+use crate::contract::object::{ObjectEntry, Shape};
+use crate::contract::package::{self, Modality, SampleRef};
+use crate::contract::render::{self, RenderOutput};
+use crate::contract::{grasp, noise};
 use crate::sample::SampleId;
 use crate::seed;
 use crate::spec::DatasetSpec;
 use crate::stage::Stage;
 
-/// A task to insert, with the keys of the tasks it depends on (all within the same job).
+/// A task to insert, with the keys of the tasks it depends on (all within the same job). Its
+/// parameters are the stage contract's type, serialized.
 #[derive(Clone, Debug, PartialEq)]
 pub struct NewTask {
     pub key: String,
     pub stage: Stage,
     pub params: Value,
     pub deps: Vec<String>,
+}
+
+impl NewTask {
+    fn new<P: Serialize>(key: String, stage: Stage, params: &P, deps: Vec<String>) -> Result<NewTask, PlanError> {
+        let params =
+            serde_json::to_value(params).map_err(|e| PlanError::Params { key: key.clone(), reason: e.to_string() })?;
+        Ok(NewTask { key, stage, params, deps })
+    }
 }
 
 /// One grasp-sim task's identity: a chunk of trial indices of one (object, hand) pair.
@@ -55,12 +69,6 @@ impl GraspChunk {
         let chunk = chunk.strip_prefix('c')?.parse().ok()?;
         Some(GraspChunk { object: object.to_string(), hand: hand.to_string(), chunk })
     }
-
-    /// The trial indices this chunk runs.
-    pub fn trials(&self, spec: &DatasetSpec) -> std::ops::Range<u32> {
-        let start = self.chunk * spec.grasp.chunk_size;
-        start..(start + spec.grasp.chunk_size).min(spec.grasp.trials_per_pair)
-    }
 }
 
 pub fn render_key(object: &str, hand: &str, grasp_index: u32) -> String {
@@ -71,16 +79,123 @@ pub fn noise_key(object: &str, hand: &str, grasp_index: u32) -> String {
     format!("noise/{object}/{hand}/g{grasp_index:06}")
 }
 
-/// The chunk a grasp index belongs to.
-pub fn chunk_of(spec: &DatasetSpec, object: &str, hand: &str, grasp_index: u32) -> GraspChunk {
-    GraspChunk { object: object.to_string(), hand: hand.to_string(), chunk: grasp_index / spec.grasp.chunk_size }
-}
-
 /// Why a spec cannot be planned.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum PlanError {
     #[error("{field}: the file {path:?} is not among the submitted assets")]
     MissingAsset { field: String, path: String },
+    #[error("{object}: not in the built-in catalog and not defined by the spec")]
+    UnknownObject { object: String },
+    #[error("task {key}: parameters do not serialize: {reason}")]
+    Params { key: String, reason: String },
+}
+
+/// Everything a job's later tasks need, fixed at submit from the spec and the job's stored files
+/// and kept with the job, so that a completion plans its children without re-reading the spec.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct JobPlan {
+    pub seed: u64,
+    pub trials_per_pair: u32,
+    pub chunk_size: u32,
+    /// View `v` renders under `environments[v / views_per_environment]`.
+    pub views_per_environment: u32,
+    pub render: render::Settings,
+    pub environments: Vec<render::Environment>,
+    /// The HDRI files render tasks stage: a user's HDRIs, only when RGB is path traced.
+    pub render_assets: Vec<Asset>,
+    /// Only what the requested modalities need.
+    pub render_outputs: Vec<RenderOutput>,
+    /// The noise model, when noisy depth is requested (no noise tasks otherwise).
+    pub noise: Option<noise::NoiseModel>,
+    pub modalities: Vec<Modality>,
+}
+
+impl JobPlan {
+    /// The plan of `spec`, whose user files are `assets` (`DatasetSpec::asset_uses`: every one must
+    /// be there).
+    pub fn new(spec: &DatasetSpec, assets: &[Asset]) -> Result<JobPlan, PlanError> {
+        let r = &spec.render;
+        let mut environments = Vec::new();
+        let mut render_assets: Vec<Asset> = Vec::new();
+        for e in &r.environments {
+            let mut environment = render::Environment {
+                name: e.name.clone(),
+                rotation_deg: e.rotation_deg,
+                strength: e.strength,
+                asset: None,
+            };
+            if let Some(file) = &e.file {
+                let a = find_asset(assets, &file.field, &file.path)?;
+                environment.asset = Some(a.sha256.clone());
+                if !render_assets.contains(a) {
+                    render_assets.push(a.clone());
+                }
+            }
+            environments.push(environment);
+        }
+        let wants = |m| spec.outputs.wants(m);
+        // Without RGB nothing is path traced, so no HDRI file is read: none is staged.
+        if !wants(Modality::Rgb) {
+            render_assets.clear();
+        }
+        let mut render_outputs: Vec<RenderOutput> =
+            spec.outputs.modalities.iter().filter_map(|m| m.render_output()).collect();
+        render_outputs.sort();
+        render_outputs.dedup();
+        Ok(JobPlan {
+            seed: spec.dataset.seed,
+            trials_per_pair: spec.grasp.trials_per_pair,
+            chunk_size: spec.grasp.chunk_size,
+            views_per_environment: r.views_per_environment,
+            render: render::Settings {
+                width: r.resolution[0],
+                height: r.resolution[1],
+                samples: r.samples,
+                denoise: r.denoise,
+                bounces: r.bounces.clone(),
+                prune_bounces: true,
+                fov_deg: r.fov_deg,
+                environment: environments
+                    .first()
+                    .map_or_else(|| render::DEFAULT_ENVIRONMENT.into(), |e| e.name.clone()),
+                radius_m: r.radius_m,
+                elevation_deg: r.elevation_deg,
+            },
+            environments,
+            render_assets,
+            render_outputs,
+            noise: wants(Modality::DepthNoisy).then(|| spec.noise.clone()),
+            modalities: spec.outputs.modalities.clone(),
+        })
+    }
+
+    pub fn views_per_grasp(&self) -> u32 {
+        self.views_per_environment * self.environments.len() as u32
+    }
+
+    /// The trial indices a chunk runs.
+    pub fn trials(&self, chunk: &GraspChunk) -> std::ops::Range<u32> {
+        let start = chunk.chunk.saturating_mul(self.chunk_size);
+        start..start.saturating_add(self.chunk_size).min(self.trials_per_pair)
+    }
+
+    /// The chunk a grasp index belongs to.
+    pub fn chunk_of(&self, object: &str, hand: &str, grasp_index: u32) -> GraspChunk {
+        GraspChunk { object: object.to_string(), hand: hand.to_string(), chunk: grasp_index / self.chunk_size }
+    }
+
+    fn environment_of_view(&self, v: u32) -> &str {
+        let i = (v / self.views_per_environment.max(1)) as usize;
+        self.environments.get(i).map_or(render::DEFAULT_ENVIRONMENT, |e| e.name.as_str())
+    }
+}
+
+fn find_asset<'a>(assets: &'a [Asset], field: &str, path: &str) -> Result<&'a Asset, PlanError> {
+    assets
+        .iter()
+        .find(|a| a.path == path)
+        .ok_or_else(|| PlanError::MissingAsset { field: field.to_string(), path: path.to_string() })
 }
 
 /// The tasks that exist at submit: every grasp-sim chunk. `assets` are the stored files the
@@ -89,236 +204,173 @@ pub fn initial_tasks(spec: &DatasetSpec, assets: &[Asset]) -> Result<Vec<NewTask
     if let Some(u) = spec.asset_uses().into_iter().find(|u| !assets.iter().any(|a| a.path == u.path)) {
         return Err(PlanError::MissingAsset { field: u.field, path: u.path });
     }
-    let mut tasks = Vec::new();
+    let plan = JobPlan::new(spec, assets)?;
+    let chunks = spec.chunks_per_pair();
+    let mut tasks = Vec::with_capacity(spec.objects.len() * spec.hands.len() * chunks as usize);
     for object in &spec.objects {
         for hand in &spec.hands {
-            for chunk in 0..spec.chunks_per_pair() {
+            for chunk in 0..chunks {
                 let c = GraspChunk { object: object.clone(), hand: hand.clone(), chunk };
-                let params = grasp_params(spec, &c, assets);
-                tasks.push(NewTask { key: c.key(), stage: Stage::Grasp, params, deps: vec![] });
+                tasks.push(grasp_task(spec, &plan, &c, assets)?);
             }
         }
     }
     Ok(tasks)
 }
 
-/// A grasp task's `hand` and `object` parameters, and the asset files they name by SHA-256 (the
-/// task's `assets`, which the worker stages for the engine): a built-in hand is its name, a
-/// user's hand adds its `mjcf` and `taxels` files; a built-in object is its catalog entry, a
-/// user's object an entry of the same schema whose shape is a `mesh` asset.
-fn hand_and_object(spec: &DatasetSpec, c: &GraspChunk, assets: &[Asset]) -> (Value, Value, Vec<Asset>) {
+/// The grasp task of one chunk (`initial_tasks` makes every chunk's).
+pub fn grasp_task(spec: &DatasetSpec, plan: &JobPlan, c: &GraspChunk, assets: &[Asset]) -> Result<NewTask, PlanError> {
+    NewTask::new(c.key(), Stage::Grasp, &grasp_params(spec, plan, c, assets)?, vec![])
+}
+
+/// A grasp task's parameters. A built-in hand is its name, a user's hand adds its `mjcf` and
+/// `taxels` files; a built-in object is its catalog entry, a user's object an entry of the same
+/// schema whose shape is a `mesh` asset. The files they name are the task's `assets`.
+fn grasp_params(
+    spec: &DatasetSpec,
+    plan: &JobPlan,
+    c: &GraspChunk,
+    assets: &[Asset],
+) -> Result<grasp::Params, PlanError> {
     let mut used: Vec<Asset> = Vec::new();
-    let mut sha = |path: &str| -> String {
-        let Some(a) = assets.iter().find(|a| a.path == path) else {
-            return String::new(); // unreachable: `initial_tasks` checked every use
-        };
+    let mut sha = |field: String, path: &str| -> Result<String, PlanError> {
+        let a = find_asset(assets, &field, path)?;
         if !used.contains(a) {
             used.push(a.clone());
         }
-        a.sha256.clone()
+        Ok(a.sha256.clone())
     };
     let hand = match spec.hand_defs.get(&c.hand) {
-        Some(h) => json!({"name": c.hand, "mjcf": sha(&h.mjcf), "taxels": sha(&h.taxels)}),
-        None => json!({"name": c.hand}),
+        Some(h) => grasp::HandRef {
+            name: c.hand.clone(),
+            mjcf: Some(sha(format!("hand.{}.mjcf", c.hand), &h.mjcf)?),
+            taxels: Some(sha(format!("hand.{}.taxels", c.hand), &h.taxels)?),
+        },
+        None => grasp::HandRef { name: c.hand.clone(), mjcf: None, taxels: None },
     };
     let object = match spec.object_defs.get(&c.object) {
-        Some(o) => json!({
-            "name": c.object,
-            "ycb_id": "",
-            "mass_kg": o.mass_kg,
-            "material": o.material,
-            "symmetry": o.symmetry,
-            "description": format!("user mesh {}", o.mesh),
-            "shape": {"type": "mesh", "asset": sha(&o.mesh), "scale": o.scale()},
-        }),
-        None => json!(catalog::object(&c.object)),
-    };
-    (hand, object, used)
-}
-
-fn grasp_params(spec: &DatasetSpec, c: &GraspChunk, assets: &[Asset]) -> Value {
-    let trials: Vec<Value> = c
-        .trials(spec)
-        .map(|g| json!({"grasp_index": g, "seed": seed::grasp_trial(spec.dataset.seed, &c.object, &c.hand, g)}))
-        .collect();
-    let (hand, object, used) = hand_and_object(spec, c, assets);
-    let mut params = json!({
-        "object": object,
-        "hand": hand,
-        "trials": trials,
-        "touch": {
-            "sensing_depth_m": spec.touch.sensing_depth_m,
-            "response_depth_m": spec.touch.response_depth_m,
-            "gain_sigma": spec.touch.gain_sigma,
-            "aging": spec.touch.aging,
-            "min_active_taxels": spec.touch.min_active_taxels,
-            "gain_seed": seed::taxel_gains(spec.dataset.seed, &c.hand),
-        },
-        "physics": {
-            "timestep": spec.grasp.timestep_s,
-            "lift_height": spec.grasp.lift_height_m,
-            "hold_s": spec.grasp.hold_s,
-            "max_drop_m": spec.grasp.max_drop_m,
-            "standoff_ratio": spec.grasp.standoff_ratio,
-            "shake": {
-                "enabled": spec.grasp.shake_accel_mps2 > 0.0,
-                "accel_mps2": if spec.grasp.shake_accel_mps2 > 0.0 { spec.grasp.shake_accel_mps2 } else { 5.0 },
-                "directions": spec.grasp.shake_directions,
-                "duration_s": spec.grasp.shake_duration_s,
+        Some(o) => ObjectEntry {
+            name: c.object.clone(),
+            ycb_id: String::new(),
+            mass_kg: o.mass_kg,
+            material: o.material,
+            symmetry: o.symmetry,
+            description: format!("user mesh {}", o.mesh),
+            shape: Shape::Mesh {
+                path: None,
+                asset: Some(sha(format!("object.{}.mesh", c.object), &o.mesh)?),
+                scale: o.scale(),
             },
         },
-    });
-    if !used.is_empty() {
-        params["assets"] = json!(used);
-    }
-    params
+        None => {
+            catalog::object(&c.object).cloned().ok_or_else(|| PlanError::UnknownObject { object: c.object.clone() })?
+        }
+    };
+    let g = &spec.grasp;
+    let shake = g.shake_accel_mps2 > 0.0;
+    Ok(grasp::Params {
+        object,
+        hand,
+        trials: plan
+            .trials(c)
+            .map(|i| grasp::Trial { grasp_index: i, seed: seed::grasp_trial(plan.seed, &c.object, &c.hand, i) })
+            .collect(),
+        physics: grasp::Physics {
+            timestep: g.timestep_s,
+            lift_height: g.lift_height_m,
+            hold_s: g.hold_s,
+            max_drop_m: g.max_drop_m,
+            standoff_ratio: g.standoff_ratio,
+            shake: grasp::Shake {
+                enabled: shake,
+                accel_mps2: if shake { g.shake_accel_mps2 } else { grasp::SHAKE_ACCEL_MPS2.default },
+                directions: g.shake_directions,
+                duration_s: g.shake_duration_s,
+            },
+            ..grasp::Physics::default()
+        },
+        touch: grasp::Touch {
+            sensing_depth_m: spec.touch.sensing_depth_m,
+            response_depth_m: spec.touch.response_depth_m,
+            gain_sigma: spec.touch.gain_sigma,
+            aging: spec.touch.aging,
+            gain_seed: seed::taxel_gains(plan.seed, &c.hand),
+            min_active_taxels: spec.touch.min_active_taxels,
+        },
+        assets: used,
+    })
 }
 
-/// The tasks a completed grasp chunk unlocks, given its accepted grasp indices. `assets` are the
-/// job's stored files (render tasks name the spec's own HDRIs by SHA-256).
-pub fn after_grasp(
-    spec: &DatasetSpec,
-    chunk: &GraspChunk,
-    accepted: &[u32],
-    assets: &[Asset],
-) -> Result<Vec<NewTask>, PlanError> {
+/// The tasks a completed grasp chunk unlocks, given its accepted grasp indices (each one of the
+/// chunk's trials: the caller checks): a render task per grasp, a noise task per grasp when noisy
+/// depth is requested, and one package task for the chunk that waits for all of them.
+pub fn after_grasp(plan: &JobPlan, chunk: &GraspChunk, accepted: &[u32]) -> Result<Vec<NewTask>, PlanError> {
     let (object, hand) = (chunk.object.as_str(), chunk.hand.as_str());
-    let noisy = spec.outputs.wants("depth_noisy");
-    let environments = RenderEnvironments::new(spec, assets)?;
     let mut tasks = Vec::new();
     let mut package_deps = vec![chunk.key()];
     let mut samples = Vec::new();
     for &g in accepted {
         let render = render_key(object, hand, g);
-        tasks.push(NewTask {
-            key: render.clone(),
-            stage: Stage::Render,
-            params: render_params(spec, &environments, object, hand, g),
-            deps: vec![chunk.key()],
-        });
+        tasks.push(NewTask::new(
+            render.clone(),
+            Stage::Render,
+            &render_params(plan, object, hand, g),
+            vec![chunk.key()],
+        )?);
         package_deps.push(render.clone());
-        if noisy {
+        if let Some(model) = &plan.noise {
             let noise = noise_key(object, hand, g);
-            tasks.push(NewTask {
-                key: noise.clone(),
-                stage: Stage::Noise,
-                params: noise_params(spec, object, hand, g),
-                deps: vec![render],
-            });
+            let params = noise_params(plan, model, object, hand, g);
+            tasks.push(NewTask::new(noise.clone(), Stage::Noise, &params, vec![render])?);
             package_deps.push(noise);
         }
-        for v in 0..spec.render.views_per_grasp() {
+        for v in 0..plan.views_per_grasp() {
             let id = SampleId { object: object.into(), hand: hand.into(), grasp_index: g, view_index: v };
-            samples.push(json!({"sample_id": id.to_string(), "grasp_index": g, "view_index": v}));
+            samples.push(SampleRef { sample_id: id.to_string(), grasp_index: g, view_index: v });
         }
     }
     if !accepted.is_empty() {
-        tasks.push(NewTask {
-            key: chunk.package_key(),
-            stage: Stage::Package,
-            params: json!({"samples": samples, "modalities": spec.outputs.modalities}),
-            deps: package_deps,
-        });
+        let params = package::Params { samples, modalities: plan.modalities.clone() };
+        tasks.push(NewTask::new(chunk.package_key(), Stage::Package, &params, package_deps)?);
     }
     Ok(tasks)
 }
 
-/// What the renderer must produce: only what the requested modalities need.
-fn render_outputs(spec: &DatasetSpec) -> Vec<&'static str> {
-    let o = &spec.outputs;
-    let mut out = Vec::new();
-    if o.wants("rgb") {
-        out.push("rgb");
-    }
-    if o.wants("depth") || o.wants("depth_noisy") {
-        out.push("depth");
-    }
-    if o.wants("mask") {
-        out.push("mask");
-    }
-    if o.wants("segmentation") {
-        out.push("segmentation");
-    }
-    out
-}
-
-/// A render task's `environments` and the files they need: a user's HDRI is named by its file's
-/// SHA-256 (`asset`), and the file is among the task's `assets` (staged for the engine) only when
-/// the task path-traces: without `rgb` no HDRI is read. Every render task renders every
-/// environment (`views_per_environment` ≥ 1 each), so all of them share one list.
-struct RenderEnvironments {
-    list: Vec<Value>,
-    assets: Vec<Asset>,
-}
-
-impl RenderEnvironments {
-    fn new(spec: &DatasetSpec, assets: &[Asset]) -> Result<RenderEnvironments, PlanError> {
-        let mut list = Vec::new();
-        let mut used: Vec<Asset> = Vec::new();
-        for e in &spec.render.environments {
-            let mut entry = json!({"name": e.name, "rotation_deg": e.rotation_deg, "strength": e.strength});
-            if let Some(file) = &e.file {
-                let Some(a) = assets.iter().find(|a| a.path == file.path) else {
-                    return Err(PlanError::MissingAsset { field: file.field.clone(), path: file.path.clone() });
-                };
-                entry["asset"] = json!(a.sha256);
-                if !used.contains(a) {
-                    used.push(a.clone());
-                }
-            }
-            list.push(entry);
-        }
-        if !spec.outputs.wants("rgb") {
-            used.clear();
-        }
-        Ok(RenderEnvironments { list, assets: used })
-    }
-}
-
-fn render_params(spec: &DatasetSpec, environments: &RenderEnvironments, object: &str, hand: &str, g: u32) -> Value {
-    let r = &spec.render;
-    let views: Vec<Value> = (0..r.views_per_grasp())
-        .map(|v| {
-            json!({
-                "view_index": v,
-                "seed": seed::render_view(spec.dataset.seed, object, hand, g, v),
-                "environment": r.environment_of_view(v).name,
-            })
+fn render_params(plan: &JobPlan, object: &str, hand: &str, g: u32) -> render::Params {
+    let views = (0..plan.views_per_grasp())
+        .map(|v| render::View {
+            view_index: v,
+            seed: seed::render_view(plan.seed, object, hand, g, v),
+            environment: Some(plan.environment_of_view(v).to_string()),
+            camera: None,
         })
         .collect();
-    let mut params = json!({
-        "grasp_index": g,
-        "render": {
-            "width": r.resolution[0],
-            "height": r.resolution[1],
-            "samples": r.samples,
-            "denoise": r.denoise,
-            "bounces": r.bounces,
-            "fov_deg": r.fov_deg,
-            "environment": r.environments[0].name,
-            "radius_m": r.radius_m,
-            "elevation_deg": r.elevation_deg,
-        },
-        "environments": environments.list,
-        "views": views,
-        "outputs": render_outputs(spec),
-    });
-    if !environments.assets.is_empty() {
-        params["assets"] = json!(environments.assets);
+    render::Params {
+        grasp_index: g,
+        render: plan.render.clone(),
+        environments: plan.environments.clone(),
+        assets: plan.render_assets.clone(),
+        views,
+        outputs: plan.render_outputs.clone(),
     }
-    params
 }
 
-fn noise_params(spec: &DatasetSpec, object: &str, hand: &str, g: u32) -> Value {
-    let views: Vec<Value> = (0..spec.render.views_per_grasp())
-        .map(|v| json!({"view_index": v, "seed": seed::noise_view(spec.dataset.seed, object, hand, g, v)}))
+fn noise_params(plan: &JobPlan, model: &noise::NoiseModel, object: &str, hand: &str, g: u32) -> noise::Params {
+    let views = (0..plan.views_per_grasp())
+        .map(|v| noise::View { view_index: v, seed: seed::noise_view(plan.seed, object, hand, g, v) })
         .collect();
-    json!({"noise": spec.noise, "views": views})
+    noise::Params { noise: model.clone(), views }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use serde_json::json;
+
+    /// The plan of a spec with no user files.
+    fn plan(s: &DatasetSpec) -> JobPlan {
+        JobPlan::new(s, &[]).unwrap()
+    }
 
     fn spec(extra: &str) -> DatasetSpec {
         DatasetSpec::parse(&format!("objects = [\"tomato_soup_can\"]\n[dataset]\nname = \"t\"\nseed = 1\n{extra}"))
@@ -332,7 +384,8 @@ mod tests {
         assert_eq!(tasks.len(), 3);
         assert!(tasks.iter().all(|t| t.stage == Stage::Grasp && t.deps.is_empty()));
         let last = GraspChunk::from_key(&tasks[2].key).unwrap();
-        assert_eq!(last.trials(&s), 8..10);
+        assert_eq!(plan(&s).trials(&last), 8..10);
+        assert_eq!(tasks[2].params["trials"].as_array().unwrap().len(), 2);
     }
 
     #[test]
@@ -346,7 +399,7 @@ mod tests {
     fn accepted_grasps_fan_out_into_render_noise_and_one_package() {
         let s = spec("[render]\nviews_per_environment = 3\n");
         let c = GraspChunk { object: "tomato_soup_can".into(), hand: "trx3".into(), chunk: 0 };
-        let tasks = after_grasp(&s, &c, &[1, 4], &[]).unwrap();
+        let tasks = after_grasp(&plan(&s), &c, &[1, 4]).unwrap();
         let count = |st| tasks.iter().filter(|t| t.stage == st).count();
         assert_eq!((count(Stage::Render), count(Stage::Noise), count(Stage::Package)), (2, 2, 1));
         let package = tasks.iter().find(|t| t.stage == Stage::Package).unwrap();
@@ -358,7 +411,7 @@ mod tests {
     fn no_noise_tasks_when_noisy_depth_is_not_requested() {
         let s = spec("[outputs]\nmodalities = [\"rgb\", \"pose\"]\n");
         let c = GraspChunk { object: "tomato_soup_can".into(), hand: "trx3".into(), chunk: 0 };
-        let tasks = after_grasp(&s, &c, &[0], &[]).unwrap();
+        let tasks = after_grasp(&plan(&s), &c, &[0]).unwrap();
         assert!(tasks.iter().all(|t| t.stage != Stage::Noise));
         let render = &tasks[0];
         assert_eq!(render.params["outputs"], json!(["rgb"]));
@@ -371,7 +424,7 @@ mod tests {
              { name = \"forest\", rotation_deg = 30, strength = 1.2 }]\n",
         );
         let c = GraspChunk { object: "tomato_soup_can".into(), hand: "trx3".into(), chunk: 0 };
-        let tasks = after_grasp(&s, &c, &[2], &[]).unwrap();
+        let tasks = after_grasp(&plan(&s), &c, &[2]).unwrap();
         let render = &tasks[0].params;
         let views = render["views"].as_array().unwrap();
         let names: Vec<&str> = views.iter().map(|v| v["environment"].as_str().unwrap()).collect();
@@ -393,14 +446,14 @@ mod tests {
     fn the_renderer_is_asked_only_for_what_the_modalities_need() {
         let s = spec("[outputs]\nmodalities = [\"depth_noisy\", \"segmentation\", \"pose\"]\n");
         let c = GraspChunk { object: "tomato_soup_can".into(), hand: "trx3".into(), chunk: 0 };
-        assert_eq!(after_grasp(&s, &c, &[0], &[]).unwrap()[0].params["outputs"], json!(["depth", "segmentation"]));
+        assert_eq!(after_grasp(&plan(&s), &c, &[0]).unwrap()[0].params["outputs"], json!(["depth", "segmentation"]));
     }
 
     #[test]
     fn a_chunk_with_no_accepted_grasp_unlocks_nothing() {
         let s = spec("");
         let c = GraspChunk { object: "tomato_soup_can".into(), hand: "trx3".into(), chunk: 0 };
-        assert!(after_grasp(&s, &c, &[], &[]).unwrap().is_empty());
+        assert!(after_grasp(&plan(&s), &c, &[]).unwrap().is_empty());
     }
 
     #[test]
@@ -449,7 +502,7 @@ mod tests {
             Err(PlanError::MissingAsset { field: "render.environments[1].file".into(), path: "a/lab.hdr".into() })
         );
 
-        let tasks = after_grasp(&s, &c, &[0, 1], std::slice::from_ref(&lab)).unwrap();
+        let tasks = after_grasp(&JobPlan::new(&s, std::slice::from_ref(&lab)).unwrap(), &c, &[0, 1]).unwrap();
         let renders: Vec<&NewTask> = tasks.iter().filter(|t| t.stage == Stage::Render).collect();
         assert_eq!(renders.len(), 2);
         for render in renders {
@@ -469,11 +522,12 @@ mod tests {
 
         // Without rgb nothing is path traced: the HDRI keeps its name and hash, the file stays home.
         let depth_only = spec(&format!("{envs}[outputs]\nmodalities = [\"depth\", \"pose\"]\n"));
-        let render = &after_grasp(&depth_only, &c, &[0], std::slice::from_ref(&lab)).unwrap()[0];
+        let render =
+            &after_grasp(&JobPlan::new(&depth_only, std::slice::from_ref(&lab)).unwrap(), &c, &[0]).unwrap()[0];
         assert_eq!(render.params["environments"][1]["asset"], "d".repeat(64));
         assert!(render.params.get("assets").is_none());
         // Only built-in environments: no assets, exactly as before.
-        assert!(after_grasp(&spec(""), &c, &[0], &[]).unwrap()[0].params.get("assets").is_none());
+        assert!(after_grasp(&plan(&spec("")), &c, &[0]).unwrap()[0].params.get("assets").is_none());
     }
 
     #[test]

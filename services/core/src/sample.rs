@@ -1,4 +1,5 @@
-//! Sample identity: one view of one accepted grasp of one object by one hand.
+//! Sample identity: one view of one accepted grasp of one object by one hand; and the grasp's own
+//! identity, which the samples of its views share.
 
 use std::fmt;
 use std::str::FromStr;
@@ -39,6 +40,54 @@ impl FromStr for SampleId {
     }
 }
 
+impl SampleId {
+    /// The grasp this sample is a view of.
+    pub fn grasp(&self) -> GraspId {
+        GraspId { object: self.object.clone(), hand: self.hand.clone(), grasp_index: self.grasp_index }
+    }
+}
+
+/// One accepted grasp of one object by one hand: `tomato_soup_can.trx3.g000003`. Its samples' ids
+/// are this plus `.vNN`.
+#[derive(Clone, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct GraspId {
+    pub object: String,
+    pub hand: String,
+    pub grasp_index: u32,
+}
+
+impl GraspId {
+    pub fn view(&self, view_index: u32) -> SampleId {
+        SampleId { object: self.object.clone(), hand: self.hand.clone(), grasp_index: self.grasp_index, view_index }
+    }
+}
+
+impl fmt::Display for GraspId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}.{}.g{:06}", self.object, self.hand, self.grasp_index)
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+#[error("grasp id {0:?} is not of the form OBJECT.HAND.gNNNNNN")]
+pub struct BadGraspId(pub String);
+
+impl FromStr for GraspId {
+    type Err = BadGraspId;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let bad = || BadGraspId(s.to_string());
+        let parts: Vec<&str> = s.split('.').collect();
+        let [object, hand, grasp] = parts.as_slice() else {
+            return Err(bad());
+        };
+        let grasp_index = grasp.strip_prefix('g').and_then(|g| g.parse().ok()).ok_or_else(bad)?;
+        if object.is_empty() || hand.is_empty() {
+            return Err(bad());
+        }
+        Ok(GraspId { object: object.to_string(), hand: hand.to_string(), grasp_index })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -48,6 +97,16 @@ mod tests {
         let id = SampleId { object: "tomato_soup_can".into(), hand: "trx3".into(), grasp_index: 3, view_index: 1 };
         assert_eq!(id.to_string(), "tomato_soup_can.trx3.g000003.v01");
         assert_eq!(id.to_string().parse::<SampleId>().unwrap(), id);
+    }
+
+    #[test]
+    fn a_sample_id_is_its_grasp_id_and_view() {
+        let id: SampleId = "mug.allegro.g000012.v05".parse().unwrap();
+        assert_eq!(id.grasp().to_string(), "mug.allegro.g000012");
+        assert_eq!(id.grasp().view(5), id);
+        assert_eq!("mug.allegro.g000012".parse::<GraspId>().unwrap(), id.grasp());
+        assert!("mug.allegro.g000012.v05".parse::<GraspId>().is_err());
+        assert!("mug.allegro.g000012".parse::<SampleId>().is_err());
     }
 
     #[test]

@@ -13,6 +13,11 @@ use toml::{Table, Value};
 
 use crate::asset::AssetUse;
 use crate::catalog;
+use crate::contract::package::Modality;
+use crate::contract::render::{self as render_contract, Bounces};
+use crate::contract::{Bound, grasp, noise, object};
+
+pub use crate::contract::noise::NoiseModel as NoiseSettings;
 
 /// A validated dataset spec.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -54,8 +59,8 @@ pub struct UserObject {
     /// Length unit of the mesh file's coordinates: one of `MESH_UNITS`.
     pub unit: String,
     pub mass_kg: f64,
-    pub material: String,
-    pub symmetry: String,
+    pub material: object::Material,
+    pub symmetry: object::Symmetry,
 }
 
 /// Length units a mesh file may be in, with their size in metres.
@@ -127,7 +132,13 @@ pub struct RenderSettings {
 }
 
 /// Views of one grasp at most: view ids are two digits (`v00`..`v99`).
-pub const MAX_VIEWS_PER_GRASP: u32 = 100;
+pub const MAX_VIEWS_PER_GRASP: u32 = render_contract::MAX_VIEWS;
+/// Grasp trials per (object, hand) pair.
+pub const TRIALS_PER_PAIR: Bound<u32> = Bound::new(1, 1_000_000, 8);
+/// Views under each environment.
+pub const VIEWS_PER_ENVIRONMENT: Bound<u32> = Bound::new(1, MAX_VIEWS_PER_GRASP, 2);
+/// The spec's shake acceleration: 0 (the default) disables the shake test.
+pub const SHAKE_ACCEL_MPS2: Bound<f64> = Bound::new(0.0, grasp::SHAKE_ACCEL_MPS2.max, 0.0);
 
 impl RenderSettings {
     pub fn views_per_grasp(&self) -> u32 {
@@ -170,35 +181,83 @@ fn serialize_file<S: serde::Serializer>(file: &Option<AssetUse>, s: S) -> Result
 /// Extensions of the HDRI files a spec may name (Radiance RGBE and OpenEXR).
 pub const HDRI_EXTENSIONS: &[&str] = &["hdr", "exr"];
 
-/// Cycles' light-path caps (Cycles' defaults).
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct Bounces {
-    pub total: u32,
-    pub diffuse: u32,
-    pub glossy: u32,
-    pub transmission: u32,
-    pub transparent: u32,
-}
-
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct NoiseSettings {
-    pub sigma_base_m: f64,
-    pub sigma_per_m: f64,
-    pub min_range_m: f64,
-    pub max_range_m: f64,
-    pub edge_hole_jump_m: f64,
-    pub dropout: f64,
-}
-
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Outputs {
-    pub modalities: Vec<String>,
+    pub modalities: Vec<Modality>,
 }
 
 impl Outputs {
-    pub fn wants(&self, modality: &str) -> bool {
-        self.modalities.iter().any(|m| m == modality)
+    pub fn wants(&self, modality: Modality) -> bool {
+        self.modalities.contains(&modality)
     }
+}
+
+/// A number field of the spec and its bounds: what the reader below enforces, listed so that
+/// tests can set every field to its extremes (`tests/tests/contract.rs`). Paths use `*` for a
+/// name of the spec's own (`object.*.mass_kg`) and `[*]` for every entry of a list of tables.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NumberField {
+    pub path: &'static str,
+    pub bounds: NumberBounds,
+    /// A `[low, high]` or `[x, y]` pair rather than a single number.
+    pub pair: bool,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum NumberBounds {
+    Float(Bound<f64>),
+    Integer(Bound<i64>),
+}
+
+/// Every number field of the spec (see `NumberField`).
+pub fn number_fields() -> Vec<NumberField> {
+    let float = |path, b: Bound<f64>| NumberField { path, bounds: NumberBounds::Float(b), pair: false };
+    let count = |path, b: Bound<u32>| NumberField {
+        path,
+        bounds: NumberBounds::Integer(Bound::new(i64::from(b.min), i64::from(b.max), i64::from(b.default))),
+        pair: false,
+    };
+    let pair = |field: NumberField| NumberField { pair: true, ..field };
+    let bounces = Bounces::default();
+    let cap = |path, default: u32| count(path, Bound { default, ..render_contract::BOUNCES });
+    vec![
+        NumberField { path: "dataset.seed", bounds: NumberBounds::Integer(Bound::new(0, i64::MAX, 0)), pair: false },
+        count("grasp.trials_per_pair", TRIALS_PER_PAIR),
+        count("grasp.chunk_size", grasp::TRIALS_PER_TASK),
+        float("grasp.timestep_s", grasp::TIMESTEP_S),
+        float("grasp.lift_height_m", grasp::LIFT_HEIGHT_M),
+        float("grasp.hold_s", grasp::HOLD_S),
+        float("grasp.max_drop_m", grasp::MAX_DROP_M),
+        pair(float("grasp.standoff_ratio", grasp::STANDOFF_RATIO)),
+        float("grasp.shake_accel_mps2", SHAKE_ACCEL_MPS2),
+        count("grasp.shake_directions", grasp::SHAKE_DIRECTIONS),
+        float("grasp.shake_duration_s", grasp::SHAKE_DURATION_S),
+        float("touch.sensing_depth_m", grasp::SENSING_DEPTH_M),
+        float("touch.response_depth_m", grasp::RESPONSE_DEPTH_M),
+        float("touch.gain_sigma", grasp::GAIN_SIGMA),
+        float("touch.aging", grasp::AGING),
+        count("touch.min_active_taxels", grasp::MIN_ACTIVE_TAXELS),
+        pair(count("render.resolution", render_contract::WIDTH_PX)),
+        count("render.samples", render_contract::SAMPLES),
+        cap("render.bounces.total", bounces.total),
+        cap("render.bounces.diffuse", bounces.diffuse),
+        cap("render.bounces.glossy", bounces.glossy),
+        cap("render.bounces.transmission", bounces.transmission),
+        cap("render.bounces.transparent", bounces.transparent),
+        count("render.views_per_environment", VIEWS_PER_ENVIRONMENT),
+        float("render.environments[*].rotation_deg", render_contract::ROTATION_DEG),
+        float("render.environments[*].strength", render_contract::STRENGTH),
+        float("render.fov_deg", render_contract::FOV_DEG),
+        pair(float("render.radius_m", render_contract::RADIUS_M)),
+        pair(float("render.elevation_deg", render_contract::ELEVATION_DEG)),
+        float("noise.sigma_base_m", noise::SIGMA_BASE_M),
+        float("noise.sigma_per_m", noise::SIGMA_PER_M),
+        float("noise.min_range_m", noise::MIN_RANGE_M),
+        float("noise.max_range_m", noise::MAX_RANGE_M),
+        float("noise.edge_hole_jump_m", noise::EDGE_HOLE_JUMP_M),
+        float("noise.dropout", noise::DROPOUT),
+        float("object.*.mass_kg", object::MASS_KG),
+    ]
 }
 
 /// One problem with a spec.
@@ -330,16 +389,22 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
 
     let mut g = r.section(root, "grasp");
     let grasp = GraspSettings {
-        trials_per_pair: r.int(&mut g, "grasp.trials_per_pair", "trials_per_pair", 1..=1_000_000, Some(8)) as u32,
-        chunk_size: r.int(&mut g, "grasp.chunk_size", "chunk_size", 1..=1024, Some(8)) as u32,
-        timestep_s: r.float(&mut g, "grasp.timestep_s", "timestep_s", (0.0001, 0.01), Some(0.002)),
-        lift_height_m: r.float(&mut g, "grasp.lift_height_m", "lift_height_m", (0.0, 1.0), Some(0.10)),
-        hold_s: r.float(&mut g, "grasp.hold_s", "hold_s", (0.0, 60.0), Some(1.0)),
-        max_drop_m: r.float(&mut g, "grasp.max_drop_m", "max_drop_m", (0.001, 0.5), Some(0.02)),
-        standoff_ratio: r.float_range(&mut g, "grasp", "standoff_ratio", (-0.2, 1.0), [0.025, 0.10]),
-        shake_accel_mps2: r.float(&mut g, "grasp.shake_accel_mps2", "shake_accel_mps2", (0.0, 100.0), Some(0.0)),
-        shake_directions: r.int(&mut g, "grasp.shake_directions", "shake_directions", 1..=32, Some(4)) as u32,
-        shake_duration_s: r.float(&mut g, "grasp.shake_duration_s", "shake_duration_s", (0.01, 30.0), Some(1.0)),
+        trials_per_pair: r.count(&mut g, "grasp", "trials_per_pair", TRIALS_PER_PAIR),
+        chunk_size: r.count(&mut g, "grasp", "chunk_size", grasp::TRIALS_PER_TASK),
+        timestep_s: r.number(&mut g, "grasp", "timestep_s", grasp::TIMESTEP_S),
+        lift_height_m: r.number(&mut g, "grasp", "lift_height_m", grasp::LIFT_HEIGHT_M),
+        hold_s: r.number(&mut g, "grasp", "hold_s", grasp::HOLD_S),
+        max_drop_m: r.number(&mut g, "grasp", "max_drop_m", grasp::MAX_DROP_M),
+        standoff_ratio: r.float_range(
+            &mut g,
+            "grasp",
+            "standoff_ratio",
+            grasp::STANDOFF_RATIO,
+            grasp::STANDOFF_RATIO_DEFAULT,
+        ),
+        shake_accel_mps2: r.number(&mut g, "grasp", "shake_accel_mps2", SHAKE_ACCEL_MPS2),
+        shake_directions: r.count(&mut g, "grasp", "shake_directions", grasp::SHAKE_DIRECTIONS),
+        shake_duration_s: r.number(&mut g, "grasp", "shake_duration_s", grasp::SHAKE_DURATION_S),
     };
     r.finish(
         g,
@@ -360,16 +425,17 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
 
     let mut t = r.section(root, "touch");
     let touch = TouchSettings {
-        sensing_depth_m: r.float(&mut t, "touch.sensing_depth_m", "sensing_depth_m", (0.0001, 0.02), Some(0.003)),
-        response_depth_m: r.float(&mut t, "touch.response_depth_m", "response_depth_m", (0.0001, 0.02), Some(0.002)),
-        gain_sigma: r.float(&mut t, "touch.gain_sigma", "gain_sigma", (0.0, 1.0), Some(0.1)),
-        aging: r.float(&mut t, "touch.aging", "aging", (0.01, 1.0), Some(1.0)),
-        min_active_taxels: r.int(&mut t, "touch.min_active_taxels", "min_active_taxels", 0..=10_000, Some(3)) as u32,
+        sensing_depth_m: r.number(&mut t, "touch", "sensing_depth_m", grasp::SENSING_DEPTH_M),
+        response_depth_m: r.number(&mut t, "touch", "response_depth_m", grasp::RESPONSE_DEPTH_M),
+        gain_sigma: r.number(&mut t, "touch", "gain_sigma", grasp::GAIN_SIGMA),
+        aging: r.number(&mut t, "touch", "aging", grasp::AGING),
+        min_active_taxels: r.count(&mut t, "touch", "min_active_taxels", grasp::MIN_ACTIVE_TAXELS),
     };
     r.finish(t, "touch", &["sensing_depth_m", "response_depth_m", "gain_sigma", "aging", "min_active_taxels"]);
 
     let mut rd = r.section(root, "render");
-    let resolution = r.int_pair(&mut rd, "render", "resolution", 16..=8192, [128, 128]);
+    let resolution =
+        r.int_pair(&mut rd, "render", "resolution", [render_contract::WIDTH_PX, render_contract::HEIGHT_PX]);
     if let Some(v) = rd.remove("views_per_grasp") {
         r.error(
             "render.views_per_grasp",
@@ -378,21 +444,27 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
         );
     }
     let render = RenderSettings {
-        resolution: [resolution[0] as u32, resolution[1] as u32],
-        samples: r.int(&mut rd, "render.samples", "samples", 1..=65_536, Some(32)) as u32,
+        resolution,
+        samples: r.count(&mut rd, "render", "samples", render_contract::SAMPLES),
         denoise: r.boolean(&mut rd, "render.denoise", "denoise", false),
         bounces: read_bounces(r, &mut rd),
-        views_per_environment: r.int(
-            &mut rd,
-            "render.views_per_environment",
-            "views_per_environment",
-            1..=i64::from(MAX_VIEWS_PER_GRASP),
-            Some(2),
-        ) as u32,
+        views_per_environment: r.count(&mut rd, "render", "views_per_environment", VIEWS_PER_ENVIRONMENT),
         environments: read_environments(r, &mut rd),
-        fov_deg: r.float(&mut rd, "render.fov_deg", "fov_deg", (5.0, 170.0), Some(60.0)),
-        radius_m: r.float_range(&mut rd, "render", "radius_m", (0.05, 10.0), [0.35, 0.5]),
-        elevation_deg: r.float_range(&mut rd, "render", "elevation_deg", (-90.0, 90.0), [15.0, 75.0]),
+        fov_deg: r.number(&mut rd, "render", "fov_deg", render_contract::FOV_DEG),
+        radius_m: r.float_range(
+            &mut rd,
+            "render",
+            "radius_m",
+            render_contract::RADIUS_M,
+            render_contract::RADIUS_M_DEFAULT,
+        ),
+        elevation_deg: r.float_range(
+            &mut rd,
+            "render",
+            "elevation_deg",
+            render_contract::ELEVATION_DEG,
+            render_contract::ELEVATION_DEG_DEFAULT,
+        ),
     };
     if !render.environments.is_empty() && render.views_per_grasp() > MAX_VIEWS_PER_GRASP {
         r.error(
@@ -423,12 +495,12 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
 
     let mut n = r.section(root, "noise");
     let noise = NoiseSettings {
-        sigma_base_m: r.float(&mut n, "noise.sigma_base_m", "sigma_base_m", (0.0, 0.1), Some(0.0005)),
-        sigma_per_m: r.float(&mut n, "noise.sigma_per_m", "sigma_per_m", (0.0, 0.1), Some(0.001)),
-        min_range_m: r.float(&mut n, "noise.min_range_m", "min_range_m", (0.0, 20.0), Some(0.25)),
-        max_range_m: r.float(&mut n, "noise.max_range_m", "max_range_m", (0.0, 20.0), Some(3.86)),
-        edge_hole_jump_m: r.float(&mut n, "noise.edge_hole_jump_m", "edge_hole_jump_m", (0.001, 10.0), Some(0.05)),
-        dropout: r.float(&mut n, "noise.dropout", "dropout", (0.0, 1.0), Some(0.01)),
+        sigma_base_m: r.number(&mut n, "noise", "sigma_base_m", noise::SIGMA_BASE_M),
+        sigma_per_m: r.number(&mut n, "noise", "sigma_per_m", noise::SIGMA_PER_M),
+        min_range_m: r.number(&mut n, "noise", "min_range_m", noise::MIN_RANGE_M),
+        max_range_m: r.number(&mut n, "noise", "max_range_m", noise::MAX_RANGE_M),
+        edge_hole_jump_m: r.number(&mut n, "noise", "edge_hole_jump_m", noise::EDGE_HOLE_JUMP_M),
+        dropout: r.number(&mut n, "noise", "dropout", noise::DROPOUT),
     };
     if noise.min_range_m >= noise.max_range_m {
         r.error(
@@ -440,15 +512,20 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
     r.finish(n, "noise", &["sigma_base_m", "sigma_per_m", "min_range_m", "max_range_m", "edge_hole_jump_m", "dropout"]);
 
     let mut o = r.section(root, "outputs");
+    let modality_names: Vec<&str> = Modality::ALL.iter().map(|m| m.as_str()).collect();
     let outputs = Outputs {
-        modalities: r.name_list(
-            &mut o,
-            "outputs",
-            "modalities",
-            catalog::MODALITIES,
-            |m| catalog::MODALITIES.contains(&m),
-            "one of rgb, depth, depth_noisy, mask, segmentation, pose",
-        ),
+        modalities: r
+            .name_list(
+                &mut o,
+                "outputs",
+                "modalities",
+                &modality_names,
+                |m| Modality::parse(m).is_some(),
+                &format!("one of {}", modality_names.join(", ")),
+            )
+            .iter()
+            .filter_map(|m| Modality::parse(m))
+            .collect(),
     };
     r.finish(o, "outputs", &["modalities"]);
 
@@ -488,9 +565,15 @@ fn read_user_objects(r: &mut Reader, root: &mut Table) -> BTreeMap<String, UserO
         let object = UserObject {
             mesh: r.asset_path(&mut t, &path, "mesh", &["obj", "stl", "ply"]),
             unit: r.choice(&mut t, &path, "unit", &units, None),
-            mass_kg: r.float(&mut t, &format!("{path}.mass_kg"), "mass_kg", (0.0005, 20.0), None),
-            material: r.choice(&mut t, &path, "material", catalog::MATERIALS, None),
-            symmetry: r.choice(&mut t, &path, "symmetry", catalog::SYMMETRIES, Some("none")),
+            mass_kg: r.float(
+                &mut t,
+                &format!("{path}.mass_kg"),
+                "mass_kg",
+                (object::MASS_KG.min, object::MASS_KG.max),
+                None,
+            ),
+            material: r.tag(&mut t, &path, "material", &object::Material::ALL, None),
+            symmetry: r.tag(&mut t, &path, "symmetry", &object::Symmetry::ALL, Some(object::Symmetry::None)),
         };
         r.finish(t, &path, &["mesh", "unit", "mass_kg", "material", "symmetry"]);
         if catalog::object(&name).is_some() {
@@ -536,9 +619,8 @@ fn read_environments(r: &mut Reader, rd: &mut Table) -> Vec<Environment> {
                     AssetUse { field, path }
                 });
                 let name = r.name(&mut t, &p, "name", None);
-                let rotation_deg =
-                    r.float(&mut t, &format!("{p}.rotation_deg"), "rotation_deg", (-360.0, 360.0), Some(0.0));
-                let strength = r.float(&mut t, &format!("{p}.strength"), "strength", (0.0, 1000.0), Some(1.0));
+                let rotation_deg = r.number(&mut t, &p, "rotation_deg", render_contract::ROTATION_DEG);
+                let strength = r.number(&mut t, &p, "strength", render_contract::STRENGTH);
                 r.finish(t, &p, &["name", "rotation_deg", "strength", "file"]);
                 if file.as_ref().is_some_and(|f| f.path.is_empty()) {
                     continue; // a bad path, already reported
@@ -576,14 +658,15 @@ fn read_bounces(r: &mut Reader, rd: &mut Table) -> Bounces {
             Table::new()
         }
     };
+    let defaults = Bounces::default();
     let mut cap =
-        |key: &str, default: i64| r.int(&mut b, &format!("render.bounces.{key}"), key, 0..=1024, Some(default)) as u32;
+        |key: &str, default: u32| r.count(&mut b, "render.bounces", key, Bound { default, ..render_contract::BOUNCES });
     let bounces = Bounces {
-        total: cap("total", 12),
-        diffuse: cap("diffuse", 4),
-        glossy: cap("glossy", 4),
-        transmission: cap("transmission", 12),
-        transparent: cap("transparent", 8),
+        total: cap("total", defaults.total),
+        diffuse: cap("diffuse", defaults.diffuse),
+        glossy: cap("glossy", defaults.glossy),
+        transmission: cap("transmission", defaults.transmission),
+        transparent: cap("transparent", defaults.transparent),
     };
     r.finish(b, "render.bounces", &["total", "diffuse", "glossy", "transmission", "transparent"]);
     bounces
@@ -716,9 +799,10 @@ impl Reader {
         t: &mut Table,
         parent: &str,
         key: &str,
-        bounds: (f64, f64),
+        bound: Bound<f64>,
         default: [f64; 2],
     ) -> [f64; 2] {
+        let bounds = (bound.min, bound.max);
         let path = join(parent, key);
         let Some(items) = self.pair(t, &path, key) else {
             return default;
@@ -742,28 +826,46 @@ impl Reader {
         out
     }
 
-    fn int_pair(
-        &mut self,
-        t: &mut Table,
-        parent: &str,
-        key: &str,
-        range: std::ops::RangeInclusive<i64>,
-        default: [i64; 2],
-    ) -> [i64; 2] {
+    /// A two-element array of counts, each within its own bound (e.g. width and height).
+    fn int_pair(&mut self, t: &mut Table, parent: &str, key: &str, bounds: [Bound<u32>; 2]) -> [u32; 2] {
         let path = join(parent, key);
+        let default = [bounds[0].default, bounds[1].default];
         let Some(items) = self.pair(t, &path, key) else {
             return default;
         };
         let mut out = default;
         for (i, v) in items.into_iter().enumerate() {
             let p = format!("{path}[{i}]");
-            match v {
-                Value::Integer(x) if range.contains(&x) => out[i] = x,
-                v @ Value::Integer(_) => self.error(&p, v, format!("must be {}..={}", range.start(), range.end())),
-                v => self.error(&p, v, "must be an integer"),
-            }
+            out[i] = self.count_value(&p, v, bounds[i]).unwrap_or(bounds[i].default);
         }
         out
+    }
+
+    /// A count `parent.key` within `bound`; its default when absent.
+    fn count(&mut self, t: &mut Table, parent: &str, key: &str, bound: Bound<u32>) -> u32 {
+        match t.remove(key) {
+            None => bound.default,
+            Some(v) => self.count_value(&join(parent, key), v, bound).unwrap_or(bound.default),
+        }
+    }
+
+    fn count_value(&mut self, path: &str, v: Value, bound: Bound<u32>) -> Option<u32> {
+        match v {
+            Value::Integer(i) if (i64::from(bound.min)..=i64::from(bound.max)).contains(&i) => u32::try_from(i).ok(),
+            v @ Value::Integer(_) => {
+                self.error(path, v, format!("must be {}..={}", bound.min, bound.max));
+                None
+            }
+            v => {
+                self.error(path, v, "must be an integer");
+                None
+            }
+        }
+    }
+
+    /// A number `parent.key` within `bound`; its default when absent.
+    fn number(&mut self, t: &mut Table, parent: &str, key: &str, bound: Bound<f64>) -> f64 {
+        self.float(t, &join(parent, key), key, (bound.min, bound.max), Some(bound.default))
     }
 
     fn pair(&mut self, t: &mut Table, path: &str, key: &str) -> Option<Vec<Value>> {
@@ -870,6 +972,23 @@ impl Reader {
                 default.unwrap_or_default().to_string()
             }
         }
+    }
+
+    /// One of an enum's `choices`, by its serde name; `default` when absent (required when none).
+    fn tag<T: Serialize + Copy>(
+        &mut self,
+        t: &mut Table,
+        parent: &str,
+        key: &str,
+        choices: &[T],
+        default: Option<T>,
+    ) -> T {
+        let names: Vec<String> = choices.iter().map(object::name_of).collect();
+        let names: Vec<&str> = names.iter().map(String::as_str).collect();
+        let fallback = default.map(|d| object::name_of(&d));
+        let chosen = self.choice(t, parent, key, &names, fallback.as_deref());
+        // A bad value was reported; the value returned then does not matter.
+        names.iter().position(|n| *n == chosen).map(|i| choices[i]).or(default).unwrap_or(choices[0])
     }
 
     /// A non-empty list of distinct names, each accepted by `known`.

@@ -128,8 +128,14 @@ fn negative_and_absurd_values_are_rejected() {
     );
     assert_single_error(
         &tiny_with("fov_deg = 50.0", "fov_deg = 180.0"),
-        "render.fov_deg: must be in [5, 170], got 180.0",
+        "render.fov_deg: must be in [5, 150], got 180.0",
     );
+    // Both validated before the bounds came from the stage contracts, and then failed every task.
+    assert_single_error(
+        &tiny_with("fov_deg = 50.0", "fov_deg = 160"),
+        "render.fov_deg: must be in [5, 150], got 160.0",
+    );
+    assert_single_error(&tiny_with("hold_s = 0.5", "hold_s = 45"), "grasp.hold_s: must be in [0, 30], got 45.0");
     assert_single_error(
         &tiny_with("lift_height_m = 0.10", "lift_height_m = 1e9"),
         "grasp.lift_height_m: must be in [0, 1], got 1000000000.0",

@@ -7,7 +7,7 @@ use vint_core::{JobState, TaskState};
 
 use crate::{JobAsset, JobRecord, NewJob, Progress, Result, Store, StoreError, TaskRecord, parse, to_u32, trusted};
 
-const JOB_COLUMNS: &str = "id, name, seed, spec_toml, state, created_ms, finished_ms";
+const JOB_COLUMNS: &str = "id, name, seed, spec_toml, plan_json, state, created_ms, finished_ms";
 pub(crate) const TASK_COLUMNS: &str = "id, job_id, key, stage, state, params_json, attempt, max_attempts, \
      not_before_ms, lease_owner, lease_deadline_ms, last_error, engine_json, result_json";
 
@@ -17,6 +17,7 @@ fn job_from_row(row: &AnyRow) -> Result<JobRecord> {
         name: row.try_get("name")?,
         seed: row.try_get::<i64, _>("seed")? as u64,
         spec_toml: row.try_get("spec_toml")?,
+        plan_json: row.try_get("plan_json")?,
         state: parse("job state", &row.try_get::<String, _>("state")?)?,
         created_ms: row.try_get("created_ms")?,
         finished_ms: row.try_get("finished_ms")?,
@@ -56,13 +57,14 @@ impl Store {
         }
         let mut tx = self.pool.begin().await?;
         let inserted = sqlx::query(
-            "INSERT INTO jobs (id, name, seed, spec_toml, idempotency_key, state, created_ms) \
-             VALUES ($1, $2, $3, $4, $5, $6, $7) ON CONFLICT (idempotency_key) DO NOTHING",
+            "INSERT INTO jobs (id, name, seed, spec_toml, plan_json, idempotency_key, state, created_ms) \
+             VALUES ($1, $2, $3, $4, $5, $6, $7, $8) ON CONFLICT (idempotency_key) DO NOTHING",
         )
         .bind(&job.id)
         .bind(&job.name)
         .bind(job.seed as i64)
         .bind(&job.spec_toml)
+        .bind(&job.plan_json)
         .bind(&job.idempotency_key)
         .bind(JobState::Running.as_str())
         .bind(now_ms)

@@ -123,6 +123,31 @@ impl Store {
         Ok(out)
     }
 
+    /// The grasp records of a job's packaged samples, by grasp id (`<grasp_id>/grasp.json`
+    /// artifacts of its package tasks; the artifact's name is given as `grasp.json`).
+    pub async fn grasp_records(&self, job_id: &str) -> Result<BTreeMap<String, ArtifactRecord>> {
+        let rows = sqlx::query(
+            "SELECT a.task_id, t.key, a.name, a.sha256, a.size, a.media_type, a.object_key \
+             FROM tasks t JOIN artifacts a ON a.task_id = t.id \
+             WHERE t.job_id = $1 AND t.stage = $2 AND a.name LIKE $3 ORDER BY a.name",
+        )
+        .bind(job_id)
+        .bind(vint_core::Stage::Package.as_str())
+        .bind(format!("%/{}", vint_core::contract::package::GRASP_RECORD_FILE))
+        .fetch_all(&self.pool)
+        .await?;
+        let mut out = BTreeMap::new();
+        for row in rows {
+            let mut a = artifact_from_row(&row)?;
+            let Some((grasp, file)) = a.name.split_once('/').map(|(g, f)| (g.to_string(), f.to_string())) else {
+                continue;
+            };
+            a.name = file;
+            out.insert(grasp, a);
+        }
+        Ok(out)
+    }
+
     /// The (job, package task) that made `sample_id`: in `job_id` if given, else in the newest job
     /// that packaged it.
     pub async fn sample_package_task(&self, job_id: Option<&str>, sample_id: &str) -> Result<Option<(String, String)>> {

@@ -11,6 +11,8 @@ pub struct NewJob {
     pub seed: u64,
     pub spec_toml: String,
     pub idempotency_key: String,
+    /// `vint_core::plan::JobPlan` as JSON.
+    pub plan_json: String,
     /// The user files the spec names, already in object storage.
     pub assets: Vec<JobAsset>,
 }
@@ -33,6 +35,8 @@ pub struct JobRecord {
     pub name: String,
     pub seed: u64,
     pub spec_toml: String,
+    /// `vint_core::plan::JobPlan` as JSON; `None` for jobs from before it was kept.
+    pub plan_json: Option<String>,
     pub state: JobState,
     pub created_ms: i64,
     pub finished_ms: Option<i64>,

@@ -69,6 +69,7 @@ fn job(id: &str) -> NewJob {
         name: "t".into(),
         seed: 1,
         spec_toml: "".into(),
+        plan_json: "{}".into(),
         idempotency_key: format!("key-{id}"),
         assets: vec![],
     }

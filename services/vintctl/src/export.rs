@@ -1,5 +1,7 @@
-//! Writing a job's packaged samples to a directory: one directory per sample and a
-//! `manifest.jsonl` listing every file with its SHA-256.
+//! Writing a job's packaged samples to a directory: one directory per sample, one per grasp
+//! record its samples share (`<grasp_id>/grasp.json`), and a `manifest.jsonl` listing every file
+//! with its SHA-256: a line `{"grasp_id", "files"}` per grasp record and `{"sample_id", "files"}`
+//! per sample, in id order (a grasp's line comes just before its samples').
 //!
 //! The dataset is assembled in a sibling temporary directory and renamed into place, so a reader
 //! never sees half a dataset. Every file is verified against its hash as it is read from storage.
@@ -30,7 +32,10 @@ pub struct ExportSummary {
 
 #[derive(Serialize)]
 struct ManifestLine<'a> {
-    sample_id: &'a str,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    grasp_id: Option<&'a str>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    sample_id: Option<&'a str>,
     files: BTreeMap<&'a str, ManifestFile<'a>>,
 }
 
@@ -48,12 +53,12 @@ pub async fn export(
     out: &Path,
 ) -> Result<ExportSummary, Failure> {
     check_destination(out)?;
-    let samples = client
+    let listed = client
         .list_samples(pb::ListSamplesRequest { job_id: job_id.into() })
         .await
         .map_err(|s| rpc_failure("listing samples", s))?
-        .into_inner()
-        .samples;
+        .into_inner();
+    let samples = listed.samples;
     let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
     let staging = parent.join(format!(
@@ -64,7 +69,7 @@ pub async fn export(
     if staging.exists() {
         std::fs::remove_dir_all(&staging).with_context(|| format!("removing stale {}", staging.display()))?;
     }
-    let written = write_dataset(store, &samples, &staging).await;
+    let written = write_dataset(store, &samples, &listed.grasps, &staging).await;
     let (files, bytes, manifest) = match written {
         Ok(w) => w,
         Err(e) => {
@@ -104,29 +109,44 @@ pub fn check_destination(out: &Path) -> Result<(), Failure> {
     Ok(())
 }
 
+/// A directory of the dataset: a grasp record's or a sample's, with its files.
+struct Entry<'a> {
+    id: &'a str,
+    is_grasp: bool,
+    files: Vec<&'a pb::ArtifactRef>,
+}
+
 async fn write_dataset(
     store: &ArtifactStore,
     samples: &[pb::Sample],
+    grasps: &[pb::GraspRecord],
     dir: &Path,
 ) -> Result<(usize, u64, Vec<u8>), Failure> {
+    let mut entries: Vec<Entry> = Vec::with_capacity(samples.len() + grasps.len());
+    for g in grasps {
+        if g.grasp_id.parse::<vint_core::GraspId>().is_err() {
+            return Err(anyhow!("coordinator returned a malformed grasp id {:?}", g.grasp_id).into());
+        }
+        entries.push(Entry { id: &g.grasp_id, is_grasp: true, files: g.file.iter().collect() });
+    }
+    for s in samples {
+        if s.sample_id.parse::<vint_core::SampleId>().is_err() {
+            return Err(anyhow!("coordinator returned a malformed sample id {:?}", s.sample_id).into());
+        }
+        entries.push(Entry { id: &s.sample_id, is_grasp: false, files: s.files.iter().collect() });
+    }
+    entries.sort_by(|a, b| a.id.cmp(b.id));
     let mut manifest = Vec::new();
     let (mut files, mut bytes) = (0usize, 0u64);
-    let mut sorted: Vec<&pb::Sample> = samples.iter().collect();
-    sorted.sort_by(|a, b| a.sample_id.cmp(&b.sample_id));
-    for sample in sorted {
-        if sample.sample_id.parse::<vint_core::SampleId>().is_err() {
-            return Err(anyhow!("coordinator returned a malformed sample id {:?}", sample.sample_id).into());
-        }
-        let mut line = ManifestLine { sample_id: &sample.sample_id, files: BTreeMap::new() };
-        for f in &sample.files {
+    for entry in &entries {
+        let (grasp_id, sample_id) = if entry.is_grasp { (Some(entry.id), None) } else { (None, Some(entry.id)) };
+        let mut line = ManifestLine { grasp_id, sample_id, files: BTreeMap::new() };
+        for f in &entry.files {
             if f.name.contains('/') || f.name.starts_with('.') {
-                return Err(anyhow!("sample {}: refusing file name {:?}", sample.sample_id, f.name).into());
+                return Err(anyhow!("{}: refusing file name {:?}", entry.id, f.name).into());
             }
-            let path = dir.join(&sample.sample_id).join(&f.name);
-            store
-                .get_to_file(&f.sha256, &path)
-                .await
-                .with_context(|| format!("sample {}: fetching {}", sample.sample_id, f.name))?;
+            let path = dir.join(entry.id).join(&f.name);
+            store.get_to_file(&f.sha256, &path).await.with_context(|| format!("{}: fetching {}", entry.id, f.name))?;
             files += 1;
             bytes += f.size;
             line.files.insert(&f.name, ManifestFile { sha256: &f.sha256, size: f.size, media_type: &f.media_type });

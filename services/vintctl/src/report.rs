@@ -224,7 +224,7 @@ pub fn objects(json: bool) {
         "object", "ycb", "mass kg", "material", "symmetry", "shape"
     );
     for o in objects {
-        let shape = o.shape.get("type").and_then(Value::as_str).unwrap_or("?");
+        let shape = o.shape.kind();
         println!(
             "{:<22} {:>5} {:>8.3} {:<10} {:<13} {:<9}  {}",
             o.name, o.ycb_id, o.mass_kg, o.material, o.symmetry, shape, o.description

@@ -22,11 +22,12 @@ from vint_engines.protocol import TaskRequest
 
 CAN = {
     "name": "tomato_soup_can",
-    "shape": "cylinder",
-    "radius": 0.0338,
-    "height": 0.1019,
-    "mass": 0.349,
+    "ycb_id": "005",
+    "mass_kg": 0.349,
     "material": "metal",
+    "symmetry": "continuous_z",
+    "description": "",
+    "shape": {"type": "cylinder", "radius_m": 0.0338, "height_m": 0.1019},
 }
 RENDER = {
     "width": 64,
@@ -131,8 +132,8 @@ def test_depth_on_object_pixels_lies_on_the_object_surface(view: tuple[dict[str,
     rays = np.linalg.inv(np.array(camera["K"])) @ np.stack([u, v, np.ones_like(u)]).astype(float)
     points_c = rays * depth[v, u]
     points_m = np.array(camera["R_m2c"]).T @ (points_c - np.array(camera["t_m2c"])[:, None])
-    dx = np.hypot(points_m[0], points_m[1]) - CAN["radius"]
-    dz = np.abs(points_m[2]) - CAN["height"] / 2
+    dx = np.hypot(points_m[0], points_m[1]) - CAN["shape"]["radius_m"]
+    dz = np.abs(points_m[2]) - CAN["shape"]["height_m"] / 2
     distance = np.abs(np.minimum(np.maximum(dx, dz), 0) + np.hypot(np.maximum(dx, 0), np.maximum(dz, 0)))
     assert np.percentile(distance, 95) < 0.002 and distance.max() < 0.005
 
@@ -369,7 +370,12 @@ def test_a_user_hdri_is_checked_before_any_view_renders(
     assert reply["ok"] is False and reply["retryable"] is False
     assert "params.environments[0].asset" in reply["error"] and "not among params.assets" in reply["error"]
 
-    shadowing = {**base(grasps), **extra, "environments": [{"name": "forest", "asset": sha}]}
+    shadowing = {
+        **base(grasps),
+        **extra,
+        "environments": [{"name": "forest", "asset": sha}],
+        "views": TWO_VIEWS,
+    }
     reply = engine.task("shadow", shadowing, new_dir(workdir, "shadow_hdri"), [grasps[0], (sha, broken)])
     assert (
         reply["ok"] is False

@@ -23,7 +23,15 @@ from vint_engines.grasp.touch import TouchParams, object_distances, response
 from vint_engines.poses import quat_to_matrix
 from vint_engines.protocol import BadInput, TaskRequest
 
-CAN = {"name": "tomato_soup_can", "shape": "cylinder", "radius": 0.0331, "height": 0.1018, "mass": 0.349}
+CAN = {
+    "name": "tomato_soup_can",
+    "ycb_id": "005",
+    "mass_kg": 0.349,
+    "material": "plastic",
+    "symmetry": "continuous_z",
+    "description": "",
+    "shape": {"type": "cylinder", "radius_m": 0.0331, "height_m": 0.1018},
+}
 SEEDS = [1234567890123 + 7919 * i for i in range(16)]
 TOUCH = {
     "sensing_depth_m": 0.003,
@@ -87,8 +95,8 @@ def runs(engine: GraspEngine, tmp_path_factory: pytest.TempPathFactory) -> dict[
 def can_distance(world: np.ndarray, object_pose: dict[str, list[float]]) -> np.ndarray:
     """Signed distance of world points to the can (a finite cylinder about the object's +z)."""
     local = (world - np.array(object_pose["p"])) @ quat_to_matrix(object_pose["q"])
-    radial = np.hypot(local[:, 0], local[:, 1]) - CAN["radius"]
-    axial = np.abs(local[:, 2]) - CAN["height"] / 2
+    radial = np.hypot(local[:, 0], local[:, 1]) - CAN["shape"]["radius_m"]
+    axial = np.abs(local[:, 2]) - CAN["shape"]["height_m"] / 2
     outside = np.hypot(np.maximum(radial, 0.0), np.maximum(axial, 0.0))
     return outside + np.minimum(np.maximum(radial, axial), 0.0)
 

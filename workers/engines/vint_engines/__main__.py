@@ -1,5 +1,8 @@
-"""Command line: `python -m vint_engines serve --stage {grasp|render|noise}`, and
-`python -m vint_engines study {grasp|render} --out DIR` (the studies, `vint_engines/study/`).
+"""Command line: `python -m vint_engines serve --stage {grasp|render|noise}`,
+`python -m vint_engines study {grasp|render} --out DIR` (the studies, `vint_engines/study/`), and
+`python -m vint_engines check-params` (parse planned task parameters with each engine's own
+parser, without running anything: a JSON array of `{"stage", "params"}` on stdin, a JSON array of
+`{"ok", "error"}` on stdout).
 
 Only parses arguments and wires a stage's engine into the serve loop; heavy libraries are imported
 by the chosen stage alone, so a noise engine never pays for Blender.
@@ -8,11 +11,12 @@ by the chosen stage alone, so a noise engine never pays for Blender.
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import sys
 from pathlib import Path
 
-from vint_engines.protocol import Engine, ProtocolError, serve
+from vint_engines.protocol import BadInput, Engine, ProtocolError, serve
 
 STAGES = ("grasp", "render", "noise")
 
@@ -32,6 +36,39 @@ def make_engine(stage: str) -> Engine:
 
         return NoiseEngine()
     raise ValueError(f"unknown stage {stage!r}")
+
+
+def parse_params(stage: str, params: dict[str, object]) -> None:
+    """Parse a task's parameters as the stage's engine does before it runs anything."""
+    if stage == "grasp":
+        from vint_engines.grasp.engine import GraspTask
+
+        GraspTask.parse(params)
+    elif stage == "render":
+        from vint_engines.render.engine import RenderTask
+
+        RenderTask.parse(params)
+    elif stage == "noise":
+        from vint_engines.noise.engine import parse_params as parse_noise
+
+        parse_noise(params)
+    else:
+        from vint_engines import contract
+
+        contract.validated(stage, params)
+
+
+def check_params() -> int:
+    tasks = json.load(sys.stdin)
+    verdicts = []
+    for task in tasks:
+        try:
+            parse_params(task["stage"], task["params"])
+            verdicts.append({"ok": True, "error": None})
+        except BadInput as exc:
+            verdicts.append({"ok": False, "error": str(exc)})
+    json.dump(verdicts, sys.stdout)
+    return 0
 
 
 def names(text: str) -> list[str]:
@@ -64,9 +101,12 @@ def main(argv: list[str] | None = None) -> int:
     study_cmd.add_argument("--hands", type=names, help="comma-separated hands (default: trx3,allegro)")
     study_cmd.add_argument("--objects", type=names, help="comma-separated catalog objects")
     study_cmd.add_argument("--seeds", type=int, help="trials per hand and object (default 8, quick 2)")
+    commands.add_parser("check-params", help="parse task parameters (JSON on stdin) as the engines do")
     args = parser.parse_args(argv)  # exits 2 on a bad command or stage
     if args.command == "study":
         return run_study(args)
+    if args.command == "check-params":
+        return check_params()
 
     logging.basicConfig(
         stream=sys.stderr,

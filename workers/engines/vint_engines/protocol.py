@@ -3,11 +3,13 @@
 Owns the process's original stdin/stdout. Engines never touch them: `claim_stdio` moves fd 1 to
 stderr so that whatever a library prints (Blender prints from C) cannot corrupt a frame.
 
-Engines report impossible tasks by raising `BadInput`; a `ValueError`, `LookupError` or `TypeError`
-(a malformed input file, say) is likewise reported as not retryable, because running the same task
-again would fail the same way. Every other exception (out of memory, a full disk) is retryable.
-A broken frame or an unexpected message is a `ProtocolError`, which ends the process with a
-non-zero status: the worker then fails the task in flight and starts a new engine.
+Engines report impossible tasks by raising `BadInput` (parameters that break the stage's contract,
+`contract.py`, or inputs that make the task impossible: a malformed user file, say): not
+retryable, because the same task would fail the same way. Any other exception — a `TypeError` or
+`KeyError` is a bug in the engine, an `OSError` a full disk — is retryable, and its reply carries a
+crash report (the exception and the innermost frames of its traceback). A broken frame or an
+unexpected message is a `ProtocolError`, which ends the process with a non-zero status: the worker
+then fails the task in flight as retryable and starts a new engine.
 """
 
 from __future__ import annotations
@@ -18,10 +20,14 @@ import os
 import struct
 import sys
 import time
+import traceback
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO, Protocol
+
+from vint_engines import contract
+from vint_engines.errors import BadInput, ProtocolError  # engines import both from here
 
 log = logging.getLogger("vint_engines")
 
@@ -29,14 +35,6 @@ MAX_FRAME_BYTES = 64 * 1024 * 1024
 _LENGTH = struct.Struct(">I")
 
 Json = dict[str, Any]
-
-
-class ProtocolError(Exception):
-    """The byte stream or message sequence broke the protocol; the engine must exit."""
-
-
-class BadInput(ValueError):
-    """The task's parameters or inputs make it impossible; a retry cannot help."""
 
 
 @dataclass(frozen=True)
@@ -75,7 +73,12 @@ class OutputFile:
 
 @dataclass
 class TaskResult:
+    """What an engine answers for a task: its files, its result in the stage contract's type
+    (`contract.schema.json`, `stages.<stage>.result`; the planner reads it) and its metrics
+    (timings and counts for people and benchmarks)."""
+
     outputs: list[OutputFile] = field(default_factory=list)
+    result: dict[str, Any] = field(default_factory=dict)
     metrics: dict[str, Any] = field(default_factory=dict)
 
     def add(self, path: Path, media_type: str) -> None:
@@ -179,12 +182,12 @@ def serve(stage: str, make_engine: Callable[[], Engine]) -> int:
                 return 0
             if kind != "task":
                 raise ProtocolError(f"unexpected message type {kind!r}")
-            write_frame(frames_out, run_task(engine, message))
+            write_frame(frames_out, run_task(stage, engine, message))
     finally:
         engine.close()
 
 
-def run_task(engine: Engine, message: Json) -> Json:
+def run_task(stage: str, engine: Engine, message: Json) -> Json:
     """Run one task message and build its result message; never raises for task failures."""
     task_id = message.get("task_id")
     if not isinstance(task_id, str) or not task_id:
@@ -194,17 +197,32 @@ def run_task(engine: Engine, message: Json) -> Json:
         task = parse_task(message)
         result = engine.run(task)
         outputs = [output.to_json() for output in checked_outputs(task, result)]
+        contract.check_result(stage, result.result)
         metrics = {"engine_ms": round(1e3 * (time.perf_counter() - started), 3), **result.metrics}
-        reply = {"type": "result", "task_id": task_id, "ok": True, "outputs": outputs, "metrics": metrics}
+        reply = {
+            "type": "result",
+            "task_id": task_id,
+            "ok": True,
+            "outputs": outputs,
+            "result": result.result,
+            "metrics": metrics,
+        }
         json.dumps(reply, allow_nan=False)  # fail here, as a task failure, rather than in write_frame
-    except (ValueError, LookupError, TypeError) as exc:  # BadInput and kin: malformed task or input
+    except BadInput as exc:
         log.warning("task %s failed (not retryable): %s", task_id, exc)
-        return failure(task_id, f"{type(exc).__name__}: {exc}", retryable=False)
+        return failure(task_id, str(exc), retryable=False)
     except Exception as exc:
-        log.exception("task %s failed (retryable)", task_id)
-        return failure(task_id, f"{type(exc).__name__}: {exc}", retryable=True)
+        log.exception("task %s failed (retryable): engine bug or transient trouble", task_id)
+        return failure(task_id, crash_report(exc), retryable=True)
     log.info("task %s done in %.0f ms", task_id, metrics["engine_ms"])
     return reply
+
+
+def crash_report(exc: BaseException, frames: int = 3) -> str:
+    """The exception and where it was raised: its innermost `frames` frames, one line each."""
+    stack = traceback.extract_tb(exc.__traceback__)[-frames:]
+    where = " <- ".join(f"{Path(f.filename).name}:{f.lineno} in {f.name}" for f in reversed(stack))
+    return f"engine crashed: {type(exc).__name__}: {exc} (at {where})"
 
 
 def failure(task_id: str, error: str, *, retryable: bool) -> Json:

@@ -1,9 +1,11 @@
 //! The engine host: one long-lived Python engine process per stage, spoken to over the framed
 //! protocol of `workers/engines/PROTOCOL.md` (4-byte big-endian length + a JSON object).
 //!
-//! The host owns the child process. An engine that exits, breaks a frame or overruns its task
-//! deadline is killed and reported as `EngineError::Crashed`; the worker fails the task as
-//! retryable and starts a fresh engine for the next one.
+//! The host owns the child process. An engine that exits or overruns its task deadline is killed
+//! and reported as `EngineError::Crashed`; one that breaks a frame or answers with a reply that
+//! breaks the protocol or its stage's contract (a result of the wrong shape, an output outside its
+//! directory) is an `EngineError::Protocol`. Either way the engine is at fault, not the task: the
+//! worker fails the task as retryable and starts a fresh engine for the next one.
 
 use std::path::{Path, PathBuf};
 use std::process::Stdio;
@@ -85,6 +87,9 @@ pub struct EngineResult {
     pub ok: bool,
     #[serde(default)]
     pub outputs: Vec<EngineOutput>,
+    /// The stage's result in its contract's type (`vint_core::contract`), when `ok`.
+    #[serde(default)]
+    pub result: Value,
     #[serde(default)]
     pub metrics: serde_json::Map<String, Value>,
     #[serde(default)]
@@ -181,6 +186,17 @@ impl Engine {
                 stage: self.stage,
                 detail: format!("result for task {:?} while running {task_id:?}", result.task_id),
             });
+        }
+        if result.ok {
+            // A reply that breaks the stage's contract is the engine's bug, not the task's fault.
+            vint_core::contract::check_result(self.stage, &result.result)
+                .map_err(|e| EngineError::Protocol { stage: self.stage, detail: e.to_string() })?;
+            if let Some(o) = result.outputs.iter().find(|o| !o.path.starts_with(out_dir)) {
+                return Err(EngineError::Protocol {
+                    stage: self.stage,
+                    detail: format!("output {} lies outside its out_dir {}", o.path.display(), out_dir.display()),
+                });
+            }
         }
         Ok(result)
     }

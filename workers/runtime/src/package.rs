@@ -1,18 +1,23 @@
-//! The package stage, in Rust: turns a shard's grasp, render and noise outputs into one directory
-//! per sample — the requested image/depth files plus `meta.json` (object, hand and link poses,
-//! joints, contacts, camera intrinsics and extrinsics, seeds and physics settings).
+//! The package stage, in Rust: turns a shard's grasp, render and noise outputs into one record
+//! per grasp and one directory per sample (`vint_core::contract::package`).
 //!
-//! Packaging moves no pixels: a sample's image and depth files are the render and noise
-//! artifacts themselves, referenced by hash, so only the small JSON inputs are read and only
-//! `meta.json` is written.
+//! A grasp's record, `<grasp_id>/grasp.json`, holds what its views share — the object and hand,
+//! poses of every link, joints, contacts, the full touch reading, physics settings — once. A
+//! sample's `<sample_id>/meta.json` holds its view (camera, visibility, object and hand poses) and
+//! refers to its grasp's record by path and SHA-256; next to it are the requested image and depth
+//! files. Packaging moves no pixels: those files are the render and noise artifacts themselves,
+//! referenced by hash, so only the small JSON inputs are read and only JSON is written.
 
 use std::collections::BTreeMap;
 
-use serde::Deserialize;
 use serde_json::{Value, json};
 use vint_artifacts::ArtifactStore;
+use vint_core::contract::grasp::{GRASPS_FILE, TOUCH_FILE};
+use vint_core::contract::noise::noisy_depth_file;
+use vint_core::contract::package::{GRASP_RECORD_FILE, META_FILE, PackageResult, Params, Source};
+use vint_core::contract::render::ViewFile;
 use vint_core::plan::{noise_key, render_key};
-use vint_core::{SampleId, SampleId as Sid};
+use vint_core::{GraspId, SampleId};
 
 /// An input of the package task: an artifact of one of its dependencies.
 #[derive(Clone, Debug)]
@@ -54,38 +59,20 @@ impl PackageError {
     }
 }
 
-#[derive(Deserialize)]
-struct Params {
-    samples: Vec<SampleRef>,
-    modalities: Vec<String>,
+/// A package task's output files and its result (the samples and grasp records it made).
+pub struct Packaged {
+    pub files: Vec<PackagedFile>,
+    pub result: PackageResult,
 }
 
-#[derive(Deserialize)]
-struct SampleRef {
-    sample_id: String,
-}
-
-/// Which artifact each requested modality comes from: (file in the sample, producing stage, name
-/// pattern with `{v}` for the two-digit view index).
-const MODALITY_FILES: &[(&str, &str, &str, &str)] = &[
-    ("rgb", "rgb.png", "render", "v{v}_rgb.png"),
-    ("depth", "depth.npy", "render", "v{v}_depth.npy"),
-    ("depth_noisy", "depth_noisy.npy", "noise", "v{v}_depth_noisy.npy"),
-    ("mask", "mask.png", "render", "v{v}_mask.png"),
-    ("mask", "mask_full.png", "render", "v{v}_mask_full.png"),
-    ("segmentation", "segmentation.png", "render", "v{v}_segmentation.png"),
-];
-
-pub async fn package(
-    params: &Value,
-    inputs: &[PackageInput],
-    store: &ArtifactStore,
-) -> Result<Vec<PackagedFile>, PackageError> {
+pub async fn package(params: &Value, inputs: &[PackageInput], store: &ArtifactStore) -> Result<Packaged, PackageError> {
     let params: Params = serde_json::from_value(params.clone()).map_err(|e| PackageError::Params(e.to_string()))?;
     let by_origin: BTreeMap<(&str, &str), &PackageInput> =
         inputs.iter().map(|i| ((i.task_key.as_str(), i.name.as_str()), i)).collect();
-    let mut grasp_docs: BTreeMap<String, Value> = BTreeMap::new();
+    let mut documents: BTreeMap<String, Value> = BTreeMap::new();
+    let mut records: BTreeMap<GraspId, (String, PackagedFile)> = BTreeMap::new();
     let mut files = Vec::new();
+    let mut samples = Vec::new();
     for s in &params.samples {
         let id: SampleId =
             s.sample_id.parse().map_err(|e: vint_core::sample::BadSampleId| PackageError::Params(e.to_string()))?;
@@ -96,57 +83,74 @@ pub async fn package(
                 name,
             })
         };
-        let view = format!("{:02}", id.view_index);
-        for (modality, file, stage, pattern) in MODALITY_FILES {
-            if !params.modalities.iter().any(|m| m == modality) {
-                continue;
+        let render = render_key(&id.object, &id.hand, id.grasp_index);
+        for modality in &params.modalities {
+            for file in modality.sample_files() {
+                let src = match file.from {
+                    Source::Render(view_file) => find(render.clone(), view_file.name(id.view_index))?,
+                    Source::Noise => {
+                        find(noise_key(&id.object, &id.hand, id.grasp_index), noisy_depth_file(id.view_index))?
+                    }
+                };
+                files.push(PackagedFile {
+                    name: format!("{}/{}", s.sample_id, file.name),
+                    sha256: src.sha256.clone(),
+                    size: src.size,
+                    media_type: src.media_type.clone(),
+                    key: src.key.clone(),
+                });
             }
-            let task_key = match *stage {
-                "noise" => noise_key(&id.object, &id.hand, id.grasp_index),
-                _ => render_key(&id.object, &id.hand, id.grasp_index),
-            };
-            let src = find(task_key, pattern.replace("{v}", &view))?;
-            files.push(PackagedFile {
-                name: format!("{}/{file}", s.sample_id),
-                sha256: src.sha256.clone(),
-                size: src.size,
-                media_type: src.media_type.clone(),
-                key: src.key.clone(),
-            });
         }
-        let camera_ref = find(render_key(&id.object, &id.hand, id.grasp_index), format!("v{view}_camera.json"))?;
+        let camera_ref = find(render, ViewFile::Camera.name(id.view_index))?;
         let camera = read_json(store, camera_ref, &s.sample_id).await?;
         let grasp_ref = inputs
             .iter()
-            .find(|i| i.name == "grasps.json" && i.task_key.starts_with(&format!("grasp/{}/{}/", id.object, id.hand)))
+            .find(|i| i.name == GRASPS_FILE && i.task_key.starts_with(&format!("grasp/{}/{}/", id.object, id.hand)))
             .ok_or_else(|| PackageError::MissingInput {
                 sample: s.sample_id.clone(),
                 task_key: format!("grasp/{}/{}/…", id.object, id.hand),
-                name: "grasps.json".into(),
+                name: GRASPS_FILE.into(),
             })?;
-        // The touch readings come in their own artifact of the same grasp task (render tasks do not
-        // fetch it); grasp outputs from before the split carry them in grasps.json.
-        let touch_ref = by_origin.get(&(grasp_ref.task_key.as_str(), TOUCH_FILE)).copied();
-        for input in std::iter::once(grasp_ref).chain(touch_ref) {
-            if !grasp_docs.contains_key(&input.sha256) {
+        let touch_ref = find(grasp_ref.task_key.clone(), TOUCH_FILE.to_string())?;
+        for input in [grasp_ref, touch_ref] {
+            if !documents.contains_key(&input.sha256) {
                 let doc = read_json(store, input, &s.sample_id).await?;
-                grasp_docs.insert(input.sha256.clone(), doc);
+                documents.insert(input.sha256.clone(), doc);
             }
         }
-        let grasps = &grasp_docs[&grasp_ref.sha256];
-        let touch = touch_ref.map(|t| &grasp_docs[&t.sha256]);
-        let meta = sample_meta(&id, grasps, touch, &camera)?;
-        let bytes = serde_json::to_vec_pretty(&meta).map_err(|e| PackageError::Params(e.to_string()))?;
-        let stored = store.put_bytes(bytes.into()).await?;
+        let (grasps, touch) = (&documents[&grasp_ref.sha256], &documents[&touch_ref.sha256]);
+        let grasp = id.grasp();
+        if !records.contains_key(&grasp) {
+            let record = grasp_record(&grasp, grasps, touch)?;
+            let stored = store.put_bytes(to_json_bytes(&record)?.into()).await?;
+            let file = PackagedFile {
+                name: format!("{grasp}/{GRASP_RECORD_FILE}"),
+                sha256: stored.sha256.clone(),
+                size: stored.size,
+                media_type: "application/json".into(),
+                key: stored.key,
+            };
+            records.insert(grasp.clone(), (stored.sha256, file));
+        }
+        let record_sha = &records[&grasp].0;
+        let meta = sample_meta(&id, grasps, &camera, record_sha)?;
+        let stored = store.put_bytes(to_json_bytes(&meta)?.into()).await?;
         files.push(PackagedFile {
-            name: format!("{}/meta.json", s.sample_id),
+            name: format!("{}/{META_FILE}", s.sample_id),
             sha256: stored.sha256,
             size: stored.size,
             media_type: "application/json".into(),
             key: stored.key,
         });
+        samples.push(s.sample_id.clone());
     }
-    Ok(files)
+    let grasps = records.keys().map(GraspId::to_string).collect();
+    files.extend(records.into_values().map(|(_, file)| file));
+    Ok(Packaged { files, result: PackageResult { samples, grasps } })
+}
+
+fn to_json_bytes(value: &Value) -> Result<Vec<u8>, PackageError> {
+    serde_json::to_vec_pretty(value).map_err(|e| PackageError::Params(e.to_string()))
 }
 
 async fn read_json(store: &ArtifactStore, input: &PackageInput, sample: &str) -> Result<Value, PackageError> {
@@ -157,45 +161,76 @@ async fn read_json(store: &ArtifactStore, input: &PackageInput, sample: &str) ->
     })
 }
 
-/// The grasp task's artifact holding every accepted trial's full touch record.
-const TOUCH_FILE: &str = "touch.json";
-
-/// The touch record of the sample's trial in `touch.json` (its entry without `grasp_index`).
-fn trial_touch(id: &Sid, touch: &Value) -> Result<Value, PackageError> {
-    let entry = touch["trials"]
+/// The entry of `grasp_index` in a document's `trials`.
+fn trial_of<'a>(doc: &'a Value, grasp_index: u32, file: &str, sample: &str) -> Result<&'a Value, PackageError> {
+    doc["trials"]
         .as_array()
-        .and_then(|ts| ts.iter().find(|t| t["grasp_index"].as_u64() == Some(u64::from(id.grasp_index))))
-        .and_then(Value::as_object)
+        .and_then(|ts| ts.iter().find(|t| t["grasp_index"].as_u64() == Some(u64::from(grasp_index))))
         .ok_or_else(|| PackageError::BadInput {
-            sample: id.to_string(),
-            what: format!("{TOUCH_FILE} has no trial {}", id.grasp_index),
-        })?;
-    Ok(Value::Object(entry.iter().filter(|(k, _)| *k != "grasp_index").map(|(k, v)| (k.clone(), v.clone())).collect()))
+            sample: sample.to_string(),
+            what: format!("{file} has no trial {grasp_index}"),
+        })
 }
 
-/// The sample's metadata: everything a training pipeline needs besides the pixels. `touch` is the
-/// grasp task's `touch.json`, when it wrote one.
-fn sample_meta(id: &Sid, grasps: &Value, touch: Option<&Value>, camera: &Value) -> Result<Value, PackageError> {
-    let trial = grasps["trials"]
-        .as_array()
-        .and_then(|ts| ts.iter().find(|t| t["grasp_index"].as_u64() == Some(u64::from(id.grasp_index))))
-        .ok_or_else(|| PackageError::BadInput {
-            sample: id.to_string(),
-            what: format!("grasps.json has no trial {}", id.grasp_index),
-        })?;
+/// What every view of a grasp shares, stored once: the object (its full catalog entry and model),
+/// the hand (its links' geometry and taxel layout), the trial (seed, every link's pose, joints,
+/// contacts, hold, approach, stability), its full touch reading, and the physics and touch
+/// settings it ran with.
+fn grasp_record(grasp: &GraspId, grasps: &Value, touch: &Value) -> Result<Value, PackageError> {
+    let name = grasp.to_string();
+    let trial = trial_of(grasps, grasp.grasp_index, GRASPS_FILE, &name)?;
     if trial["accepted"].as_bool() != Some(true) {
         return Err(PackageError::BadInput {
-            sample: id.to_string(),
-            what: format!("trial {} was not accepted", id.grasp_index),
+            sample: name,
+            what: format!("trial {} was not accepted", grasp.grasp_index),
         });
     }
-    let touch = match touch {
-        Some(doc) => trial_touch(id, doc)?,
-        None => trial["touch"].clone(),
-    };
+    let reading = trial_of(touch, grasp.grasp_index, TOUCH_FILE, &name)?;
+    let reading: serde_json::Map<String, Value> = reading
+        .as_object()
+        .into_iter()
+        .flatten()
+        .filter(|(k, _)| *k != "grasp_index")
+        .map(|(k, v)| (k.clone(), v.clone()))
+        .collect();
+    let mut trial_fields = trial.as_object().cloned().unwrap_or_default();
+    for summary_only in ["touch", "accepted", "reason", "grasp_index"] {
+        trial_fields.remove(summary_only);
+    }
+    Ok(json!({
+        "grasp_id": name,
+        "object": grasps["object"],
+        "hand": grasps["hand"],
+        "grasp_index": grasp.grasp_index,
+        "trial": trial_fields,
+        "touch": reading,
+        "physics": grasps["physics"],
+        "touch_sensor": grasps["touch"],
+        "conventions": {
+            "units": "metres, kilograms, seconds, radians",
+            "pose": "p = position, q = quaternion [w, x, y, z], world frame",
+            "touch": "touch.active: the active taxels (position and outward normal in the palm frame, reading, \
+                      signed distance); touch.readings: one per taxel of hand.taxels' layout",
+        },
+    }))
+}
+
+/// A sample's metadata: its view — camera, visibility, the object's and hand's poses — and a
+/// reference to its grasp's record (`../<grasp_id>/grasp.json`, by SHA-256).
+fn sample_meta(id: &SampleId, grasps: &Value, camera: &Value, record_sha256: &str) -> Result<Value, PackageError> {
+    let trial = trial_of(grasps, id.grasp_index, GRASPS_FILE, &id.to_string())?;
+    let object = &grasps["object"];
+    let grasp = id.grasp();
     Ok(json!({
         "sample_id": id.to_string(),
-        "object": grasps["object"],
+        "grasp_id": grasp.to_string(),
+        "object": {
+            "name": object["name"],
+            "ycb_id": object["ycb_id"],
+            "material": object["material"],
+            "symmetry": object["symmetry"],
+            "model": object["model"],
+        },
         "hand": grasps["hand"]["name"],
         "grasp_index": id.grasp_index,
         "view_index": id.view_index,
@@ -205,17 +240,13 @@ fn sample_meta(id: &Sid, grasps: &Value, touch: Option<&Value>, camera: &Value) 
             "full_px": camera["full_px"],
             "occlusion": camera["occlusion"],
         },
+        "poses": {"object": trial["object_pose"], "hand": trial["hand_pose"]},
         "grasp": {
+            "record": format!("../{grasp}/{GRASP_RECORD_FILE}"),
+            "sha256": record_sha256,
             "seed": trial["seed"],
-            "object_pose": trial["object_pose"],
-            "hand_pose": trial["hand_pose"],
-            "link_poses": trial["link_poses"],
-            "joints": trial["joints"],
-            "contacts": trial["contacts"],
-            "hold": trial["hold"],
-            "touch": touch,
+            "touch": trial["touch"],
         },
-        "physics": grasps["physics"],
         "conventions": {
             "units": "metres, kilograms, seconds, radians",
             "pose": "p = position, q = quaternion [w, x, y, z], world frame",
@@ -224,6 +255,7 @@ fn sample_meta(id: &Sid, grasps: &Value, touch: Option<&Value>, camera: &Value) 
             "masks": "mask.png: the object's visible pixels; mask_full.png: the object alone, as if the hand were not there",
             "segmentation": "segmentation.png: 0 background, 1 object, 2.. hand links; camera.segmentation maps id to name",
             "occlusion": "1 - visible_px / full_px: the share of the object the hand hides (1 when out of view)",
+            "grasp": "grasp.record: the grasp's record shared by its views (link poses, joints, contacts, touch)",
         },
     }))
 }
@@ -232,40 +264,68 @@ fn sample_meta(id: &Sid, grasps: &Value, touch: Option<&Value>, camera: &Value) 
 mod tests {
     use super::*;
 
-    fn grasps(touch: Value) -> Value {
+    fn grasps() -> Value {
         json!({
-            "object": {"name": "mug"},
-            "hand": {"name": "trx3"},
-            "trials": [{"grasp_index": 3, "seed": 7, "accepted": true, "reason": null, "touch": touch}],
-            "physics": {},
+            "object": {"name": "mug", "ycb_id": "025", "material": "ceramic", "symmetry": "none",
+                       "shape": {"type": "mesh", "path": "m.obj", "scale": 0.001}, "model": {"extent_m": [0.1, 0.1, 0.1]}},
+            "hand": {"name": "trx3", "links": [{"name": "palm"}]},
+            "trials": [{"grasp_index": 3, "seed": 7, "accepted": true, "reason": null,
+                        "object_pose": {"p": [0, 0, 0.1], "q": [1, 0, 0, 0]}, "hand_pose": {"p": [0, 0, 0.2], "q": [1, 0, 0, 0]},
+                        "link_poses": {"palm": {"p": [0, 0, 0.2], "q": [1, 0, 0, 0]}}, "joints": {"f0_j0": 0.5},
+                        "touch": {"sensing_depth_m": 0.003, "active_count": 1}}],
+            "physics": {"timestep": 0.002},
+            "touch": {"sensing_depth_m": 0.003},
         })
     }
 
-    fn sample() -> Sid {
-        "mug.trx3.g000003.v01".parse().expect("a valid sample id")
+    fn touch() -> Value {
+        json!({"hand": "trx3", "trials": [
+            {"grasp_index": 1, "sensing_depth_m": 0.003, "active_count": 0, "active": [], "readings": [0.0, 0.0, 0.0]},
+            {"grasp_index": 3, "sensing_depth_m": 0.003, "active_count": 1, "active": [{"taxel": 2}], "readings": [0.0, 0.0, 0.5]},
+        ]})
+    }
+
+    fn grasp() -> GraspId {
+        "mug.trx3.g000003".parse().expect("a valid grasp id")
     }
 
     #[test]
-    fn meta_takes_the_full_touch_record_from_touch_json() {
-        let full =
-            json!({"sensing_depth_m": 0.003, "active_count": 1, "active": [{"taxel": 2}], "readings": [0.0, 0.0, 0.5]});
-        let touch = json!({"hand": "trx3", "trials": [
-            {"grasp_index": 1, "sensing_depth_m": 0.003, "active_count": 0, "active": [], "readings": [0.0, 0.0, 0.0]},
-            {"grasp_index": 3, "sensing_depth_m": 0.003, "active_count": 1, "active": [{"taxel": 2}], "readings": [0.0, 0.0, 0.5]},
-        ]});
-        let summary = grasps(json!({"sensing_depth_m": 0.003, "active_count": 1}));
-        let meta = sample_meta(&sample(), &summary, Some(&touch), &json!({})).expect("meta");
-        assert_eq!(meta["grasp"]["touch"], full);
-        // Grasp outputs from before touch.json carry the full record in grasps.json.
-        let meta = sample_meta(&sample(), &grasps(full.clone()), None, &json!({})).expect("meta");
-        assert_eq!(meta["grasp"]["touch"], full);
+    fn the_grasp_record_holds_the_full_touch_reading_and_every_link_pose_once() {
+        let record = grasp_record(&grasp(), &grasps(), &touch()).expect("record");
+        assert_eq!(
+            record["touch"],
+            json!({"sensing_depth_m": 0.003, "active_count": 1, "active": [{"taxel": 2}], "readings": [0.0, 0.0, 0.5]})
+        );
+        assert_eq!(record["trial"]["link_poses"]["palm"]["p"][2], 0.2);
+        assert_eq!(record["trial"]["joints"]["f0_j0"], 0.5);
+        assert_eq!(record["object"]["shape"]["path"], "m.obj");
+        assert!(record["trial"].get("accepted").is_none() && record["trial"].get("touch").is_none());
+    }
+
+    #[test]
+    fn a_sample_refers_to_its_grasp_record_and_carries_no_touch_reading() {
+        let id: SampleId = "mug.trx3.g000003.v01".parse().expect("a valid sample id");
+        let camera = json!({"K": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "visible_px": 5, "full_px": 10, "occlusion": 0.5});
+        let meta = sample_meta(&id, &grasps(), &camera, &"a".repeat(64)).expect("meta");
+        assert_eq!(meta["grasp"]["record"], "../mug.trx3.g000003/grasp.json");
+        assert_eq!(meta["grasp"]["sha256"], "a".repeat(64));
+        assert_eq!(meta["poses"]["object"]["p"][2], 0.1);
+        assert!(meta["object"].get("shape").is_none(), "the object's shape lives in the grasp record");
+        assert!(!meta.to_string().contains("readings"), "{meta}");
     }
 
     #[test]
     fn a_trial_missing_from_touch_json_is_bad_input() {
         let touch = json!({"trials": [{"grasp_index": 1, "active": []}]});
-        let summary = grasps(json!({"active_count": 1}));
-        let err = sample_meta(&sample(), &summary, Some(&touch), &json!({})).expect_err("no trial 3");
+        let err = grasp_record(&grasp(), &grasps(), &touch).expect_err("no trial 3");
         assert!(!err.retryable() && err.to_string().contains("touch.json has no trial 3"), "{err}");
+    }
+
+    #[test]
+    fn a_rejected_trial_is_not_packaged() {
+        let mut doc = grasps();
+        doc["trials"][0]["accepted"] = json!(false);
+        let err = grasp_record(&grasp(), &doc, &touch()).expect_err("rejected");
+        assert!(err.to_string().contains("was not accepted"), "{err}");
     }
 }

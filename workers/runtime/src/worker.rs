@@ -17,7 +17,7 @@ use tonic::transport::{Channel, Endpoint};
 use tonic::{Code, Status};
 use tracing::Instrument;
 use vint_artifacts::ArtifactStore;
-use vint_core::Stage;
+use vint_core::{Stage, contract};
 use vint_proto::v1 as pb;
 use vint_proto::v1::work_service_client::WorkServiceClient;
 
@@ -171,11 +171,14 @@ impl Worker {
                     key: a.key.clone(),
                 })
                 .collect();
-            let files = package::package(&params, &inputs, &self.store)
+            let packaged = package::package(&params, &inputs, &self.store)
                 .await
                 .map_err(|e| TaskFailure { retryable: e.retryable(), message: e.to_string() })?;
             let engine_ms = ms(started.elapsed());
-            let outputs = files
+            let result_json = serde_json::to_string(&packaged.result)
+                .map_err(|e| TaskFailure::permanent(format!("package result: {e}")))?;
+            let outputs = packaged
+                .files
                 .into_iter()
                 .map(|f| pb::ArtifactRef {
                     name: f.name,
@@ -190,7 +193,7 @@ impl Worker {
             return Ok(Finished {
                 outputs,
                 engine_json: engine.to_string(),
-                result_json: "{}".into(),
+                result_json,
                 timings: pb::Timings { fetch_ms: 0.0, engine_ms, upload_ms: 0.0, total_ms: engine_ms },
             });
         }
@@ -202,7 +205,7 @@ impl Worker {
             .map_err(|e| TaskFailure::retryable(format!("creating scratch {}: {e}", out_dir.display())))?;
         let fetch_start = Instant::now();
         let mut inputs = Vec::new();
-        for a in task.inputs.iter().filter(|a| stage_reads(stage, &a.name)) {
+        for a in task.inputs.iter().filter(|a| contract::reads(stage, &a.name)) {
             let path = in_dir.join(sanitize(&a.task_key)).join(&a.name);
             self.store
                 .get_to_file(&a.sha256, &path)
@@ -239,12 +242,6 @@ impl Worker {
         let upload_start = Instant::now();
         let mut outputs = Vec::with_capacity(result.outputs.len());
         for o in &result.outputs {
-            if !o.path.starts_with(&out_dir) {
-                return Err(TaskFailure::permanent(format!(
-                    "engine output {} lies outside its out_dir",
-                    o.path.display()
-                )));
-            }
             let stored = self
                 .store
                 .put_file(&o.path)
@@ -260,10 +257,7 @@ impl Worker {
             });
         }
         let upload_ms = ms(upload_start.elapsed());
-        let result_json = match stage {
-            Stage::Grasp => grasp_summary(&result.outputs).await?,
-            _ => "{}".to_string(),
-        };
+        let result_json = result.result.to_string();
         let mut engine_json: Value = serde_json::from_str(&identity).unwrap_or(Value::Null);
         if let Value::Object(map) = &mut engine_json {
             map.insert("metrics".into(), Value::Object(result.metrics.clone()));
@@ -365,41 +359,6 @@ fn task_assets(params: &Value) -> Result<Vec<vint_core::asset::Asset>, TaskFailu
     }
 }
 
-/// Which staged inputs a stage's engine reads: nothing else is downloaded. A render task reads
-/// the grasp chunk's poses and hand geometry (`grasps.json`) and the object's mesh, never its
-/// touch readings (`touch.json`, the bulk of a chunk's output), which only the package stage reads
-/// (from the store, in `package.rs`).
-fn stage_reads(stage: Stage, name: &str) -> bool {
-    match stage {
-        Stage::Render => name == "grasps.json" || name == "object.ply",
-        Stage::Noise => name.ends_with("_depth.npy"),
-        Stage::Grasp | Stage::Package => false,
-    }
-}
-
-/// The planner's view of a grasp chunk: which trials were accepted.
-async fn grasp_summary(outputs: &[crate::engine::EngineOutput]) -> Result<String, TaskFailure> {
-    let out = outputs
-        .iter()
-        .find(|o| o.name == "grasps.json")
-        .ok_or_else(|| TaskFailure::permanent("grasp engine wrote no grasps.json"))?;
-    let bytes =
-        tokio::fs::read(&out.path).await.map_err(|e| TaskFailure::retryable(format!("reading grasps.json: {e}")))?;
-    let doc: Value = serde_json::from_slice(&bytes).map_err(|e| TaskFailure::permanent(format!("grasps.json: {e}")))?;
-    let trials = doc["trials"].as_array().ok_or_else(|| TaskFailure::permanent("grasps.json has no trials"))?;
-    let mut accepted = Vec::new();
-    let mut rejected: std::collections::BTreeMap<String, u64> = Default::default();
-    for t in trials {
-        let index = t["grasp_index"].as_u64().ok_or_else(|| TaskFailure::permanent("trial without grasp_index"))?;
-        if t["accepted"].as_bool() == Some(true) {
-            accepted.push(index);
-        } else {
-            *rejected.entry(t["reason"].as_str().unwrap_or("unknown").to_string()).or_default() += 1;
-        }
-    }
-    Ok(serde_json::json!({"accepted": accepted, "rejected": rejected}).to_string())
-}
-
 async fn heartbeat_loop(
     mut client: WorkServiceClient<Channel>,
     worker_id: String,
@@ -459,17 +418,4 @@ fn ms(d: Duration) -> f64 {
 /// A path component from an id: keeps `[A-Za-z0-9._-]`, replaces the rest.
 fn sanitize(s: &str) -> String {
     s.chars().map(|c| if c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-') { c } else { '_' }).collect()
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn render_tasks_download_poses_and_the_mesh_but_not_touch() {
-        assert!(stage_reads(Stage::Render, "grasps.json"));
-        assert!(stage_reads(Stage::Render, "object.ply"));
-        assert!(!stage_reads(Stage::Render, "touch.json"));
-        assert!(!stage_reads(Stage::Noise, "touch.json"));
-    }
 }

@@ -12,13 +12,14 @@ import hashlib
 import json
 import platform
 import time
+from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import mujoco
 import numpy as np
 
-from vint_engines import __version__
-from vint_engines import params as P
+from vint_engines import __version__, contract
 from vint_engines.assets import StagedAsset, asset_file, staged_assets
 from vint_engines.grasp.hands import GraspHand, hand_dims, load_mjcf_hand
 from vint_engines.grasp.hands.catalog import CATALOG_DIR, read_hand_catalog
@@ -63,27 +64,19 @@ class GraspEngine:
         self._layouts.clear()
 
     def run(self, task: TaskRequest) -> TaskResult:
-        params = task.params
-        obj_params = P.section(params, "object", "params")
-        obj = ObjectSpec.parse(obj_params)
+        grasp = GraspTask.parse(task.params)
+        obj, physics, touch, trials = grasp.object, grasp.physics, grasp.touch, grasp.trials
         assets = staged_assets(task)
-        hand_key, hand = self._hand(P.section(params, "hand", "params"), assets)
-        physics = Physics.parse(params.get("physics", {}))
-        touch = TouchParams.parse(params.get("touch", {}))
-        trials = [
-            parse_trial(t, f"params.trials[{i}]") for i, t in enumerate(P.items(params, "trials", "params"))
-        ]
-        if len({index for index, _ in trials}) != len(trials):
-            raise BadInput("params.trials: grasp_index values must be unique")
+        hand_key, hand = self._hand(grasp.hand, assets)
 
         scene, data = self._scene(hand_key, hand, obj, assets)
-        layout, layout_info = self._layout(hand_key, hand, P.section(params, "hand", "params"), assets)
+        layout, layout_info = self._layout(hand_key, hand, grasp.hand, assets)
         skin = Skin(scene, layout, touch)
         started = time.perf_counter()
         records = [run_trial(scene, data, physics, skin, index, seed) for index, seed in trials]
         trials_s = time.perf_counter() - started
         document: dict[str, Any] = {
-            "object": object_record(scene, obj_params),
+            "object": object_record(scene, grasp.object_params),
             "hand": {
                 "name": hand.name,
                 "dof": hand.dof,
@@ -106,6 +99,7 @@ class GraspEngine:
         result.add(touch_path, "application/json")
         result.add(write_object_model(scene, task.out_dir), MODEL_MEDIA_TYPE)
         accepted = [record for record in records if record["accepted"]]
+        result.result = grasp_result(records)
         result.metrics.update(
             trials=len(records),
             accepted=len(accepted),
@@ -120,10 +114,10 @@ class GraspEngine:
         """The task's hand and its cache key: a built-in hand by name, or a user's hand from its
         staged MJCF file (`params.hand.mjcf`, a SHA-256; the key includes it, so a changed file
         is a different hand)."""
-        name = P.string(params, "name", "params.hand")
+        name = params["name"]
         if "mjcf" not in params:
             return name, hand_dims(name)
-        mjcf = P.string(params, "mjcf", "params.hand")
+        mjcf = params["mjcf"]
         key = f"{name}@{mjcf}"
         if key not in self._user_hands:
             staged = asset_file(assets, mjcf, "params.hand.mjcf")
@@ -151,7 +145,7 @@ class GraspEngine:
         if hand_key in self._layouts:
             return self._layouts[hand_key]
         if "mjcf" in params:
-            staged = asset_file(assets, P.string(params, "taxels", "params.hand"), "params.hand.taxels")
+            staged = asset_file(assets, params["taxels"], "params.hand.taxels")
             raw = staged.path.read_bytes()
             where = f"params.hand.taxels ({staged.spec_path})"
             layout = parse_layout(raw.decode("utf-8"), hand.link_names(), where)
@@ -202,5 +196,49 @@ def touch_document(
     }
 
 
-def parse_trial(trial: Any, where: str) -> tuple[int, int]:
-    return P.integer(trial, "grasp_index", where, low=0), P.seed(trial, "seed", where)
+@dataclass(frozen=True)
+class GraspTask:
+    """A grasp task's parameters, checked against the stage contract and parsed. Needs no staged
+    file and no MuJoCo model: `python -m vint_engines check-params` runs it on planned tasks."""
+
+    object: ObjectSpec
+    object_params: Mapping[str, Any]
+    hand: Mapping[str, Any]
+    physics: Physics
+    touch: TouchParams
+    trials: list[tuple[int, int]]
+
+    @staticmethod
+    def parse(params: Mapping[str, Any]) -> GraspTask:
+        checked = contract.validated("grasp", params)
+        trials = [(t["grasp_index"], t["seed"]) for t in checked["trials"]]
+        if len({index for index, _ in trials}) != len(trials):
+            raise BadInput("params.trials: grasp_index values must be unique")
+        hand = checked["hand"]
+        if ("mjcf" in hand) != ("taxels" in hand):
+            raise BadInput("params.hand: a user's hand needs both mjcf and taxels (a built-in one neither)")
+        if "mjcf" not in hand:
+            hand_dims(hand["name"])  # a built-in hand must exist
+        return GraspTask(
+            object=ObjectSpec.parse(checked["object"]),
+            object_params=checked["object"],
+            hand=hand,
+            physics=Physics.parse(checked["physics"]),
+            touch=TouchParams.parse(checked["touch"]),
+            trials=trials,
+        )
+
+
+def grasp_result(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """The stage's result (`GraspResult`): the accepted grasp indices, and the rejected trials
+    counted by reason class (`penetration: 5.1 mm` counts as `penetration`)."""
+    rejected: dict[str, int] = {}
+    for record in records:
+        if not record["accepted"]:
+            reason = str(record["reason"] or "unknown")
+            kind = "dropped_shake" if reason == "dropped: shake" else reason.split(":", 1)[0].strip()
+            rejected[kind] = rejected.get(kind, 0) + 1
+    return {
+        "accepted": [record["grasp_index"] for record in records if record["accepted"]],
+        "rejected": rejected,
+    }

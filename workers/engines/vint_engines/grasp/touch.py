@@ -33,7 +33,7 @@ rollout.
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping, Set
+from collections.abc import Set
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -41,7 +41,7 @@ import mujoco
 import numpy as np
 import numpy.typing as npt
 
-from vint_engines import params as P
+from vint_engines import contract
 from vint_engines.grasp.hand import TOUCH_PROBE, TOUCH_PROBE_RADIUS
 from vint_engines.grasp.scene import GraspScene
 from vint_engines.grasp.taxels import TaxelLayout
@@ -60,18 +60,10 @@ class TouchParams:
     min_active_taxels: int
 
     @staticmethod
-    def parse(obj: Mapping[str, Any]) -> TouchParams:
-        where = "params.touch"
-        if not isinstance(obj, Mapping):
-            raise BadInput(f"{where}: expected an object")
-        return TouchParams(
-            sensing_depth_m=P.number(obj, "sensing_depth_m", where, 0.003, low=0.0001, high=0.02),
-            response_depth_m=P.number(obj, "response_depth_m", where, 0.002, low=0.0001, high=0.02),
-            gain_sigma=P.number(obj, "gain_sigma", where, 0.1, low=0.0, high=1.0),
-            aging=P.number(obj, "aging", where, 1.0, low=0.01, high=1.0),
-            gain_seed=P.integer(obj, "gain_seed", where, 123, low=0, high=2**64 - 1),
-            min_active_taxels=P.integer(obj, "min_active_taxels", where, 3, low=0, high=10_000),
-        )
+    def parse(obj: Any, where: str = "params.touch") -> TouchParams:
+        """A grasp task's `touch`: fields, bounds and defaults are `GraspTouch` in the stage
+        contract; `parse({})` gives the defaults."""
+        return TouchParams(**contract.validated_part("GraspTouch", obj, where))
 
     def to_json(self) -> dict[str, float | int]:
         return asdict(self)

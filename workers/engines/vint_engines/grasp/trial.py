@@ -19,14 +19,14 @@ what it took in `stability`.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import mujoco
 import numpy as np
 
-from vint_engines import params as P
+from vint_engines import contract
 from vint_engines.grasp.hand import SKIN, palm_frame_facing
 from vint_engines.grasp.scene import GraspScene
 from vint_engines.grasp.touch import Skin
@@ -74,27 +74,16 @@ CONES = {"elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC, "pyramidal": mujoco.mjtCone
 class Shake:
     """After the hold the arm shakes the hand: one sine period of peak acceleration `accel_mps2`
     along each of `directions` fixed directions (spread over the upper hemisphere), `duration_s`
-    in all."""
+    in all. Fields, bounds and defaults: `GraspShake` in the stage contract."""
 
-    enabled: bool = False
-    accel_mps2: float = 5.0
-    directions: int = 4
-    duration_s: float = 1.0
+    enabled: bool
+    accel_mps2: float
+    directions: int
+    duration_s: float
 
     @staticmethod
-    def parse(obj: Any) -> Shake:
-        where = "params.physics.shake"
-        if not isinstance(obj, Mapping):
-            raise BadInput(f"{where}: expected an object")
-        enabled = obj.get("enabled", False)
-        if not isinstance(enabled, bool):
-            raise BadInput(f"{where}.enabled: expected true or false, got {enabled!r}")
-        return Shake(
-            enabled=enabled,
-            accel_mps2=P.number(obj, "accel_mps2", where, 5.0, low=0.0, high=100.0),
-            directions=P.integer(obj, "directions", where, 4, low=1, high=32),
-            duration_s=P.number(obj, "duration_s", where, 1.0, low=0.01, high=30.0),
-        )
+    def parse(obj: Any, where: str = "params.physics.shake") -> Shake:
+        return Shake(**contract.validated_part("GraspShake", obj, where))
 
     def unit_vectors(self) -> list[np.ndarray]:
         """Deterministic directions: a golden-angle spiral over the upper hemisphere."""
@@ -109,51 +98,39 @@ class Shake:
 
 @dataclass(frozen=True)
 class Physics:
+    """A grasp task's `physics`: fields, bounds and defaults are `GraspPhysics` in the stage
+    contract (`vint_engines/contract.schema.json`); `parse({})` gives the defaults."""
+
     timestep: float
     lift_height: float
     hold_s: float
     max_drop_m: float
     # Standoff: gap between the palmar face and the object's surface along the approach, as a
     # fraction of the hand's finger length (`reach`); negative values start the palm inside.
-    standoff_ratio: tuple[float, float] = (0.025, 0.10)
-    shake: Shake = field(default_factory=Shake)
-    cone: str = "elliptic"
-    impratio: float = 10.0
-    hand_solref_timeconst: float = 0.005
-    force_scale: float = 1.0
-    mass_override_kg: float | None = None
-    max_retries: int = 2
-    min_timestep: float = 0.00025
-    max_penetration_m: float = 0.004
-    max_object_speed_mps: float = 5.0
+    standoff_ratio: tuple[float, float]
+    shake: Shake
+    cone: str
+    impratio: float
+    hand_solref_timeconst: float
+    force_scale: float
+    mass_override_kg: float | None
+    max_retries: int
+    min_timestep: float
+    max_penetration_m: float
+    max_object_speed_mps: float
 
     @staticmethod
-    def parse(obj: Mapping[str, Any]) -> Physics:
-        where = "params.physics"
-        if not isinstance(obj, Mapping):
-            raise BadInput(f"{where}: expected an object")
-        cone = P.string(obj, "cone", where, "elliptic")
-        if cone not in CONES:
-            raise BadInput(f"{where}.cone: {cone!r} is not one of {sorted(CONES)}")
-        mass = obj.get("mass_override_kg")
+    def parse(obj: Any, where: str = "params.physics") -> Physics:
+        fields = contract.validated_part("GraspPhysics", obj, where)
+        low, high = fields["standoff_ratio"]
+        if low > high:
+            raise BadInput(f"{where}.standoff_ratio: min {low} exceeds max {high}")
         return Physics(
-            timestep=P.number(obj, "timestep", where, 0.002, low=1e-4, high=0.01),
-            lift_height=P.number(obj, "lift_height", where, 0.10, low=0.0, high=1.0),
-            hold_s=P.number(obj, "hold_s", where, 1.0, low=0.0, high=30.0),
-            max_drop_m=P.number(obj, "max_drop_m", where, 0.02, low=0.0),
-            standoff_ratio=P.number_range(obj, "standoff_ratio", where, (0.025, 0.10), low=-0.2),
-            shake=Shake.parse(obj.get("shake", {})),
-            cone=cone,
-            impratio=P.number(obj, "impratio", where, 10.0, low=1.0, high=1000.0),
-            hand_solref_timeconst=P.number(obj, "hand_solref_timeconst", where, 0.005, low=1e-4, high=0.1),
-            force_scale=P.number(obj, "force_scale", where, 1.0, low=0.01, high=100.0),
-            mass_override_kg=None
-            if mass is None
-            else P.number(obj, "mass_override_kg", where, low=0.001, high=20.0),
-            max_retries=P.integer(obj, "max_retries", where, 2, low=0, high=4),
-            min_timestep=P.number(obj, "min_timestep", where, 0.00025, low=1e-5, high=0.01),
-            max_penetration_m=P.number(obj, "max_penetration_m", where, 0.004, low=1e-4, high=0.1),
-            max_object_speed_mps=P.number(obj, "max_object_speed_mps", where, 5.0, low=0.1, high=100.0),
+            **{
+                **fields,
+                "standoff_ratio": (float(low), float(high)),
+                "shake": Shake(**fields["shake"]),
+            }
         )
 
     def to_json(self) -> dict[str, Any]:

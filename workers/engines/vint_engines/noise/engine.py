@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import platform
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 
-from vint_engines import __version__
-from vint_engines import params as P
+from vint_engines import __version__, contract
 from vint_engines.noise.model import NoiseModel
 from vint_engines.protocol import BadInput, Json, TaskRequest, TaskResult
 
@@ -26,8 +27,7 @@ class NoiseEngine:
         pass
 
     def run(self, task: TaskRequest) -> TaskResult:
-        model = NoiseModel.parse(task.params.get("noise", {}))
-        views = P.views(task.params)
+        model, views = parse_params(task.params)
         result = TaskResult()
         for index, seed in views:
             depth = load_depth(task.input_path(f"v{index:02d}_depth.npy"))
@@ -35,8 +35,19 @@ class NoiseEngine:
             out = task.out_dir / f"v{index:02d}_depth_noisy.npy"
             np.save(out, noisy)
             result.add(out, "application/x-npy")
+        result.result = {"views": len(views)}
         result.metrics["views"] = len(views)
         return result
+
+
+def parse_params(params: Mapping[str, Any]) -> tuple[NoiseModel, list[tuple[int, int]]]:
+    """A noise task's parameters, checked against the stage contract: the model and the views'
+    (index, seed) pairs."""
+    checked = contract.validated("noise", params)
+    views = [(view["view_index"], view["seed"]) for view in checked["views"]]
+    if len({index for index, _ in views}) != len(views):
+        raise BadInput("params.views: view_index values must be unique")
+    return NoiseModel.parse(checked["noise"]), views
 
 
 def load_depth(path: Path) -> np.ndarray:

@@ -12,7 +12,6 @@ content, so a seed fixes the result.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -20,7 +19,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from vint_engines import params as P
+from vint_engines import contract
 from vint_engines.protocol import BadInput
 
 Depth = npt.NDArray[np.float32]
@@ -32,24 +31,19 @@ _KERNEL = np.ones((3, 3), np.uint8)
 
 @dataclass(frozen=True)
 class NoiseModel:
-    sigma_base_m: float = 0.0005
-    sigma_per_m: float = 0.001
-    min_range_m: float = 0.25
-    max_range_m: float = 3.86
-    edge_hole_jump_m: float = 0.05
-    dropout: float = 0.01
+    """Fields, bounds and defaults: `NoiseModel` in the stage contract; `parse({})` gives the
+    defaults."""
+
+    sigma_base_m: float
+    sigma_per_m: float
+    min_range_m: float
+    max_range_m: float
+    edge_hole_jump_m: float
+    dropout: float
 
     @staticmethod
-    def parse(obj: Mapping[str, Any]) -> NoiseModel:
-        where, d = "params.noise", NoiseModel()
-        model = NoiseModel(
-            sigma_base_m=P.number(obj, "sigma_base_m", where, d.sigma_base_m, low=0.0, high=1.0),
-            sigma_per_m=P.number(obj, "sigma_per_m", where, d.sigma_per_m, low=0.0, high=1.0),
-            min_range_m=P.number(obj, "min_range_m", where, d.min_range_m, low=0.0),
-            max_range_m=P.number(obj, "max_range_m", where, d.max_range_m, low=0.0),
-            edge_hole_jump_m=P.number(obj, "edge_hole_jump_m", where, d.edge_hole_jump_m, low=0.0),
-            dropout=P.number(obj, "dropout", where, d.dropout, low=0.0, high=1.0),
-        )
+    def parse(obj: Any, where: str = "params.noise") -> NoiseModel:
+        model = NoiseModel(**contract.validated_part("NoiseModel", obj, where))
         if model.min_range_m >= model.max_range_m:
             raise BadInput(
                 f"{where}: min_range_m {model.min_range_m} must be below max_range_m {model.max_range_m}"

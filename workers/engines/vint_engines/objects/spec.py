@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from vint_engines import contract
 from vint_engines import params as P
 from vint_engines.protocol import BadInput
 
@@ -27,10 +28,14 @@ MESH_SUFFIXES = (".obj", ".stl", ".ply")
 NAME = re.compile(r"[a-z0-9_]+")
 SHA256 = re.compile(r"[0-9a-f]{64}")
 
-LENGTH_M = (0.0005, 1.0)  # any single dimension: half a millimetre to a metre
-MASS_KG = (0.0005, 20.0)
-MAX_PROFILE_POINTS = 256
-MAX_PARTS = 32
+# Bounds from the stage contract (vint_core::contract::object, via contract.schema.json).
+LENGTH_M = contract.bounds("Shape", "radius_m", "cylinder")  # any single dimension
+MASS_KG = contract.bounds("ObjectEntry", "mass_kg")
+POSITION_M = contract.bounds("Part", "pos_m", "box")
+EULER_DEG = contract.bounds("Part", "euler_deg", "box")
+MIN_PROFILE_POINTS, MAX_PROFILE_POINTS = contract.count_bounds("Shape", "profile_m", "revolved")
+MAX_PARTS = contract.count_bounds("Shape", "parts", "compound")[1]
+MESH_SCALE = contract.bounds("Shape", "scale", "mesh")
 
 Vec3 = tuple[float, float, float]
 
@@ -106,10 +111,8 @@ class ObjectSpec:
 
     @staticmethod
     def parse(obj: Mapping[str, Any], where: str = "params.object") -> ObjectSpec:
-        """A catalog entry (`shape` is a table), or the older flat form
-        `{"name", "shape": "cylinder", "radius", "height", "mass", "material"}`."""
-        if isinstance(obj.get("shape"), str):
-            return _parse_flat(obj, where)
+        """A catalog entry: its fields checked here as `contract.schema.json`'s `ObjectEntry` has
+        them, plus what a schema cannot say (a profile that crosses itself)."""
         _only(obj, ENTRY_KEYS, where)
         name = P.string(obj, "name", where)
         if not NAME.fullmatch(name):
@@ -192,34 +195,20 @@ def shape_json(shape: Shape) -> dict[str, Any]:
     return {"type": "mesh", "path": shape.path, "scale": shape.scale}
 
 
-def _parse_flat(obj: Mapping[str, Any], where: str) -> ObjectSpec:
-    """The flat cylinder form engines accepted before the catalog (kept so old tasks still run)."""
-    if obj["shape"] != "cylinder":
-        raise BadInput(f"{where}.shape: unsupported shape {obj['shape']!r} (the flat form has 'cylinder')")
-    material = P.string(obj, "material", where, "plastic")
-    if material not in MATERIALS:
-        raise BadInput(f"{where}.material: {material!r} is not one of {list(MATERIALS)}")
-    return ObjectSpec(
-        name=P.string(obj, "name", where),
-        mass=P.number(obj, "mass", where, low=MASS_KG[0], high=MASS_KG[1]),
-        material=material,
-        symmetry="continuous_z",
-        shape=Cylinder(radius=_length(obj, "radius", where), height=_length(obj, "height", where)),
-    )
-
-
 def _part(obj: Any, where: str) -> Part:
     if not isinstance(obj, Mapping):
         raise BadInput(f"{where}: expected a part table")
     shape = parse_shape(obj, where, PART_TYPES, PLACEMENT_KEYS)
     assert isinstance(shape, Cylinder | Box | Revolved)
-    x, y, z = _vector(obj, "pos_m", where, low=-LENGTH_M[1], high=LENGTH_M[1])
-    rx, ry, rz = _vector(obj, "euler_deg", where, low=-360.0, high=360.0, default=(0.0, 0.0, 0.0))
+    x, y, z = _vector(obj, "pos_m", where, low=POSITION_M[0], high=POSITION_M[1])
+    rx, ry, rz = _vector(
+        obj, "euler_deg", where, low=EULER_DEG[0], high=EULER_DEG[1], default=(0.0, 0.0, 0.0)
+    )
     return Part(shape, (x, y, z), (rx, ry, rz))
 
 
 def _mesh_file(obj: Mapping[str, Any], where: str) -> MeshFile:
-    scale = P.number(obj, "scale", where, 1.0, low=1e-6, high=1e3)
+    scale = P.number(obj, "scale", where, low=MESH_SCALE[0], high=MESH_SCALE[1])
     if "asset" in obj:
         if "path" in obj:
             raise BadInput(f"{where}: give either path or asset, not both")
@@ -238,8 +227,10 @@ def _mesh_file(obj: Mapping[str, Any], where: str) -> MeshFile:
 
 def _profile(obj: Mapping[str, Any], key: str, where: str) -> tuple[tuple[float, float], ...]:
     raw = obj.get(key)
-    if not isinstance(raw, list) or not 2 <= len(raw) <= MAX_PROFILE_POINTS:
-        raise BadInput(f"{where}.{key}: expected a list of 2 to {MAX_PROFILE_POINTS} [r, z] points")
+    if not isinstance(raw, list) or not MIN_PROFILE_POINTS <= len(raw) <= MAX_PROFILE_POINTS:
+        raise BadInput(
+            f"{where}.{key}: expected a list of {MIN_PROFILE_POINTS} to {MAX_PROFILE_POINTS} [r, z] points"
+        )
     points = []
     for i, point in enumerate(raw):
         if not isinstance(point, list) or len(point) != 2:

@@ -155,7 +155,7 @@ def to_manifold(mesh: TriangleMesh) -> manifold3d.Manifold:
         )
     )
     if solid.status() != manifold3d.Error.NoError:
-        raise ValueError(f"not a closed oriented manifold mesh: {solid.status()}")
+        raise BadInput(f"the shape is not a closed oriented manifold mesh: {solid.status()}")
     return solid
 
 

@@ -12,12 +12,12 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterable, Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Any
 
 import bpy
 
-from vint_engines import params as P
+from vint_engines import contract
 
 DEVICE_ENV = "VINT_RENDER_DEVICE"  # "cpu" forces the CPU even when a GPU is present
 THREADS_ENV = "VINT_RENDER_THREADS"  # CPU threads per render (`render_threads`)
@@ -30,19 +30,18 @@ LOBES = ("diffuse", "glossy", "transmission", "transparent")
 
 @dataclass(frozen=True)
 class Bounces:
-    """Cycles' light-path caps (its defaults, except volume: vint scenes have no volumes)."""
+    """Cycles' light-path caps (volume bounces are always 0: vint scenes have no volumes).
+    Bounds and defaults (Cycles' own) are `Bounces` in the stage contract."""
 
-    total: int = 12
-    diffuse: int = 4
-    glossy: int = 4
-    transmission: int = 12
-    transparent: int = 8
+    total: int
+    diffuse: int
+    glossy: int
+    transmission: int
+    transparent: int
 
     @staticmethod
     def parse(obj: Mapping[str, Any], where: str) -> Bounces:
-        defaults = asdict(Bounces())
-        caps = {key: P.integer(obj, key, where, cap, low=0, high=1024) for key, cap in defaults.items()}
-        return Bounces(**caps)
+        return Bounces(**contract.validated_part("Bounces", obj, where))
 
     def pruned(self, lobes: Iterable[str]) -> Bounces:
         """The caps the scene's material lobes can use (see the module comment)."""

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import json
 import platform
-import re
 import shutil
 import tempfile
 import time
@@ -29,8 +28,7 @@ import bpy
 import cv2
 import numpy as np
 
-from vint_engines import __version__
-from vint_engines import params as P
+from vint_engines import __version__, contract
 from vint_engines.assets import StagedAsset, asset_file, staged_assets
 from vint_engines.objects import MODEL_FILE
 from vint_engines.poses import quat_to_matrix, read_pose
@@ -40,11 +38,13 @@ from vint_engines.render.cycles import Bounces, PathTracing
 from vint_engines.render.scene import OBJECT_PASS_INDEX, BlenderScene, Geometry, Hdri, environments
 
 GRASPS_INPUT = "grasps.json"
-OUTPUT_KINDS = ("rgb", "depth", "mask", "segmentation")
 
 
 @dataclass(frozen=True)
 class RenderSettings:
+    """A render task's `render`: fields, bounds and defaults are `RenderSettings` in the stage
+    contract; `parse({})` gives the defaults."""
+
     intrinsics: Intrinsics
     tracing: PathTracing
     prune_bounces: bool
@@ -53,27 +53,24 @@ class RenderSettings:
     elevation_deg: tuple[float, float]
 
     @staticmethod
-    def parse(obj: Mapping[str, Any]) -> RenderSettings:
-        where = "params.render"
+    def parse(obj: Any, where: str = "params.render") -> RenderSettings:
+        fields = contract.validated_part("RenderSettings", obj, where)
+        for key in ("radius_m", "elevation_deg"):
+            low, high = fields[key]
+            if low > high:
+                raise BadInput(f"{where}.{key}: min {low} exceeds max {high}")
         return RenderSettings(
-            intrinsics=Intrinsics(
-                width=P.integer(obj, "width", where, 128, low=8, high=8192),
-                height=P.integer(obj, "height", where, 128, low=8, high=8192),
-                fov_deg=P.number(obj, "fov_deg", where, 60.0, low=5.0, high=150.0),
-            ),
+            intrinsics=Intrinsics(width=fields["width"], height=fields["height"], fov_deg=fields["fov_deg"]),
             tracing=PathTracing(
-                samples=P.integer(obj, "samples", where, 32, low=1, high=65536),
-                denoise=P.boolean(obj, "denoise", where, False),
-                bounces=Bounces.parse(obj.get("bounces", {}), f"{where}.bounces"),
+                samples=fields["samples"],
+                denoise=fields["denoise"],
+                bounces=Bounces(**fields["bounces"]),
             ),
-            prune_bounces=P.boolean(obj, "prune_bounces", where, True),
-            environment=P.string(obj, "environment", where, "studio"),  # checked with the views
-            radius_m=P.number_range(obj, "radius_m", where, (0.35, 0.5), low=0.01),
-            elevation_deg=P.number_range(obj, "elevation_deg", where, (15.0, 75.0), low=-90.0),
+            prune_bounces=fields["prune_bounces"],
+            environment=fields["environment"],  # checked with the views
+            radius_m=(float(fields["radius_m"][0]), float(fields["radius_m"][1])),
+            elevation_deg=(float(fields["elevation_deg"][0]), float(fields["elevation_deg"][1])),
         )
-
-
-SHA256 = re.compile(r"[0-9a-f]{64}")
 
 
 @dataclass(frozen=True)
@@ -102,41 +99,22 @@ class Environment:
         return record
 
     @staticmethod
-    def parse_all(
-        params: Mapping[str, Any], assets: dict[str, StagedAsset], rgb: bool
-    ) -> dict[str, Environment]:
-        """`params.environments` by name (optional: a bundled HDRI not listed is lit as is). An
-        entry with `asset` is a user's HDRI; its file must be among `params.assets` when the task
-        renders `rgb` (the only time it is read)."""
+    def parse_all(params: Mapping[str, Any]) -> dict[str, Environment]:
+        """`params.environments` (checked against the contract) by name. A bundled HDRI not listed
+        is lit as is; an entry with `asset` is a user's HDRI, under a name of its own."""
         found: dict[str, Environment] = {}
-        if "environments" not in params:
-            return found
-        for i, raw in enumerate(P.items(params, "environments", "params")):
+        for i, raw in enumerate(params.get("environments", [])):
             where = f"params.environments[{i}]"
-            name = P.string(raw, "name", where)
-            asset = None
-            if "asset" in raw:
-                asset = P.string(raw, "asset", where)
-                if not SHA256.fullmatch(asset):
-                    raise BadInput(
-                        f"{where}.asset: expected a SHA-256 (64 lowercase hex digits), got {asset!r}"
-                    )
-                if name in environments():
-                    raise BadInput(
-                        f"{where}.name: {name!r} is a bundled HDRI; a user's file needs a name of its own"
-                    )
-                if rgb:
-                    asset_file(assets, asset, f"{where}.asset")
-            else:
+            name, asset = raw["name"], raw.get("asset")
+            if asset is not None and name in environments():
+                raise BadInput(
+                    f"{where}.name: {name!r} is a bundled HDRI; a user's file needs a name of its own"
+                )
+            if asset is None:
                 Hdri.bundled(name, f"{where}.name")
             if name in found:
                 raise BadInput(f"{where}.name: {name!r} is listed twice")
-            found[name] = Environment(
-                name,
-                P.number(raw, "rotation_deg", where, 0.0, low=-360.0, high=360.0),
-                P.number(raw, "strength", where, 1.0, low=0.0, high=1000.0),
-                asset,
-            )
+            found[name] = Environment(name, raw["rotation_deg"], raw["strength"], asset)
         return found
 
 
@@ -148,12 +126,11 @@ class RenderView:
     camera: CameraPose | None  # given by the task, else sampled with `seed`
 
     @staticmethod
-    def parse_all(
-        params: Mapping[str, Any], default_environment: str, assets: dict[str, StagedAsset], rgb: bool
-    ) -> list[RenderView]:
-        """`params.views`; a view without `environment` renders under `default_environment`. Every
-        environment named must be listed in `params.environments` or be a bundled HDRI."""
-        listed = Environment.parse_all(params, assets, rgb)
+    def parse_all(params: Mapping[str, Any], default_environment: str) -> list[RenderView]:
+        """`params.views` (checked against the contract); a view without `environment` renders
+        under `default_environment`. Every environment named must be listed in
+        `params.environments` or be a bundled HDRI."""
+        listed = Environment.parse_all(params)
 
         def resolve(name: str, where: str) -> Environment:
             if name in listed:
@@ -163,15 +140,46 @@ class RenderView:
 
         default = resolve(default_environment, "params.render.environment")
         views = []
-        raw_views = P.items(params, "views", "params")
-        for i, ((index, seed), raw) in enumerate(zip(P.views(params), raw_views, strict=True)):
+        for i, raw in enumerate(params["views"]):
             where = f"params.views[{i}]"
             environment = default
             if "environment" in raw:
-                environment = resolve(P.string(raw, "environment", where), f"{where}.environment")
+                environment = resolve(raw["environment"], f"{where}.environment")
             camera = camera_param(raw["camera"], f"{where}.camera") if "camera" in raw else None
-            views.append(RenderView(index, seed, environment, camera))
+            views.append(RenderView(raw["view_index"], raw["seed"], environment, camera))
+        if len({view.index for view in views}) != len(views):
+            raise BadInput("params.views: view_index values must be unique")
         return views
+
+
+@dataclass(frozen=True)
+class RenderTask:
+    """A render task's parameters, checked against the stage contract and parsed. Needs no staged
+    file and no scene: `python -m vint_engines check-params` runs it on planned tasks."""
+
+    grasp_index: int
+    settings: RenderSettings
+    outputs: frozenset[str]
+    views: list[RenderView]
+
+    @staticmethod
+    def parse(params: Mapping[str, Any]) -> RenderTask:
+        checked = contract.validated("render", params)
+        settings = RenderSettings.parse(checked["render"])
+        return RenderTask(
+            grasp_index=checked["grasp_index"],
+            settings=settings,
+            outputs=frozenset(checked["outputs"]),
+            views=RenderView.parse_all(checked, settings.environment),
+        )
+
+    def check_assets(self, params: Mapping[str, Any], assets: dict[str, StagedAsset]) -> None:
+        """With `rgb`, every user HDRI listed must be among the staged files (`params.assets`)."""
+        if "rgb" not in self.outputs:
+            return
+        for i, raw in enumerate(params.get("environments", [])):
+            if "asset" in raw:
+                asset_file(assets, raw["asset"], f"params.environments[{i}].asset")
 
 
 def camera_param(obj: Any, where: str) -> CameraPose:
@@ -219,14 +227,15 @@ class RenderEngine:
         self.scene.render_rgb(PathTracing(1, False, Bounces(0, 0, 0, 0, 0)), 0)
 
     def run(self, task: TaskRequest) -> TaskResult:
-        params = task.params
-        settings = RenderSettings.parse(params.get("render", {}))
-        outputs = params.get("outputs", list(OUTPUT_KINDS))
-        if not isinstance(outputs, list) or not set(outputs) <= set(OUTPUT_KINDS):
-            raise BadInput(f"params.outputs: expected a subset of {list(OUTPUT_KINDS)}, got {outputs!r}")
-        grasp_index = P.integer(params, "grasp_index", "params", low=0)
+        render = RenderTask.parse(task.params)
+        settings, outputs, grasp_index, views = (
+            render.settings,
+            render.outputs,
+            render.grasp_index,
+            render.views,
+        )
         assets = staged_assets(task)
-        views = RenderView.parse_all(params, settings.environment, assets, "rgb" in outputs)
+        render.check_assets(task.params, assets)
         grasps = load_grasps(task.input_path(GRASPS_INPUT))
         hdris = (
             {view.environment: hdri(view.environment, assets) for view in views} if "rgb" in outputs else {}
@@ -264,6 +273,7 @@ class RenderEngine:
                 rgb_s += time.perf_counter() - started
             self._write_view(task.out_dir, view, camera, settings, outputs, object_pose, geometry, result)
         n = len(views)
+        result.result = {"views": n, "device": self.scene.device}
         result.metrics.update(
             views=n,
             render_ms_per_view=round(1e3 * (geometry_s + rgb_s) / n, 3),
@@ -295,7 +305,7 @@ class RenderEngine:
         view: RenderView,
         camera: CameraPose,
         settings: RenderSettings,
-        outputs: list[str],
+        outputs: frozenset[str],
         object_pose: tuple[np.ndarray, np.ndarray],
         geometry: Geometry,
         result: TaskResult,

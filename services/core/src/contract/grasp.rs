@@ -1,0 +1,242 @@
+//! The grasp stage: a chunk of grasp trials of one object by one hand, simulated in MuJoCo
+//! (`vint_engines.grasp`). PROTOCOL.md describes the procedure and the output documents.
+
+use std::collections::BTreeMap;
+
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use super::object::ObjectEntry;
+use super::{Bound, SEED_MAX};
+use crate::asset::Asset;
+
+/// The trials' poses, hand geometry and metrics: what render tasks read.
+pub const GRASPS_FILE: &str = "grasps.json";
+/// Every accepted trial's full touch record: only the package stage reads it.
+pub const TOUCH_FILE: &str = "touch.json";
+/// The object's watertight model mesh (object frame, millimetres): what render tasks show.
+pub const MODEL_FILE: &str = "object.ply";
+
+/// Trials one task runs (the spec's `grasp.chunk_size`).
+pub const TRIALS_PER_TASK: Bound<u32> = Bound::new(1, 1024, 8);
+
+pub const TIMESTEP_S: Bound<f64> = Bound::new(1e-4, 0.01, 0.002);
+pub const LIFT_HEIGHT_M: Bound<f64> = Bound::new(0.0, 1.0, 0.10);
+pub const HOLD_S: Bound<f64> = Bound::new(0.0, 30.0, 1.0);
+pub const MAX_DROP_M: Bound<f64> = Bound::new(0.001, 0.5, 0.02);
+/// Each end of the standoff range, as a fraction of the hand's finger length.
+pub const STANDOFF_RATIO: Bound<f64> = Bound::new(-0.2, 1.0, 0.025);
+pub const STANDOFF_RATIO_DEFAULT: [f64; 2] = [0.025, 0.10];
+pub const IMPRATIO: Bound<f64> = Bound::new(1.0, 1000.0, 10.0);
+pub const HAND_SOLREF_TIMECONST_S: Bound<f64> = Bound::new(1e-4, 0.1, 0.005);
+pub const FORCE_SCALE: Bound<f64> = Bound::new(0.01, 100.0, 1.0);
+pub const MASS_OVERRIDE_KG: Bound<f64> = Bound::new(0.001, 20.0, 0.1);
+pub const MAX_RETRIES: Bound<u32> = Bound::new(0, 4, 2);
+pub const MIN_TIMESTEP_S: Bound<f64> = Bound::new(1e-5, 0.01, 0.00025);
+pub const MAX_PENETRATION_M: Bound<f64> = Bound::new(1e-4, 0.1, 0.004);
+pub const MAX_OBJECT_SPEED_MPS: Bound<f64> = Bound::new(0.1, 100.0, 5.0);
+
+pub const SHAKE_ACCEL_MPS2: Bound<f64> = Bound::new(0.0, 100.0, 5.0);
+pub const SHAKE_DIRECTIONS: Bound<u32> = Bound::new(1, 32, 4);
+pub const SHAKE_DURATION_S: Bound<f64> = Bound::new(0.01, 30.0, 1.0);
+
+pub const SENSING_DEPTH_M: Bound<f64> = Bound::new(1e-4, 0.02, 0.003);
+pub const RESPONSE_DEPTH_M: Bound<f64> = Bound::new(1e-4, 0.02, 0.002);
+pub const GAIN_SIGMA: Bound<f64> = Bound::new(0.0, 1.0, 0.1);
+pub const AGING: Bound<f64> = Bound::new(0.01, 1.0, 1.0);
+pub const MIN_ACTIVE_TAXELS: Bound<u32> = Bound::new(0, 10_000, 3);
+
+/// A grasp task's parameters.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+#[schemars(rename = "GraspParams")]
+pub struct Params {
+    pub object: ObjectEntry,
+    pub hand: HandRef,
+    #[schemars(length(min = TRIALS_PER_TASK.min, max = TRIALS_PER_TASK.max))]
+    pub trials: Vec<Trial>,
+    #[serde(default)]
+    pub physics: Physics,
+    #[serde(default)]
+    pub touch: Touch,
+    /// The job's files the hand or object names (by SHA-256); the worker stages each one.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub assets: Vec<Asset>,
+}
+
+/// A hand: a built-in one by name, or a spec's own with its MJCF model and taxel layout (the
+/// SHA-256 of files submitted with the job).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct HandRef {
+    #[schemars(regex(pattern = r"^[a-z0-9_]{1,64}$"))]
+    pub name: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schemars(regex(pattern = r"^[0-9a-f]{64}$"))]
+    pub mjcf: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schemars(regex(pattern = r"^[0-9a-f]{64}$"))]
+    pub taxels: Option<String>,
+}
+
+/// One trial: its index within the (object, hand) pair and the seed of its random draws.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Trial {
+    pub grasp_index: u32,
+    #[schemars(range(max = SEED_MAX))]
+    pub seed: u64,
+}
+
+/// MuJoCo settings, the grasp procedure's distances and durations, and the stability checks.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+#[schemars(rename = "GraspPhysics")]
+pub struct Physics {
+    /// Simulation timestep (s).
+    #[schemars(range(min = TIMESTEP_S.min, max = TIMESTEP_S.max))]
+    pub timestep: f64,
+    /// How far the hand lifts the object (m).
+    #[schemars(range(min = LIFT_HEIGHT_M.min, max = LIFT_HEIGHT_M.max))]
+    pub lift_height: f64,
+    /// How long the lifted hand holds still (s).
+    #[schemars(range(min = HOLD_S.min, max = HOLD_S.max))]
+    pub hold_s: f64,
+    /// A grasp holds when the object slips less than this relative to the palm (m).
+    #[schemars(range(min = MAX_DROP_M.min, max = MAX_DROP_M.max))]
+    pub max_drop_m: f64,
+    /// Palm standoff before closing, [min, max] fractions of the hand's finger length (min ≤ max).
+    #[schemars(inner(range(min = STANDOFF_RATIO.min, max = STANDOFF_RATIO.max)))]
+    pub standoff_ratio: [f64; 2],
+    pub shake: Shake,
+    /// MuJoCo's friction cone.
+    pub cone: Cone,
+    #[schemars(range(min = IMPRATIO.min, max = IMPRATIO.max))]
+    pub impratio: f64,
+    /// Time constant of every hand contact (s).
+    #[schemars(range(min = HAND_SOLREF_TIMECONST_S.min, max = HAND_SOLREF_TIMECONST_S.max))]
+    pub hand_solref_timeconst: f64,
+    /// Multiplies every finger actuator's force limit.
+    #[schemars(range(min = FORCE_SCALE.min, max = FORCE_SCALE.max))]
+    pub force_scale: f64,
+    /// The object's mass instead of the catalog's (its inertia scales with it).
+    #[schemars(range(min = MASS_OVERRIDE_KG.min, max = MASS_OVERRIDE_KG.max))]
+    pub mass_override_kg: Option<f64>,
+    /// Reruns at half the timestep when the simulation misbehaves.
+    #[schemars(range(min = MAX_RETRIES.min, max = MAX_RETRIES.max))]
+    pub max_retries: u32,
+    /// Reruns never go below this timestep (s).
+    #[schemars(range(min = MIN_TIMESTEP_S.min, max = MIN_TIMESTEP_S.max))]
+    pub min_timestep: f64,
+    /// Deepest contact penetration accepted (m).
+    #[schemars(range(min = MAX_PENETRATION_M.min, max = MAX_PENETRATION_M.max))]
+    pub max_penetration_m: f64,
+    /// Fastest object speed accepted (m/s); bounds the scene's kinetic energy too.
+    #[schemars(range(min = MAX_OBJECT_SPEED_MPS.min, max = MAX_OBJECT_SPEED_MPS.max))]
+    pub max_object_speed_mps: f64,
+}
+
+impl Default for Physics {
+    fn default() -> Physics {
+        Physics {
+            timestep: TIMESTEP_S.default,
+            lift_height: LIFT_HEIGHT_M.default,
+            hold_s: HOLD_S.default,
+            max_drop_m: MAX_DROP_M.default,
+            standoff_ratio: STANDOFF_RATIO_DEFAULT,
+            shake: Shake::default(),
+            cone: Cone::Elliptic,
+            impratio: IMPRATIO.default,
+            hand_solref_timeconst: HAND_SOLREF_TIMECONST_S.default,
+            force_scale: FORCE_SCALE.default,
+            mass_override_kg: None,
+            max_retries: MAX_RETRIES.default,
+            min_timestep: MIN_TIMESTEP_S.default,
+            max_penetration_m: MAX_PENETRATION_M.default,
+            max_object_speed_mps: MAX_OBJECT_SPEED_MPS.default,
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum Cone {
+    #[default]
+    Elliptic,
+    Pyramidal,
+}
+
+/// After the hold the arm shakes the hand: one sine period of peak acceleration `accel_mps2`
+/// along each of `directions` fixed directions over the upper hemisphere, `duration_s` in all.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+#[schemars(rename = "GraspShake")]
+pub struct Shake {
+    pub enabled: bool,
+    #[schemars(range(min = SHAKE_ACCEL_MPS2.min, max = SHAKE_ACCEL_MPS2.max))]
+    pub accel_mps2: f64,
+    #[schemars(range(min = SHAKE_DIRECTIONS.min, max = SHAKE_DIRECTIONS.max))]
+    pub directions: u32,
+    #[schemars(range(min = SHAKE_DURATION_S.min, max = SHAKE_DURATION_S.max))]
+    pub duration_s: f64,
+}
+
+impl Default for Shake {
+    fn default() -> Shake {
+        Shake {
+            enabled: false,
+            accel_mps2: SHAKE_ACCEL_MPS2.default,
+            directions: SHAKE_DIRECTIONS.default,
+            duration_s: SHAKE_DURATION_S.default,
+        }
+    }
+}
+
+/// The whole-hand tactile sensor (`vint_engines/grasp/touch.py`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+#[schemars(rename = "GraspTouch")]
+pub struct Touch {
+    /// A taxel is active when the object surface is within this distance of it (m).
+    #[schemars(range(min = SENSING_DEPTH_M.min, max = SENSING_DEPTH_M.max))]
+    pub sensing_depth_m: f64,
+    /// Indentation scale of the saturating response (m).
+    #[schemars(range(min = RESPONSE_DEPTH_M.min, max = RESPONSE_DEPTH_M.max))]
+    pub response_depth_m: f64,
+    /// Log-normal spread of the per-taxel gains.
+    #[schemars(range(min = GAIN_SIGMA.min, max = GAIN_SIGMA.max))]
+    pub gain_sigma: f64,
+    /// Sensitivity left after aging: 1 is a new sensor.
+    #[schemars(range(min = AGING.min, max = AGING.max))]
+    pub aging: f64,
+    /// Seed of the per-taxel gains: the hand's, not the trial's (a property of the sensor).
+    #[schemars(range(max = SEED_MAX))]
+    pub gain_seed: u64,
+    /// A grasp needs at least this many active taxels to be accepted.
+    #[schemars(range(min = MIN_ACTIVE_TAXELS.min, max = MIN_ACTIVE_TAXELS.max))]
+    pub min_active_taxels: u32,
+}
+
+impl Default for Touch {
+    fn default() -> Touch {
+        Touch {
+            sensing_depth_m: SENSING_DEPTH_M.default,
+            response_depth_m: RESPONSE_DEPTH_M.default,
+            gain_sigma: GAIN_SIGMA.default,
+            aging: AGING.default,
+            gain_seed: 0,
+            min_active_taxels: MIN_ACTIVE_TAXELS.default,
+        }
+    }
+}
+
+/// What a grasp engine answers: which trials were accepted (they become samples) and why the
+/// others were not.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct GraspResult {
+    /// Grasp indices of the accepted trials.
+    pub accepted: Vec<u32>,
+    /// Rejected trials by reason class (`no_contact`, `dropped`, `diverged`, …).
+    pub rejected: BTreeMap<String, u32>,
+}

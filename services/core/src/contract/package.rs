@@ -1,0 +1,123 @@
+//! The package stage (in Rust, `workers/runtime/src/package.rs`): one directory per sample with
+//! its requested files and `meta.json`, and one record per grasp that its samples refer to.
+//!
+//! Output names are `<sample_id>/<file>` and `<grasp_id>/grasp.json`: a sample id is its grasp id
+//! plus `.vNN`, so an exported dataset has `tomato_soup_can.trx3.g000003/grasp.json` (touch,
+//! contacts, joints, link poses: stored once) next to `tomato_soup_can.trx3.g000003.v00/meta.json`
+//! (the view: camera, visibility, poses) and its images.
+
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use super::render::{RenderOutput, ViewFile};
+
+/// A sample's metadata file.
+pub const META_FILE: &str = "meta.json";
+/// A grasp's record, shared by the samples of its views.
+pub const GRASP_RECORD_FILE: &str = "grasp.json";
+
+/// What a dataset spec can ask for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum Modality {
+    Rgb,
+    Depth,
+    DepthNoisy,
+    /// The object's visible and full masks.
+    Mask,
+    Segmentation,
+    /// Poses and camera in `meta.json` (always written).
+    Pose,
+}
+
+impl Modality {
+    pub const ALL: [Modality; 6] =
+        [Modality::Rgb, Modality::Depth, Modality::DepthNoisy, Modality::Mask, Modality::Segmentation, Modality::Pose];
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Modality::Rgb => "rgb",
+            Modality::Depth => "depth",
+            Modality::DepthNoisy => "depth_noisy",
+            Modality::Mask => "mask",
+            Modality::Segmentation => "segmentation",
+            Modality::Pose => "pose",
+        }
+    }
+
+    pub fn parse(name: &str) -> Option<Modality> {
+        Modality::ALL.into_iter().find(|m| m.as_str() == name)
+    }
+
+    /// The render outputs this modality needs (noisy depth needs the clean depth it perturbs).
+    pub fn render_output(self) -> Option<RenderOutput> {
+        match self {
+            Modality::Rgb => Some(RenderOutput::Rgb),
+            Modality::Depth | Modality::DepthNoisy => Some(RenderOutput::Depth),
+            Modality::Mask => Some(RenderOutput::Mask),
+            Modality::Segmentation => Some(RenderOutput::Segmentation),
+            Modality::Pose => None,
+        }
+    }
+
+    /// The files this modality adds to a sample, and where each comes from.
+    pub fn sample_files(self) -> &'static [SampleFile] {
+        const RGB: &[SampleFile] = &[SampleFile { name: "rgb.png", from: Source::Render(ViewFile::Rgb) }];
+        const DEPTH: &[SampleFile] = &[SampleFile { name: "depth.npy", from: Source::Render(ViewFile::Depth) }];
+        const NOISY: &[SampleFile] = &[SampleFile { name: "depth_noisy.npy", from: Source::Noise }];
+        const MASK: &[SampleFile] = &[
+            SampleFile { name: "mask.png", from: Source::Render(ViewFile::Mask) },
+            SampleFile { name: "mask_full.png", from: Source::Render(ViewFile::MaskFull) },
+        ];
+        const SEGMENTATION: &[SampleFile] =
+            &[SampleFile { name: "segmentation.png", from: Source::Render(ViewFile::Segmentation) }];
+        match self {
+            Modality::Rgb => RGB,
+            Modality::Depth => DEPTH,
+            Modality::DepthNoisy => NOISY,
+            Modality::Mask => MASK,
+            Modality::Segmentation => SEGMENTATION,
+            Modality::Pose => &[],
+        }
+    }
+}
+
+/// A file of a packaged sample: its name in the sample's directory and the artifact it is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SampleFile {
+    pub name: &'static str,
+    pub from: Source,
+}
+
+/// Which task's output a sample file is, for the sample's view.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Source {
+    Render(ViewFile),
+    /// The noise task's `v{NN}_depth_noisy.npy`.
+    Noise,
+}
+
+/// A package task's parameters: the samples of one grasp chunk and what they hold.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+#[schemars(rename = "PackageParams")]
+pub struct Params {
+    pub samples: Vec<SampleRef>,
+    pub modalities: Vec<Modality>,
+}
+
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct SampleRef {
+    pub sample_id: String,
+    pub grasp_index: u32,
+    pub view_index: u32,
+}
+
+/// What a package task made: its samples and the grasp records they refer to.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct PackageResult {
+    pub samples: Vec<String>,
+    pub grasps: Vec<String>,
+}

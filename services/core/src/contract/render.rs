@@ -1,0 +1,239 @@
+//! The render stage: every view of one accepted grasp, rendered by Blender/Cycles
+//! (`vint_engines.render`). `docs/rendering.md` has the conventions of its outputs.
+
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use super::grasp::{GRASPS_FILE, MODEL_FILE};
+use super::{Bound, SEED_MAX};
+use crate::asset::Asset;
+
+pub const WIDTH_PX: Bound<u32> = Bound::new(16, 8192, 128);
+pub const HEIGHT_PX: Bound<u32> = Bound::new(16, 8192, 128);
+/// Cycles samples per pixel of the RGB image. Default 32: the cheapest setting within 35 dB PSNR
+/// of a 1024-sample reference in the render study (docs/studies/render/render_study.md).
+pub const SAMPLES: Bound<u32> = Bound::new(1, 65_536, 32);
+/// Horizontal field of view (degrees).
+pub const FOV_DEG: Bound<f64> = Bound::new(5.0, 150.0, 60.0);
+/// Each end of the camera's distance range from the object (m).
+pub const RADIUS_M: Bound<f64> = Bound::new(0.05, 10.0, 0.35);
+pub const RADIUS_M_DEFAULT: [f64; 2] = [0.35, 0.5];
+/// Each end of the camera's elevation range above the horizontal plane (degrees).
+pub const ELEVATION_DEG: Bound<f64> = Bound::new(-90.0, 90.0, 15.0);
+pub const ELEVATION_DEG_DEFAULT: [f64; 2] = [15.0, 75.0];
+/// Each of Cycles' light-path caps.
+pub const BOUNCES: Bound<u32> = Bound::new(0, 1024, 12);
+/// An environment's turn about world +z (degrees) and strength.
+pub const ROTATION_DEG: Bound<f64> = Bound::new(-360.0, 360.0, 0.0);
+pub const STRENGTH: Bound<f64> = Bound::new(0.0, 1000.0, 1.0);
+/// View indices: two digits in file names (`v00`…`v99`), so at most 100 views per grasp.
+pub const VIEW_INDEX: Bound<u32> = Bound::new(0, 99, 0);
+pub const MAX_VIEWS: u32 = VIEW_INDEX.max + 1;
+/// The environment a view without one renders under.
+pub const DEFAULT_ENVIRONMENT: &str = "studio";
+
+/// A render task's parameters.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+#[schemars(rename = "RenderParams")]
+pub struct Params {
+    pub grasp_index: u32,
+    #[serde(default)]
+    pub render: Settings,
+    /// Environments the views name, with their turn and strength; a bundled HDRI not listed
+    /// renders as is.
+    #[serde(default)]
+    pub environments: Vec<Environment>,
+    /// The job's HDRI files the environments name (staged only when `rgb` is rendered).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub assets: Vec<Asset>,
+    #[schemars(length(min = 1, max = MAX_VIEWS))]
+    pub views: Vec<View>,
+    /// What to render; depth, masks and segmentation are never path traced.
+    #[serde(default = "RenderOutput::all")]
+    pub outputs: Vec<RenderOutput>,
+}
+
+/// Image size, sampling and camera placement, shared by every view of a task.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+#[schemars(rename = "RenderSettings")]
+pub struct Settings {
+    #[schemars(range(min = WIDTH_PX.min, max = WIDTH_PX.max))]
+    pub width: u32,
+    #[schemars(range(min = HEIGHT_PX.min, max = HEIGHT_PX.max))]
+    pub height: u32,
+    #[schemars(range(min = SAMPLES.min, max = SAMPLES.max))]
+    pub samples: u32,
+    /// OpenImageDenoise on the RGB image.
+    pub denoise: bool,
+    pub bounces: Bounces,
+    /// Lower the caps to what the scene's materials can use (exact); false only to measure it.
+    pub prune_bounces: bool,
+    #[schemars(range(min = FOV_DEG.min, max = FOV_DEG.max))]
+    pub fov_deg: f64,
+    /// The environment of views that name none.
+    #[schemars(regex(pattern = r"^[a-z0-9_]{1,64}$"))]
+    pub environment: String,
+    /// Camera distance range, [min, max] (min ≤ max).
+    #[schemars(inner(range(min = RADIUS_M.min, max = RADIUS_M.max)))]
+    pub radius_m: [f64; 2],
+    /// Camera elevation range, [min, max] (min ≤ max).
+    #[schemars(inner(range(min = ELEVATION_DEG.min, max = ELEVATION_DEG.max)))]
+    pub elevation_deg: [f64; 2],
+}
+
+impl Default for Settings {
+    fn default() -> Settings {
+        Settings {
+            width: WIDTH_PX.default,
+            height: HEIGHT_PX.default,
+            samples: SAMPLES.default,
+            denoise: false,
+            bounces: Bounces::default(),
+            prune_bounces: true,
+            fov_deg: FOV_DEG.default,
+            environment: DEFAULT_ENVIRONMENT.to_string(),
+            radius_m: RADIUS_M_DEFAULT,
+            elevation_deg: ELEVATION_DEG_DEFAULT,
+        }
+    }
+}
+
+/// Cycles' light-path caps (Cycles' defaults); volume bounces are always 0.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct Bounces {
+    #[schemars(range(min = BOUNCES.min, max = BOUNCES.max))]
+    pub total: u32,
+    #[schemars(range(min = BOUNCES.min, max = BOUNCES.max))]
+    pub diffuse: u32,
+    #[schemars(range(min = BOUNCES.min, max = BOUNCES.max))]
+    pub glossy: u32,
+    #[schemars(range(min = BOUNCES.min, max = BOUNCES.max))]
+    pub transmission: u32,
+    #[schemars(range(min = BOUNCES.min, max = BOUNCES.max))]
+    pub transparent: u32,
+}
+
+impl Default for Bounces {
+    fn default() -> Bounces {
+        Bounces { total: 12, diffuse: 4, glossy: 4, transmission: 12, transparent: 8 }
+    }
+}
+
+/// An HDRI, turned about world +z and scaled in strength: a bundled one by name, or a user's file
+/// (`asset`, its SHA-256) under a name no bundled one has.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Environment {
+    #[schemars(regex(pattern = r"^[a-z0-9_]{1,64}$"))]
+    pub name: String,
+    #[serde(default)]
+    #[schemars(range(min = ROTATION_DEG.min, max = ROTATION_DEG.max))]
+    pub rotation_deg: f64,
+    #[serde(default = "default_strength")]
+    #[schemars(range(min = STRENGTH.min, max = STRENGTH.max))]
+    pub strength: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schemars(regex(pattern = r"^[0-9a-f]{64}$"))]
+    pub asset: Option<String>,
+}
+
+fn default_strength() -> f64 {
+    STRENGTH.default
+}
+
+/// One view: its index, the seed of its camera and sampling, its environment, and optionally an
+/// explicit camera instead of a sampled one.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct View {
+    #[schemars(range(min = VIEW_INDEX.min, max = VIEW_INDEX.max))]
+    pub view_index: u32,
+    #[schemars(range(max = SEED_MAX))]
+    pub seed: u64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schemars(regex(pattern = r"^[a-z0-9_]{1,64}$"))]
+    pub environment: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera: Option<Camera>,
+}
+
+/// A world-to-camera transform in the OpenCV convention (`R_w2c` must be a rotation).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+#[allow(non_snake_case)]
+pub struct Camera {
+    pub R_w2c: [[f64; 3]; 3],
+    pub t_w2c: [f64; 3],
+}
+
+/// What a render task can produce for each view.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum RenderOutput {
+    /// Path traced 8-bit sRGB image.
+    Rgb,
+    /// Depth along the optical axis (float32 metres).
+    Depth,
+    /// The object's visible and full masks.
+    Mask,
+    /// Instance segmentation (background, object, hand links).
+    Segmentation,
+}
+
+impl RenderOutput {
+    pub const ALL: [RenderOutput; 4] =
+        [RenderOutput::Rgb, RenderOutput::Depth, RenderOutput::Mask, RenderOutput::Segmentation];
+
+    pub fn all() -> Vec<RenderOutput> {
+        RenderOutput::ALL.to_vec()
+    }
+}
+
+/// A file a render task writes for each view `v`: `v{NN}_{suffix}`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ViewFile {
+    Rgb,
+    Depth,
+    Mask,
+    MaskFull,
+    Segmentation,
+    /// Always written: intrinsics, extrinsics, visibility, segmentation ids, environment.
+    Camera,
+}
+
+impl ViewFile {
+    fn suffix(self) -> &'static str {
+        match self {
+            ViewFile::Rgb => "rgb.png",
+            ViewFile::Depth => "depth.npy",
+            ViewFile::Mask => "mask.png",
+            ViewFile::MaskFull => "mask_full.png",
+            ViewFile::Segmentation => "segmentation.png",
+            ViewFile::Camera => "camera.json",
+        }
+    }
+
+    /// The file's name for view `view` (`v03_depth.npy`).
+    pub fn name(self, view: u32) -> String {
+        format!("v{view:02}_{}", self.suffix())
+    }
+}
+
+/// A render task reads its grasp chunk's poses and hand geometry and the object's model mesh;
+/// never the touch readings (the bulk of a chunk's output), which only the package stage reads.
+pub fn reads(file: &str) -> bool {
+    file == GRASPS_FILE || file == MODEL_FILE
+}
+
+/// What a render engine answers.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct RenderResult {
+    /// Views rendered.
+    pub views: u32,
+    /// The device Cycles rendered on (`CPU`, `OPTIX`, `CUDA`).
+    pub device: String,
+}
