@@ -155,7 +155,7 @@ impl Measure {
 }
 
 /// How one file of B compares with its counterpart in A.
-#[derive(Debug, Clone, Default, Serialize)]
+#[derive(Debug, Clone, Serialize)]
 pub struct Finding {
     pub measures: Vec<Measure>,
     /// Differences no tolerance covers: another size or shape, a key on one side only, a file
