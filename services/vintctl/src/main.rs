@@ -6,6 +6,7 @@
 //! (an invalid spec, an unknown job or sample, a bad argument).
 
 mod client;
+mod diff;
 mod embedded;
 mod export;
 mod report;
@@ -100,6 +101,10 @@ enum Command {
         #[arg(last = true)]
         extra: Vec<String>,
     },
+    /// Compare two exported datasets with a tolerance per kind of file (pixels, depth in metres,
+    /// poses, touch readings); say which samples differ and by how much. Exit 0: all within
+    /// tolerance; 1: some sample differs beyond it or is missing on one side.
+    Diff(diff::DiffArgs),
     /// List the built-in hands with their DoF and taxel counts per region.
     Hands,
     /// List the built-in objects with their mass, material and symmetry tags.
@@ -159,6 +164,7 @@ async fn dispatch(cli: Cli) -> CliResult {
         }
         Command::Export { job, out, store } => client::export(&coordinator, &job, &out, &store, json).await,
         Command::Study { subject, out, quick, extra } => study::run(&subject, &out, quick, &extra).await,
+        Command::Diff(args) => diff::run(&args, json),
         Command::Hands => {
             report::hands(json);
             Ok(())

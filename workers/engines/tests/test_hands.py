@@ -3,7 +3,11 @@ the catalog, the layout files and their reader."""
 
 from __future__ import annotations
 
+import json
 import math
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import mujoco
@@ -13,10 +17,11 @@ import pytest
 from vint_engines.grasp.hands import ALLEGRO, HANDS, TRX3, HandDims, hand_dims
 from vint_engines.grasp.hands.catalog import CATALOG_DIR, read_hand_catalog
 from vint_engines.grasp.skin import compile_hand, generate_layout
-from vint_engines.grasp.taxels import REGIONS, TaxelLayout, parse_layout, read_layout
+from vint_engines.grasp.taxels import REGIONS, TaxelLayout, layout_differences, parse_layout, read_layout
 from vint_engines.protocol import BadInput
 
 TAXELS = {"trx3": 620, "allegro": 679}
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def layout_of(dims: HandDims) -> TaxelLayout:
@@ -143,10 +148,77 @@ def link_geom_distance(model: mujoco.MjModel, geom: int, points: np.ndarray) -> 
 
 
 @pytest.mark.parametrize("dims", HANDS.values(), ids=HANDS)
-def test_layout_files_are_exactly_what_the_generator_writes(dims: HandDims) -> None:
-    """scripts/gen_taxels.py is deterministic and the committed layouts are up to date."""
-    committed = read_hand_catalog()[dims.name].taxels_path().read_text(encoding="utf-8")
-    assert generate_layout(dims).to_csv() == committed
+def test_committed_layouts_are_what_the_generator_makes_on_this_cpu(dims: HandDims) -> None:
+    """The committed layouts are up to date: the same taxels, links and regions in the same order,
+    positions and normals within one unit of the last written digit (a value on a half-micrometre
+    may round the other way on another CPU); `scripts/gen_taxels.py --check` asks the same."""
+    committed = layout_of(dims)
+    assert layout_differences(committed, generate_layout(dims)) == []
+
+
+def test_the_generator_writes_identical_files_twice_on_one_machine() -> None:
+    first, second = generate_layout(TRX3).to_csv(), generate_layout(TRX3).to_csv()
+    assert first == second
+
+
+def test_the_layout_comparison_allows_a_last_digit_and_nothing_more() -> None:
+    committed = layout_of(TRX3)
+
+    def moved(index: int, by: float, normal: bool = False) -> TaxelLayout:
+        positions, normals = committed.positions.copy(), committed.normals.copy()
+        (normals if normal else positions)[index, 1] += by
+        return TaxelLayout(committed.links, positions, normals, committed.regions)
+
+    assert layout_differences(committed, moved(7, 1e-6)) == []
+    assert layout_differences(committed, moved(7, 1e-6, normal=True)) == []
+    assert layout_differences(committed, moved(7, 3e-6))[0].startswith("taxel 7 on palm: position")
+    assert layout_differences(committed, moved(7, 3e-6, normal=True))[0].startswith("taxel 7 on palm")
+    swapped = TaxelLayout(
+        committed.links, committed.positions, committed.normals, ("tip", *committed.regions[1:])
+    )
+    assert layout_differences(committed, swapped) == ["taxel 0: palm/palm committed, palm/tip generated"]
+    shorter = TaxelLayout(
+        committed.links[:-1], committed.positions[:-1], committed.normals[:-1], committed.regions[:-1]
+    )
+    assert layout_differences(committed, shorter) == [
+        f"{len(committed)} taxels committed, {len(committed) - 1} generated"
+    ]
+
+
+AVX512 = ("AVX512F", "AVX512CD", "AVX512_SKX", "AVX512_CLX", "AVX512_CNL", "AVX512_ICL", "AVX512_SPR")
+
+
+def test_layouts_generated_without_avx512_match_the_committed_files() -> None:
+    """Another CPU, emulated: numpy's AVX-512 code paths switched off (NPY_DISABLE_CPU_FEATURES)
+    and OpenBLAS on its AVX2 kernels, as on a machine without AVX-512. The generator there must
+    agree with the committed layouts, built-in and example, by the `--check` rule."""
+    features = numpy_cpu_features()
+    present = [name for name in AVX512 if features.get(name)]
+    if not present:
+        pytest.skip("this CPU has no AVX-512: the other tests already run the AVX2 paths")
+    env = {**os.environ, "NPY_DISABLE_CPU_FEATURES": " ".join(present), "OPENBLAS_CORETYPE": "Haswell"}
+    assert not numpy_cpu_features(env)["AVX512F"]  # the switch took
+    script = [sys.executable, str(ROOT / "scripts" / "gen_taxels.py"), "--check"]
+    gripper = [
+        "--mjcf",
+        "examples/assets/gripper.xml",
+        "--count",
+        "240",
+        "--out",
+        "examples/assets/gripper_taxels.csv",
+    ]
+    for command in (script, [*script, *gripper]):
+        run = subprocess.run(
+            command, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300, check=False
+        )
+        assert run.returncode == 0, run.stderr
+
+
+def numpy_cpu_features(env: dict[str, str] | None = None) -> dict[str, bool]:
+    """numpy's view of the CPU's SIMD features, in a fresh interpreter under `env`."""
+    probe = "import json, numpy._core._multiarray_umath as m; print(json.dumps(m.__cpu_features__))"
+    out = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True, check=True)
+    return json.loads(out.stdout)
 
 
 GOOD_ROWS = [

@@ -18,6 +18,17 @@ count (620 for `trx3`, 679 for `allegro`, as on the real sensors) is shared out 
 proportion to their area (largest remainder), and each patch's taxels are picked by farthest-point
 sampling, which spreads them evenly. No randomness: the result depends on the model alone.
 
+The same layout on any CPU: numpy and MuJoCo take different SIMD paths on different CPUs (AVX-512
+or AVX2), so their floating-point results differ in the last bits, and a choice made by comparing
+floats that tie in exact arithmetic (e.g. a fingertip dome exactly 1 mm clear of the capsule it
+swallows) goes either way. So every choice is made on integers: clearances are rounded to whole
+nanometres before the comparison, candidate positions are snapped to whole micrometres (what the
+file keeps), and the share-out and the farthest-point sampling run in exact integer or rational
+arithmetic, ties going to the lowest index. A different CPU changes a choice only when a value
+lies within its last-bit difference (~1e-17 m) of a rounding boundary (half a nm or µm): about
+once in 1e8 values. Layouts are still compared within a tolerance (`taxels.layout_differences`),
+and the committed files, not the generator, are what the engines read and datasets cite.
+
 A user's MJCF hand (`hands/mjcf.py`) is sampled the same way (`scripts/gen_taxels.py --mjcf`) when
 it follows the built-in hands' link convention (link +x on the palmar side, +z along the link) and
 uses boxes, capsules and spheres; its fingertip links are the ends of its chains.
@@ -27,6 +38,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from fractions import Fraction
 
 import mujoco
 import numpy as np
@@ -43,11 +55,14 @@ SPACING = 0.0005  # m between candidates
 EDGE_MARGIN = 0.0015  # m
 CLEARANCE = 0.001  # m
 TIP_PALMAR_POLAR = math.radians(120.0)
+MICROMETRES_PER_M = 1_000_000  # candidate positions are snapped to this lattice (the file's digits)
+NANOMETRES_PER_M = 1_000_000_000  # clearances are compared in whole nanometres
 
 
 @dataclass(frozen=True)
 class Patch:
-    """Candidate taxel sites on one geom of one link (link frame) and the area they cover."""
+    """Candidate taxel sites on one geom of one link (link frame, on the micrometre lattice) and
+    the area they cover."""
 
     link: str
     region: str
@@ -60,12 +75,12 @@ def generate_layout(dims: GraspHand, count: int | None = None) -> TaxelLayout:
     """`count` taxels (default: the built-in hand's real sensor's) on the hand's skin patches."""
     patches = hand_patches(dims)
     total = SENSOR_TAXELS[dims.name] if count is None else count
-    counts = share_out(total, np.array([patch.area for patch in patches]))
+    counts = share_out(total, [patch.area for patch in patches])
     links: list[str] = []
     positions, normals, regions = [], [], []
     for patch, count in zip(patches, counts, strict=True):
-        chosen = farthest_points(patch.points, int(count))
-        p = np.round(patch.points[chosen], 6)
+        chosen = farthest_points(patch.points, count)
+        p = micrometres(patch.points[chosen])
         chosen = chosen[np.lexsort((p[:, 0], p[:, 1], p[:, 2]))]  # a readable, stable order
         links += [patch.link] * len(chosen)
         regions += [patch.region] * len(chosen)
@@ -99,37 +114,46 @@ def hand_patches(dims: GraspHand) -> list[Patch]:
             points, normals = points @ to_link[:3, :3].T + to_link[:3, 3], normals @ to_link[:3, :3].T
             keep = _clear_of_others(model, data, body, geom, solid, points)
             if keep.any():
-                patches.append(Patch(link, region, points[keep], normals[keep], cell * int(keep.sum())))
+                on_lattice = micrometres(points[keep]) / MICROMETRES_PER_M
+                patches.append(Patch(link, region, on_lattice, normals[keep], cell * int(keep.sum())))
     return patches
 
 
-def share_out(total: int, areas: Array) -> npt.NDArray[np.int64]:
-    """`total` split in proportion to `areas`, rounded by largest remainder (ties: first patch)."""
-    exact = total * areas / areas.sum()
-    counts = np.floor(exact).astype(np.int64)
-    order = np.argsort(-(exact - counts), kind="stable")
-    counts[order[: total - int(counts.sum())]] += 1
+def micrometres(points: Array) -> npt.NDArray[np.int64]:
+    """Positions in metres as whole micrometres."""
+    return np.rint(points * MICROMETRES_PER_M).astype(np.int64)
+
+
+def share_out(total: int, areas: list[float]) -> list[int]:
+    """`total` split in proportion to `areas`, rounded by largest remainder (ties: first patch).
+
+    In exact rational arithmetic: patches of equal area (the same link on two fingers) tie exactly,
+    and a float sum taken in a SIMD order could break the tie differently on another CPU."""
+    exact = [Fraction(total) * Fraction(area) / sum(map(Fraction, areas)) for area in areas]
+    counts = [math.floor(share) for share in exact]
+    order = sorted(range(len(areas)), key=lambda i: exact[i] - counts[i], reverse=True)  # stable
+    for i in order[: total - sum(counts)]:
+        counts[i] += 1
     return counts
 
 
 def farthest_points(points: Array, count: int) -> npt.NDArray[np.intp]:
     """`count` indices of `points`, greedily each farthest from those already picked, starting
-    from the point nearest the centroid.
+    from the point nearest the centroid (rounded to the micrometre).
 
-    Points are rounded to the nanometre first: candidates on symmetric surfaces tie exactly in
-    exact arithmetic, and the last bits of their coordinates (trigonometry, MuJoCo's compiler)
-    differ between machines and SIMD paths; rounded, the tie goes to the lowest index everywhere,
-    so the committed layouts are what the generator writes on any machine."""
+    On whole micrometres in 64-bit integers, where squared distances are exact: candidates on
+    symmetric surfaces tie exactly, and the tie goes to the lowest index on every CPU."""
     if count <= 0:
         return np.zeros(0, dtype=np.intp)
-    points = np.round(points, 9)
-    first = int(np.argmin(((points - points.mean(axis=0)) ** 2).sum(axis=1)))
+    lattice = micrometres(points)
+    centroid = lattice.sum(axis=0) // len(lattice)
+    first = int(np.argmin(((lattice - centroid) ** 2).sum(axis=1)))  # argmin/argmax: first of ties
     chosen = [first]
-    nearest = ((points - points[first]) ** 2).sum(axis=1)
+    nearest = ((lattice - lattice[first]) ** 2).sum(axis=1)
     for _ in range(count - 1):
         pick = int(np.argmax(nearest))
         chosen.append(pick)
-        nearest = np.minimum(nearest, ((points - points[pick]) ** 2).sum(axis=1))
+        nearest = np.minimum(nearest, ((lattice - lattice[pick]) ** 2).sum(axis=1))
     return np.array(chosen, dtype=np.intp)
 
 
@@ -178,14 +202,14 @@ def _dome(radius: float, palmar: Array) -> tuple[Array, Array, float]:
     """Fingertip sphere: the half towards the finger's end (+z) and a palmar band below it."""
     count = max(1, round(4 * math.pi * radius**2 / SPACING**2))
     k = np.arange(count) + 0.5
-    polar = np.arccos(1.0 - 2.0 * k / count)  # Fibonacci lattice: even area per point
+    z = 1.0 - 2.0 * k / count  # cos(polar angle): a Fibonacci lattice, even area per point
+    ring = np.sqrt(1.0 - z * z)  # sqrt is exact-rounded on every CPU; arccos is not
     azimuth = math.pi * (1.0 + math.sqrt(5.0)) * k
-    normals = np.column_stack(
-        [np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), np.cos(polar)]
-    )
+    normals = np.column_stack([ring * np.cos(azimuth), ring * np.sin(azimuth), z])
     margin = EDGE_MARGIN / radius
     palmar_side = normals @ palmar > math.sin(margin)
-    keep = (polar <= math.pi / 2 - margin) | (palmar_side & (polar <= TIP_PALMAR_POLAR - margin))
+    # polar <= 90° - margin, or on the palmar side polar <= TIP_PALMAR_POLAR - margin
+    keep = (z >= math.sin(margin)) | (palmar_side & (z >= math.cos(TIP_PALMAR_POLAR - margin)))
     return radius * normals[keep], normals[keep], 4 * math.pi * radius**2 / count
 
 
@@ -207,15 +231,19 @@ def _geom_in_link(model: mujoco.MjModel, geom: int) -> Array:
 def _clear_of_others(
     model: mujoco.MjModel, data: mujoco.MjData, body: int, geom: int, solid: list[int], points: Array
 ) -> npt.NDArray[np.bool_]:
-    """Which link-frame `points` lie at least CLEARANCE outside every other hand geom."""
+    """Which link-frame `points` lie at least CLEARANCE outside every other hand geom, in whole
+    nanometres: a fingertip dome lies exactly CLEARANCE outside the capsule end it swallows, and
+    compared as floats, last-bit noise would keep or drop each of its points."""
     rotation, origin = data.xmat[body].reshape(3, 3), data.xpos[body]
     world = points @ rotation.T + origin
     keep = np.ones(len(points), dtype=bool)
+    clearance_nm = round(CLEARANCE * NANOMETRES_PER_M)
     for other in solid:
         if other == geom:
             continue
         local = (world - data.geom_xpos[other]) @ data.geom_xmat[other].reshape(3, 3)
-        keep &= signed_distance(int(model.geom_type[other]), model.geom_size[other], local) >= CLEARANCE
+        distance = signed_distance(int(model.geom_type[other]), model.geom_size[other], local)
+        keep &= np.rint(distance * NANOMETRES_PER_M) >= clearance_nm
     return keep
 
 

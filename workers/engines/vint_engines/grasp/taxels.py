@@ -6,6 +6,12 @@ link, (x, y, z) is the taxel's position and (nx, ny, nz) its outward unit normal
 frame (metres), and `region` is `tip`, `pulp` or `palm`. The built-in layouts live in
 `catalog/hands/<hand>/taxels.csv` (written by `scripts/gen_taxels.py`); a user's layout (e.g. the
 scanned taxels of a real sensor) is read the same way and checked against the hand it is used on.
+
+The committed file is authoritative: engines read it and datasets cite its SHA-256. Whether it is
+what the generator (`skin.py`) would write is a question of `layout_differences`, which allows one
+unit in the last written digit: a different CPU may round a value lying on a half-micrometre the
+other way (numpy and MuJoCo take different SIMD paths there), so the text need not match byte for
+byte, but the taxels, their order, links and regions must.
 """
 
 from __future__ import annotations
@@ -26,6 +32,7 @@ HEADER = ("taxel", "link", "x", "y", "z", "nx", "ny", "nz", "region")
 REGIONS = ("tip", "pulp", "palm")
 NORMAL_TOLERANCE = 1e-3  # |n| may differ from 1 by this much (six written decimals are far closer)
 DECIMALS = 6  # micrometres
+LAST_DIGIT = 10.0**-DECIMALS  # one unit in the last written digit: 1 µm, or 1e-6 of a unit normal
 
 
 @dataclass(frozen=True, eq=False)
@@ -56,6 +63,40 @@ class TaxelLayout:
         ):
             writer.writerow([i, link, *(f"{v:.{DECIMALS}f}" for v in (*p, *n)), region])
         return out.getvalue()
+
+
+def layout_differences(committed: TaxelLayout, generated: TaxelLayout, limit: int = 5) -> list[str]:
+    """How `generated` differs from `committed` beyond one unit in the last written digit of a
+    position or normal (empty: the same layout); at most `limit` taxels are named."""
+    if len(committed) != len(generated):
+        return [f"{len(committed)} taxels committed, {len(generated)} generated"]
+    differences = []
+    position_off = _last_digits_apart(committed.positions, generated.positions)
+    normal_off = _last_digits_apart(committed.normals, generated.normals)
+    for i in range(len(committed)):
+        was = (committed.links[i], committed.regions[i])
+        now = (generated.links[i], generated.regions[i])
+        if was != now:
+            differences.append(f"taxel {i}: {'/'.join(was)} committed, {'/'.join(now)} generated")
+        elif position_off[i] > 1 or normal_off[i] > 1:
+            differences.append(
+                f"taxel {i} on {was[0]}: position {_digits(committed.positions[i])} committed, "
+                f"{_digits(generated.positions[i])} generated; normal {_digits(committed.normals[i])}, "
+                f"{_digits(generated.normals[i])}"
+            )
+    if len(differences) > limit:
+        differences[limit:] = [f"… and {len(differences) - limit} more taxels"]
+    return differences
+
+
+def _last_digits_apart(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]) -> npt.NDArray[np.int64]:
+    """Per row, the largest difference of the written values in units of the last digit."""
+    apart = np.abs(np.rint(a / LAST_DIGIT) - np.rint(b / LAST_DIGIT))
+    return apart.max(axis=1).astype(np.int64)
+
+
+def _digits(values: npt.NDArray[np.float64]) -> str:
+    return "(" + ", ".join(f"{v:.{DECIMALS}f}" for v in values) + ")"
 
 
 def read_layout(path: Path, links: Collection[str]) -> TaxelLayout:
