@@ -36,7 +36,7 @@ impl Copy {
     }
 
     fn samples(&self) -> Vec<String> {
-        manifest(&self.dir).iter().map(|l| l["sample_id"].as_str().unwrap().to_string()).collect()
+        manifest(&self.dir).iter().filter_map(|l| l["sample_id"].as_str().map(str::to_string)).collect()
     }
 
     /// Runs `code` (Python, with numpy as np, cv2 and `path`) on one file, then records the file's

@@ -3,7 +3,12 @@
 //! Parsing walks the TOML tree by hand instead of deriving `Deserialize`, so that one pass reports
 //! *every* problem — wrong types, unknown keys, out-of-range values — each with its field path, the
 //! value found and the rule it breaks, e.g. `render.resolution[0]: must be 16..=8192, got 0`.
-//! A spec that parses is valid; nothing downstream re-checks it.
+//! (serde with `deny_unknown_fields` and `serde_path_to_error` stops at the first error; `garde` or
+//! `validator` check ranges only once deserialization has succeeded, so type errors and unknown
+//! keys would still come one run at a time.) Every bound and default of a field that becomes a
+//! task parameter is a constant of the stage contracts (`crate::contract`), so a spec that parses
+//! yields parameters every engine accepts; `number_fields` lists the number fields for the tests
+//! that prove it. A spec that parses is valid; nothing downstream re-checks it.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt;

@@ -11,12 +11,22 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 from conftest import ENGINES_DIR, new_dir
 
-from vint_engines.protocol import MAX_FRAME_BYTES, ProtocolError, read_frame, write_frame
+from vint_engines.protocol import (
+    MAX_FRAME_BYTES,
+    BadInput,
+    ProtocolError,
+    TaskRequest,
+    TaskResult,
+    read_frame,
+    run_task,
+    write_frame,
+)
 
 NOISE_PARAMS = {"noise": {"dropout": 0.0}, "views": [{"view_index": 0, "seed": 24680}]}
 
@@ -137,3 +147,49 @@ def open_fifo_writer_once_engine_reads(fifo: Path, timeout: float = 20.0) -> int
             if exc.errno != errno.ENXIO or time.monotonic() > deadline:
                 raise
             time.sleep(0.02)
+
+
+class EngineWithABug:
+    """Test double: an engine whose code fails the way a bug does (a KeyError), whatever the task."""
+
+    def hello(self) -> dict[str, Any]:
+        return {"name": "engine-with-a-bug", "version": "0", "libs": {}}
+
+    def run(self, task: TaskRequest) -> TaskResult:
+        return {}["views"]  # type: ignore[no-any-return]
+
+    def close(self) -> None:
+        pass
+
+
+class EngineBreakingItsContract(EngineWithABug):
+    """Test double: an engine that answers a result of the wrong shape for its stage."""
+
+    def run(self, task: TaskRequest) -> TaskResult:
+        return TaskResult(result={"views": "all of them"})
+
+
+def task_message(out_dir: Path) -> dict[str, Any]:
+    return {"type": "task", "task_id": "t-1", "params": NOISE_PARAMS, "inputs": [], "out_dir": str(out_dir)}
+
+
+def test_an_engine_bug_is_retryable_and_says_where_it_happened(tmp_path: Path) -> None:
+    reply = run_task("noise", EngineWithABug(), task_message(tmp_path))
+    assert reply["ok"] is False and reply["retryable"] is True, reply
+    assert (
+        "KeyError" in reply["error"] and "test_protocol.py" in reply["error"] and "in run" in reply["error"]
+    )
+
+
+def test_a_result_that_breaks_the_stage_contract_is_never_reported_as_success(tmp_path: Path) -> None:
+    reply = run_task("noise", EngineBreakingItsContract(), task_message(tmp_path))
+    assert reply["ok"] is False and reply["retryable"] is True, reply
+    assert "result.views" in reply["error"], reply["error"]
+
+
+def test_parameters_outside_the_contract_are_bad_input_naming_field_value_and_bounds() -> None:
+    from vint_engines.noise.engine import parse_params
+
+    params = {"noise": {"dropout": 1.5}, "views": [{"view_index": 0, "seed": 1}]}
+    with pytest.raises(BadInput, match=r"^params\.noise\.dropout: 1\.5 is outside \[0\.0, 1\.0\]$"):
+        parse_params(params)

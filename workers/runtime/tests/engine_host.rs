@@ -122,3 +122,43 @@ async fn an_engine_past_its_limits_asks_to_be_recycled() {
     assert!(engine.recycle_reason().unwrap().contains("resident memory"));
     engine.shutdown().await;
 }
+
+/// Test double: a `vint_engines` package whose engine says hello and then answers every task with
+/// a result of the wrong shape for the noise stage (`views` must be a count).
+const ENGINE_BREAKING_ITS_CONTRACT: &str = r#"
+import json, struct, sys
+
+def send(message):
+    body = json.dumps(message).encode()
+    sys.stdout.buffer.write(struct.pack(">I", len(body)) + body)
+    sys.stdout.buffer.flush()
+
+send({"type": "hello", "stage": "noise", "engine": {"name": "engine-breaking-its-contract"}})
+while True:
+    header = sys.stdin.buffer.read(4)
+    if len(header) < 4:
+        break
+    task = json.loads(sys.stdin.buffer.read(struct.unpack(">I", header)[0]))
+    if task.get("type") != "task":
+        break
+    send({"type": "result", "task_id": task["task_id"], "ok": True, "outputs": [], "result": {"views": "all"}})
+"#;
+
+#[tokio::test]
+async fn a_reply_that_breaks_the_stage_contract_is_a_protocol_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let package = dir.path().join("double").join("vint_engines");
+    std::fs::create_dir_all(&package).unwrap();
+    std::fs::write(package.join("__init__.py"), "").unwrap();
+    std::fs::write(package.join("__main__.py"), ENGINE_BREAKING_ITS_CONTRACT).unwrap();
+    let cmd = EngineCommand { engines_dir: dir.path().join("double"), ..command() };
+    let mut engine = Engine::start(Stage::Noise, &cmd).await.unwrap();
+    let (params, inputs, out) = noise_task(dir.path());
+    match engine.run("t-1", &params, &inputs, &out).await {
+        Err(EngineError::Protocol { stage, detail }) => {
+            assert_eq!(stage, Stage::Noise);
+            assert!(detail.contains("noise result does not follow the contract"), "{detail}");
+        }
+        other => panic!("expected a protocol error, got {other:?}"),
+    }
+}

@@ -238,5 +238,6 @@ pub struct GraspResult {
     /// Grasp indices of the accepted trials.
     pub accepted: Vec<u32>,
     /// Rejected trials by reason class (`no_contact`, `dropped`, `diverged`, …).
+    #[serde(default)]
     pub rejected: BTreeMap<String, u32>,
 }
