@@ -6,7 +6,7 @@ use std::path::Path;
 use std::sync::OnceLock;
 use std::time::Duration;
 
-use vint_core::Stage;
+use vint_core::{AttemptOutcome, Stage};
 use vint_proto::v1 as pb;
 use vint_proto::v1::work_service_client::WorkServiceClient;
 use vint_store::{RetryPolicy, Store};
@@ -192,8 +192,8 @@ async fn a_worker_killed_mid_task_loses_nothing_and_duplicates_nothing() {
     let attempts = store.attempts(&killed_task).await.unwrap();
     assert!(attempts.len() >= 2, "{attempts:?}");
     assert_eq!(attempts[0].worker_id, "victim");
-    assert_eq!(attempts[0].outcome.as_deref(), Some("lease_expired"));
-    assert_eq!(attempts.last().unwrap().outcome.as_deref(), Some("succeeded"));
+    assert_eq!(attempts[0].outcome, Some(AttemptOutcome::LeaseExpired));
+    assert_eq!(attempts.last().unwrap().outcome, Some(AttemptOutcome::Succeeded));
 
     let out = c.export(&job);
     assert_same_as_embedded(&out);
@@ -307,15 +307,15 @@ async fn a_crashed_engine_fails_its_task_as_retryable_and_is_restarted() {
     let attempts = store.attempts(&crashed_task).await.unwrap();
     let first = &attempts[0];
     // The kill may land just after the render finished; then a later task took the hit instead.
-    if first.outcome.as_deref() == Some("retry") {
+    if first.outcome == Some(AttemptOutcome::Retry) {
         assert!(first.error.as_deref().unwrap_or("").contains("crashed"), "{first:?}");
-        assert_eq!(attempts.last().unwrap().outcome.as_deref(), Some("succeeded"));
+        assert_eq!(attempts.last().unwrap().outcome, Some(AttemptOutcome::Succeeded));
     }
     let all = store.tasks_of_job(&job).await.unwrap();
     let mut retried = 0;
     for t in &all {
         retried +=
-            store.attempts(&t.id).await.unwrap().iter().filter(|a| a.outcome.as_deref() == Some("retry")).count();
+            store.attempts(&t.id).await.unwrap().iter().filter(|a| a.outcome == Some(AttemptOutcome::Retry)).count();
     }
     assert!(retried >= 1, "the crash must have failed some attempt as retryable");
     assert_same_as_embedded(&c.export(&job));
