@@ -70,18 +70,21 @@ macro_rules! store_test {
     };
 }
 
-/// Runs one test that also speaks to the database directly, given a `TestDb`, against both backends.
+/// Runs one test that also speaks to the database directly, given a `Store` and its database's
+/// URL, against both backends.
 macro_rules! database_test {
     ($name:ident, $body:expr) => {
         mod $name {
             use super::*;
             #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
             async fn sqlite() {
-                ($body)(common::sqlite_db().await).await;
+                let db = common::sqlite_db().await;
+                ($body)(db.store.clone(), db.url.clone()).await;
             }
             #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
             async fn postgres() {
-                ($body)(common::postgres_db().await).await;
+                let db = common::postgres_db().await;
+                ($body)(db.store.clone(), db.url.clone()).await;
             }
         }
     };
