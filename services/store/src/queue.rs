@@ -356,7 +356,8 @@ async fn end_attempt(
 /// Counts the success of `task_id` in its dependents and queues those with no dependency left.
 async fn unblock_dependents(tx: &mut Transaction<'static, Any>, task_id: &str, now_ms: i64) -> Result<()> {
     sqlx::query(
-        "UPDATE tasks SET deps_pending = deps_pending - 1 WHERE id IN (SELECT task_id FROM task_deps WHERE depends_on = $1)",
+        "UPDATE tasks SET deps_pending = deps_pending - 1 \
+         WHERE id IN (SELECT task_id FROM task_deps WHERE depends_on = $1)",
     )
     .bind(task_id)
     .execute(&mut **tx)

@@ -33,7 +33,7 @@ pub async fn postgres_db() -> TestDb {
         .unwrap_or_else(|_| "postgres://postgres@127.0.0.1:5432/postgres".to_string());
     // vint_test_<pid>_<tag>_<nanos>_<n>, as vint_tests::postgres_database names them: scripts/test.sh
     // reads the pid to drop the databases of test processes that no longer run.
-    let db = format!("vint_test_{}_queue_{}", std::process::id(), uuid_like());
+    let db = format!("vint_test_{}_store_{}", std::process::id(), uuid_like());
     sqlx::any::install_default_drivers();
     let mut conn = <sqlx::AnyConnection as sqlx::Connection>::connect(&admin)
         .await
