@@ -12,25 +12,38 @@ use vint_proto::v1::work_service_client::WorkServiceClient;
 use vint_store::{RetryPolicy, Store};
 use vint_tests::*;
 
-/// tiny.toml's manifest on the embedded default: what every cluster run must equal.
-fn reference_manifest() -> &'static str {
-    static MANIFEST: OnceLock<String> = OnceLock::new();
-    MANIFEST.get_or_init(|| {
+/// tiny.toml's dataset on the embedded default: what every cluster run must equal.
+struct Reference {
+    manifest: String,
+    manifest_sha256: String,
+    samples: usize,
+}
+
+fn reference() -> &'static Reference {
+    static REFERENCE: OnceLock<Reference> = OnceLock::new();
+    REFERENCE.get_or_init(|| {
         let tmp = tempfile::tempdir().unwrap();
         let o = run_tiny(tmp.path(), 1);
         assert!(o.status.success(), "reference run failed: {}", stderr(&o));
-        std::fs::read_to_string(tmp.path().join("out").join("manifest.jsonl")).unwrap()
+        let out = tmp.path().join("out");
+        let samples = verify_dataset(&out).len();
+        assert!(samples > 0, "the reference run packaged no samples");
+        Reference {
+            manifest: std::fs::read_to_string(out.join("manifest.jsonl")).unwrap(),
+            manifest_sha256: manifest_sha256(&out),
+            samples,
+        }
     })
 }
 
 /// (sample, file, sha256) of every file a manifest lists.
 fn manifest_files(text: &str) -> std::collections::BTreeSet<(String, String, String)> {
     let mut files = std::collections::BTreeSet::new();
-    for line in text.lines().filter(|l| !l.trim().is_empty()) {
+    for line in text.lines() {
         let entry: serde_json::Value = serde_json::from_str(line).unwrap();
-        let sample = entry["sample_id"].as_str().unwrap_or_default().to_string();
-        for (name, file) in entry["files"].as_object().into_iter().flatten() {
-            let sha = file["sha256"].as_str().unwrap_or_default().to_string();
+        let sample = entry["sample_id"].as_str().expect("sample_id").to_string();
+        for (name, file) in entry["files"].as_object().expect("files") {
+            let sha = file["sha256"].as_str().expect("sha256").to_string();
             files.insert((sample.clone(), name.clone(), sha));
         }
     }
@@ -103,11 +116,16 @@ impl Cluster {
     }
 }
 
+/// The exported dataset is the embedded run's, byte for byte: same manifest hash, as many samples.
 fn assert_same_as_embedded(out: &Path) {
+    let reference = reference();
     let ours = std::fs::read_to_string(out.join("manifest.jsonl")).unwrap();
-    let (ours, reference) = (manifest_files(&ours), manifest_files(reference_manifest()));
-    let differing: Vec<_> = ours.symmetric_difference(&reference).map(|(s, f, _)| format!("{s}/{f}")).collect();
-    assert!(differing.is_empty(), "cluster dataset differs from the embedded run in {differing:?}");
+    assert_eq!(ours.lines().count(), reference.samples, "the cluster packaged a different number of samples");
+    if manifest_sha256(out) != reference.manifest_sha256 {
+        let (ours, theirs) = (manifest_files(&ours), manifest_files(&reference.manifest));
+        let differing: Vec<_> = ours.symmetric_difference(&theirs).map(|(s, f, _)| format!("{s}/{f}")).collect();
+        panic!("cluster manifest differs from the embedded run's; differing files: {differing:?}");
+    }
 }
 
 #[tokio::test(flavor = "multi_thread")]
