@@ -1,7 +1,7 @@
 -- The database refuses a state, stage or attempt outcome that vint_core does not define
 -- (`JobState`, `TaskState`, `Stage`, `AttemptOutcome`): a typo in SQL or a hand-edited row fails
 -- loudly instead of leaving a task no query will ever pick up. Each list names exactly the enum's
--- `as_str` values; the store's `state_checks` test holds them to that.
+-- `as_str` values; services/store/tests/states.rs holds them to that.
 --
 -- SQLite cannot add a CHECK constraint to an existing table, and rebuilding `tasks` would mean
 -- switching foreign keys off around a copy of every table that references it; a pair of triggers

@@ -17,8 +17,9 @@
 //!
 //! The store implements these transitions in SQL and its database refuses any state, stage or
 //! outcome not named here (migration `0004_state_checks.sql`). `TaskState::can_transition` is the
-//! reference: the store's `state_machine` test drives every operation that changes a task, against
-//! Postgres and SQLite, and checks every change it sees against it, and that it saw them all.
+//! reference: `services/store/tests/states.rs` drives every store operation that changes a task,
+//! against Postgres and SQLite, checks every change it sees against it, and checks that it saw
+//! every transition allowed here.
 
 use std::fmt;
 use std::str::FromStr;
