@@ -261,7 +261,10 @@ impl StateWatch {
                     );
                     changes.ended.push((id.clone(), *outcome));
                 }
-                (None, None) => {} // a lease, checked above
+                (None, None) => {
+                    let leased = changes.moved.iter().any(|(task, _, to)| task == id && *to == Running);
+                    assert!(leased, "{operation}: {id} attempt {attempt} started without a lease");
+                }
                 (old, new) => panic!("{operation}: {id} attempt {attempt} outcome went {old:?} -> {new:?}"),
             }
         }
