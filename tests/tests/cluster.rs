@@ -2,6 +2,7 @@
 //! faults it must survive: a worker SIGKILLed mid-task, a coordinator restarted mid-job, a worker
 //! whose lease expired trying to complete.
 
+use std::collections::BTreeSet;
 use std::path::Path;
 use std::sync::OnceLock;
 use std::time::Duration;
@@ -34,20 +35,6 @@ fn reference() -> &'static Reference {
             samples,
         }
     })
-}
-
-/// (sample, file, sha256) of every file a manifest lists.
-fn manifest_files(text: &str) -> std::collections::BTreeSet<(String, String, String)> {
-    let mut files = std::collections::BTreeSet::new();
-    for line in text.lines() {
-        let entry: serde_json::Value = serde_json::from_str(line).unwrap();
-        let sample = entry["sample_id"].as_str().expect("sample_id").to_string();
-        for (name, file) in entry["files"].as_object().expect("files") {
-            let sha = file["sha256"].as_str().expect("sha256").to_string();
-            files.insert((sample.clone(), name.clone(), sha));
-        }
-    }
-    files
 }
 
 struct Cluster {
@@ -119,12 +106,13 @@ impl Cluster {
 /// The exported dataset is the embedded run's, byte for byte: same manifest hash, as many samples.
 fn assert_same_as_embedded(out: &Path) {
     let reference = reference();
+    assert_eq!(verify_dataset(out).len(), reference.samples, "the cluster packaged a different number of samples");
     let ours = std::fs::read_to_string(out.join("manifest.jsonl")).unwrap();
-    assert_eq!(ours.lines().count(), reference.samples, "the cluster packaged a different number of samples");
     if manifest_sha256(out) != reference.manifest_sha256 {
-        let (ours, theirs) = (manifest_files(&ours), manifest_files(&reference.manifest));
-        let differing: Vec<_> = ours.symmetric_difference(&theirs).map(|(s, f, _)| format!("{s}/{f}")).collect();
-        panic!("cluster manifest differs from the embedded run's; differing files: {differing:?}");
+        let (ours, theirs): (BTreeSet<&str>, BTreeSet<&str>) =
+            (ours.lines().collect(), reference.manifest.lines().collect());
+        let differing: Vec<&str> = ours.symmetric_difference(&theirs).copied().collect();
+        panic!("cluster manifest differs from the embedded run's in these lines:\n{}", differing.join("\n"));
     }
 }
 
