@@ -178,7 +178,7 @@ pid_alive() {
 
 # The test process id in a test database's name, or nothing. The tests name their databases
 # vint_test_<pid>_<tag>_<nanos>_<n> (tests/src/lib.rs postgres_database, services/store/tests/
-# queue.rs); names from before that order was fixed put a tag first (vint_test_<tag>_<pid>_<n>),
+# common/mod.rs); names from before that order was fixed put a tag first (vint_test_<tag>_<pid>_<n>),
 # and other checkouts may still create them, so a non-numeric first field defers to the second.
 test_database_pid() {
     local rest="${1#vint_test_}" first second

@@ -65,8 +65,8 @@ pub fn free_port() -> u16 {
 /// A fresh Postgres database: `VINT_TEST_POSTGRES_URL` (an admin URL) with a new database.
 ///
 /// Test databases are named `vint_test_<pid>_<tag>_<nanos>_<n>` (here and in
-/// services/store/tests/queue.rs): `scripts/test.sh` reads the pid after `vint_test_` to drop the
-/// databases of test processes that no longer run. `tag` is lowercase letters, digits and `_`.
+/// services/store/tests/common/mod.rs): `scripts/test.sh` reads the pid after `vint_test_` to drop
+/// the databases of test processes that no longer run. `tag` is lowercase letters, digits and `_`.
 pub async fn postgres_database(tag: &str) -> String {
     use std::sync::atomic::{AtomicU64, Ordering};
     static N: AtomicU64 = AtomicU64::new(0);

@@ -2,39 +2,39 @@
 //! faults it must survive: a worker SIGKILLed mid-task, a coordinator restarted mid-job, a worker
 //! whose lease expired trying to complete.
 
+use std::collections::BTreeSet;
 use std::path::Path;
 use std::sync::OnceLock;
 use std::time::Duration;
 
-use vint_core::Stage;
+use vint_core::{AttemptOutcome, Stage};
 use vint_proto::v1 as pb;
 use vint_proto::v1::work_service_client::WorkServiceClient;
 use vint_store::{RetryPolicy, Store};
 use vint_tests::*;
 
-/// tiny.toml's manifest on the embedded default: what every cluster run must equal.
-fn reference_manifest() -> &'static str {
-    static MANIFEST: OnceLock<String> = OnceLock::new();
-    MANIFEST.get_or_init(|| {
+/// tiny.toml's dataset on the embedded default: what every cluster run must equal.
+struct Reference {
+    manifest: String,
+    manifest_sha256: String,
+    samples: usize,
+}
+
+fn reference() -> &'static Reference {
+    static REFERENCE: OnceLock<Reference> = OnceLock::new();
+    REFERENCE.get_or_init(|| {
         let tmp = tempfile::tempdir().unwrap();
         let o = run_tiny(tmp.path(), 1);
         assert!(o.status.success(), "reference run failed: {}", stderr(&o));
-        std::fs::read_to_string(tmp.path().join("out").join("manifest.jsonl")).unwrap()
-    })
-}
-
-/// (sample, file, sha256) of every file a manifest lists.
-fn manifest_files(text: &str) -> std::collections::BTreeSet<(String, String, String)> {
-    let mut files = std::collections::BTreeSet::new();
-    for line in text.lines().filter(|l| !l.trim().is_empty()) {
-        let entry: serde_json::Value = serde_json::from_str(line).unwrap();
-        let sample = entry["sample_id"].as_str().unwrap_or_default().to_string();
-        for (name, file) in entry["files"].as_object().into_iter().flatten() {
-            let sha = file["sha256"].as_str().unwrap_or_default().to_string();
-            files.insert((sample.clone(), name.clone(), sha));
+        let out = tmp.path().join("out");
+        let samples = verify_dataset(&out).len();
+        assert!(samples > 0, "the reference run packaged no samples");
+        Reference {
+            manifest: std::fs::read_to_string(out.join("manifest.jsonl")).unwrap(),
+            manifest_sha256: manifest_sha256(&out),
+            samples,
         }
-    }
-    files
+    })
 }
 
 struct Cluster {
@@ -103,11 +103,17 @@ impl Cluster {
     }
 }
 
+/// The exported dataset is the embedded run's, byte for byte: same manifest hash, as many samples.
 fn assert_same_as_embedded(out: &Path) {
+    let reference = reference();
+    assert_eq!(verify_dataset(out).len(), reference.samples, "the cluster packaged a different number of samples");
     let ours = std::fs::read_to_string(out.join("manifest.jsonl")).unwrap();
-    let (ours, reference) = (manifest_files(&ours), manifest_files(reference_manifest()));
-    let differing: Vec<_> = ours.symmetric_difference(&reference).map(|(s, f, _)| format!("{s}/{f}")).collect();
-    assert!(differing.is_empty(), "cluster dataset differs from the embedded run in {differing:?}");
+    if manifest_sha256(out) != reference.manifest_sha256 {
+        let (ours, theirs): (BTreeSet<&str>, BTreeSet<&str>) =
+            (ours.lines().collect(), reference.manifest.lines().collect());
+        let differing: Vec<&str> = ours.symmetric_difference(&theirs).copied().collect();
+        panic!("cluster manifest differs from the embedded run's in these lines:\n{}", differing.join("\n"));
+    }
 }
 
 #[tokio::test(flavor = "multi_thread")]
@@ -196,8 +202,8 @@ async fn a_worker_killed_mid_task_loses_nothing_and_duplicates_nothing() {
     let attempts = store.attempts(&killed_task).await.unwrap();
     assert!(attempts.len() >= 2, "{attempts:?}");
     assert_eq!(attempts[0].worker_id, "victim");
-    assert_eq!(attempts[0].outcome.as_deref(), Some("lease_expired"));
-    assert_eq!(attempts.last().unwrap().outcome.as_deref(), Some("succeeded"));
+    assert_eq!(attempts[0].outcome, Some(AttemptOutcome::LeaseExpired));
+    assert_eq!(attempts.last().unwrap().outcome, Some(AttemptOutcome::Succeeded));
 
     let out = c.export(&job);
     assert_same_as_embedded(&out);
@@ -311,15 +317,15 @@ async fn a_crashed_engine_fails_its_task_as_retryable_and_is_restarted() {
     let attempts = store.attempts(&crashed_task).await.unwrap();
     let first = &attempts[0];
     // The kill may land just after the render finished; then a later task took the hit instead.
-    if first.outcome.as_deref() == Some("retry") {
+    if first.outcome == Some(AttemptOutcome::Retry) {
         assert!(first.error.as_deref().unwrap_or("").contains("crashed"), "{first:?}");
-        assert_eq!(attempts.last().unwrap().outcome.as_deref(), Some("succeeded"));
+        assert_eq!(attempts.last().unwrap().outcome, Some(AttemptOutcome::Succeeded));
     }
     let all = store.tasks_of_job(&job).await.unwrap();
     let mut retried = 0;
     for t in &all {
         retried +=
-            store.attempts(&t.id).await.unwrap().iter().filter(|a| a.outcome.as_deref() == Some("retry")).count();
+            store.attempts(&t.id).await.unwrap().iter().filter(|a| a.outcome == Some(AttemptOutcome::Retry)).count();
     }
     assert!(retried >= 1, "the crash must have failed some attempt as retryable");
     assert_same_as_embedded(&c.export(&job));

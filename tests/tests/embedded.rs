@@ -1,5 +1,8 @@
 //! `vintctl run` on the embedded default, as a researcher uses it.
 
+use std::collections::BTreeMap;
+use std::path::Path;
+
 use sha2::{Digest, Sha256};
 use vint_tests::*;
 
@@ -63,15 +66,39 @@ fn tiny_spec_produces_verified_samples_identical_for_any_worker_count_and_engine
     assert_eq!(hashes[0], hashes[1], "1 warm and 3 recycling workers must produce the same dataset");
 }
 
-#[test]
-fn rerunning_a_spec_with_its_state_resumes_the_same_job() {
+/// The jobs a `vintctl run` state directory holds, and the attempts each of their tasks has had.
+async fn jobs_and_attempts(state: &Path) -> (Vec<String>, BTreeMap<String, u32>) {
+    let url = format!("sqlite://{}", state.join("vint.db").display());
+    let store = vint_store::Store::open(&url, vint_store::RetryPolicy::default()).await.unwrap();
+    let jobs: Vec<String> = store.list_jobs(100).await.unwrap().into_iter().map(|j| j.id).collect();
+    let mut attempts = BTreeMap::new();
+    for job in &jobs {
+        for task in store.tasks_of_job(job).await.unwrap() {
+            attempts.insert(task.id.clone(), store.attempt_count(&task.id).await.unwrap());
+        }
+    }
+    store.close().await;
+    (jobs, attempts)
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn rerunning_a_spec_with_its_state_resumes_the_same_job() {
     let tmp = tempfile::tempdir().unwrap();
+    let state = tmp.path().join("state");
     let first = run_tiny(tmp.path(), 2);
     assert!(first.status.success(), "{}", stderr(&first));
     let hash = manifest_sha256(&tmp.path().join("out"));
+    let (jobs, attempts) = jobs_and_attempts(&state).await;
+    assert_eq!(jobs.len(), 1, "{jobs:?}");
+    assert!(!attempts.is_empty() && attempts.values().all(|&n| n >= 1), "every task ran: {attempts:?}");
+
     let again = run_tiny(tmp.path(), 2);
     assert!(again.status.success(), "{}", stderr(&again));
     assert_eq!(manifest_sha256(&tmp.path().join("out")), hash);
+    // A fresh run would pass the check above too: reuse means the same job and not one new attempt.
+    let (jobs_after, attempts_after) = jobs_and_attempts(&state).await;
+    assert_eq!(jobs_after, jobs, "the re-run must resume the job, not submit another");
+    assert_eq!(attempts_after, attempts, "the re-run must not run a finished task again");
 }
 
 #[test]

@@ -32,9 +32,9 @@ pub fn progress(job: &JobRecord, p: &Progress) -> pb::JobProgress {
         .by_stage
         .iter()
         .map(|(stage, counts)| {
-            let get = |s: S| counts.get(s.as_str()).copied().unwrap_or(0);
+            let get = |s: S| counts.get(&s).copied().unwrap_or(0);
             (
-                stage.clone(),
+                stage.as_str().to_string(),
                 pb::StageProgress {
                     total: counts.values().sum(),
                     succeeded: get(S::Succeeded),

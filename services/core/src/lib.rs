@@ -17,4 +17,4 @@ pub mod state;
 pub use sample::{GraspId, SampleId};
 pub use spec::{DatasetSpec, SpecError, SpecErrors};
 pub use stage::Stage;
-pub use state::{JobState, TaskState};
+pub use state::{AttemptOutcome, JobState, TaskState};

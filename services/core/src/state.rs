@@ -12,13 +12,20 @@
 //!  failed / cancelled ◄────────────────────────────────┘
 //! ```
 //!
-//! The store implements these transitions in SQL; `TaskState::can_transition` is the reference its
-//! tests check against.
+//! Each attempt at a task ends with an `AttemptOutcome`, which says which of the transitions out of
+//! `running` the task took (`AttemptOutcome::leaves_task_in`).
+//!
+//! The store implements these transitions in SQL and its database refuses any state, stage or
+//! outcome not named here (migration `0004_state_checks.sql`). `TaskState::can_transition` is the
+//! reference: `services/store/tests/states.rs` drives every store operation that changes a task,
+//! against Postgres and SQLite, checks every change it sees against it, and checks that it saw
+//! every transition allowed here.
 
 use std::fmt;
 use std::str::FromStr;
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+/// Ordered as a task moves through its life, so that counts by state read in that order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum TaskState {
     /// Some dependency has not succeeded yet.
     Waiting,
@@ -88,6 +95,8 @@ pub enum JobState {
 }
 
 impl JobState {
+    pub const ALL: [JobState; 4] = [JobState::Running, JobState::Succeeded, JobState::Failed, JobState::Cancelled];
+
     pub fn as_str(self) -> &'static str {
         match self {
             JobState::Running => "running",
@@ -102,16 +111,62 @@ impl JobState {
     }
 }
 
+/// How one attempt at a task ended. An attempt that has not ended has no outcome.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum AttemptOutcome {
+    /// The worker completed the task.
+    Succeeded,
+    /// The worker failed it retryably and attempts were left: the task is queued again.
+    Retry,
+    /// The worker failed it permanently, or retryably with no attempts left.
+    Failed,
+    /// The worker stopped heartbeating; the task is queued again, or fails if no attempts are left.
+    LeaseExpired,
+    /// The job was cancelled while the attempt ran.
+    Cancelled,
+}
+
+impl AttemptOutcome {
+    pub const ALL: [AttemptOutcome; 5] = [
+        AttemptOutcome::Succeeded,
+        AttemptOutcome::Retry,
+        AttemptOutcome::Failed,
+        AttemptOutcome::LeaseExpired,
+        AttemptOutcome::Cancelled,
+    ];
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            AttemptOutcome::Succeeded => "succeeded",
+            AttemptOutcome::Retry => "retry",
+            AttemptOutcome::Failed => "failed",
+            AttemptOutcome::LeaseExpired => "lease_expired",
+            AttemptOutcome::Cancelled => "cancelled",
+        }
+    }
+
+    /// The states a running task may move to when its attempt ends with this outcome.
+    pub fn leaves_task_in(self) -> &'static [TaskState] {
+        match self {
+            AttemptOutcome::Succeeded => &[TaskState::Succeeded],
+            AttemptOutcome::Retry => &[TaskState::Queued],
+            AttemptOutcome::Failed => &[TaskState::Failed],
+            AttemptOutcome::LeaseExpired => &[TaskState::Queued, TaskState::Failed],
+            AttemptOutcome::Cancelled => &[TaskState::Cancelled],
+        }
+    }
+}
+
 #[derive(Debug, thiserror::Error)]
 #[error("unknown state {0:?}")]
 pub struct UnknownState(pub String);
 
 macro_rules! impl_state_text {
-    ($ty:ty, $($variant:expr),+) => {
+    ($($ty:ty),+) => {$(
         impl FromStr for $ty {
             type Err = UnknownState;
             fn from_str(s: &str) -> Result<Self, Self::Err> {
-                [$($variant),+].into_iter().find(|v| v.as_str() == s).ok_or_else(|| UnknownState(s.to_string()))
+                <$ty>::ALL.into_iter().find(|v| v.as_str() == s).ok_or_else(|| UnknownState(s.to_string()))
             }
         }
         impl fmt::Display for $ty {
@@ -119,19 +174,10 @@ macro_rules! impl_state_text {
                 f.write_str(self.as_str())
             }
         }
-    };
+    )+};
 }
 
-impl_state_text!(
-    TaskState,
-    TaskState::Waiting,
-    TaskState::Queued,
-    TaskState::Running,
-    TaskState::Succeeded,
-    TaskState::Failed,
-    TaskState::Cancelled
-);
-impl_state_text!(JobState, JobState::Running, JobState::Succeeded, JobState::Failed, JobState::Cancelled);
+impl_state_text!(TaskState, JobState, AttemptOutcome);
 
 /// Delay before the next attempt after `attempts` failed ones: `base · 2^(attempts−1)`, capped.
 pub fn retry_backoff_ms(attempts: u32, base_ms: i64, cap_ms: i64) -> i64 {
@@ -160,12 +206,28 @@ mod tests {
     }
 
     #[test]
-    fn states_round_trip_through_text() {
+    fn states_and_outcomes_round_trip_through_text() {
         for s in TaskState::ALL {
             assert_eq!(s.as_str().parse::<TaskState>().unwrap(), s);
         }
-        assert_eq!("cancelled".parse::<JobState>().unwrap(), JobState::Cancelled);
+        for s in JobState::ALL {
+            assert_eq!(s.as_str().parse::<JobState>().unwrap(), s);
+        }
+        for o in AttemptOutcome::ALL {
+            assert_eq!(o.as_str().parse::<AttemptOutcome>().unwrap(), o);
+            assert_eq!(o.to_string(), o.as_str());
+        }
         assert!("done".parse::<TaskState>().is_err());
+        assert!("expired".parse::<AttemptOutcome>().is_err());
+    }
+
+    #[test]
+    fn attempt_outcomes_are_exactly_the_ways_out_of_running() {
+        let by_outcome: std::collections::BTreeSet<TaskState> =
+            AttemptOutcome::ALL.iter().flat_map(|o| o.leaves_task_in().iter().copied()).collect();
+        let out_of_running: std::collections::BTreeSet<TaskState> =
+            TaskState::ALL.into_iter().filter(|&to| TaskState::Running.can_transition(to)).collect();
+        assert_eq!(by_outcome, out_of_running);
     }
 
     #[test]

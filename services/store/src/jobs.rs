@@ -3,7 +3,7 @@
 use sqlx::any::AnyRow;
 use sqlx::{Any, Row, Transaction};
 use vint_core::plan::NewTask;
-use vint_core::{JobState, TaskState};
+use vint_core::{AttemptOutcome, JobState, TaskState};
 
 use crate::{JobAsset, JobRecord, NewJob, Progress, Result, Store, StoreError, TaskRecord, parse, to_u32, trusted};
 
@@ -147,8 +147,8 @@ impl Store {
             .await?;
         let mut p = Progress::default();
         for row in rows {
-            let stage: String = row.try_get("stage")?;
-            let state: String = row.try_get("state")?;
+            let stage = parse("stage", &row.try_get::<String, _>("stage")?)?;
+            let state = parse("task state", &row.try_get::<String, _>("state")?)?;
             let n: i64 = row.try_get("n")?;
             p.by_stage.entry(stage).or_default().insert(state, n as u64);
         }
@@ -175,19 +175,25 @@ impl Store {
             .rows_affected();
         if changed == 1 {
             sqlx::query(
-                "UPDATE attempts SET ended_ms = $1, outcome = 'cancelled' WHERE ended_ms IS NULL AND task_id IN \
-                 (SELECT id FROM tasks WHERE job_id = $2 AND state = 'running')",
+                "UPDATE attempts SET ended_ms = $1, outcome = $2 WHERE ended_ms IS NULL AND task_id IN \
+                 (SELECT id FROM tasks WHERE job_id = $3 AND state = $4)",
             )
             .bind(now_ms)
+            .bind(AttemptOutcome::Cancelled.as_str())
             .bind(job_id)
+            .bind(TaskState::Running.as_str())
             .execute(&mut *tx)
             .await?;
             sqlx::query(
-                "UPDATE tasks SET state = 'cancelled', lease_owner = NULL, lease_deadline_ms = NULL, updated_ms = $1 \
-                 WHERE job_id = $2 AND state IN ('waiting', 'queued', 'running')",
+                "UPDATE tasks SET state = $1, lease_owner = NULL, lease_deadline_ms = NULL, updated_ms = $2 \
+                 WHERE job_id = $3 AND state IN ($4, $5, $6)",
             )
+            .bind(TaskState::Cancelled.as_str())
             .bind(now_ms)
             .bind(job_id)
+            .bind(TaskState::Waiting.as_str())
+            .bind(TaskState::Queued.as_str())
+            .bind(TaskState::Running.as_str())
             .execute(&mut *tx)
             .await?;
         }
@@ -202,10 +208,15 @@ impl Store {
     pub async fn finalize_jobs(&self, now_ms: i64) -> Result<Vec<String>> {
         let rows = sqlx::query(
             "SELECT j.id, \
-               (SELECT COUNT(*) FROM tasks t WHERE t.job_id = j.id AND t.state = 'failed') AS failed \
-             FROM jobs j WHERE j.state = 'running' AND NOT EXISTS \
-               (SELECT 1 FROM tasks t WHERE t.job_id = j.id AND t.state IN ('waiting', 'queued', 'running'))",
+               (SELECT COUNT(*) FROM tasks t WHERE t.job_id = j.id AND t.state = $1) AS failed \
+             FROM jobs j WHERE j.state = $2 AND NOT EXISTS \
+               (SELECT 1 FROM tasks t WHERE t.job_id = j.id AND t.state IN ($3, $4, $5))",
         )
+        .bind(TaskState::Failed.as_str())
+        .bind(JobState::Running.as_str())
+        .bind(TaskState::Waiting.as_str())
+        .bind(TaskState::Queued.as_str())
+        .bind(TaskState::Running.as_str())
         .fetch_all(&self.pool)
         .await?;
         let mut done = Vec::new();
@@ -213,10 +224,11 @@ impl Store {
             let id: String = row.try_get("id")?;
             let failed: i64 = row.try_get("failed")?;
             let state = if failed > 0 { JobState::Failed } else { JobState::Succeeded };
-            let n = sqlx::query("UPDATE jobs SET state = $1, finished_ms = $2 WHERE id = $3 AND state = 'running'")
+            let n = sqlx::query("UPDATE jobs SET state = $1, finished_ms = $2 WHERE id = $3 AND state = $4")
                 .bind(state.as_str())
                 .bind(now_ms)
                 .bind(&id)
+                .bind(JobState::Running.as_str())
                 .execute(&self.pool)
                 .await?
                 .rows_affected();
@@ -280,12 +292,14 @@ impl Store {
             }
             sqlx::query(
                 "UPDATE tasks SET deps_pending = (SELECT COUNT(*) FROM task_deps d JOIN tasks p ON p.id = d.depends_on \
-                 WHERE d.task_id = $1 AND p.state <> 'succeeded') WHERE id = $1",
+                 WHERE d.task_id = $1 AND p.state <> $2) WHERE id = $1",
             )
             .bind(&id)
+            .bind(TaskState::Succeeded.as_str())
             .execute(&mut **tx)
             .await?;
-            sqlx::query("UPDATE tasks SET state = 'queued' WHERE id = $1 AND deps_pending = 0")
+            sqlx::query("UPDATE tasks SET state = $1 WHERE id = $2 AND deps_pending = 0")
+                .bind(TaskState::Queued.as_str())
                 .bind(&id)
                 .execute(&mut **tx)
                 .await?;

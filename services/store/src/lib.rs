@@ -7,8 +7,11 @@
 //! (`Backend::skip_locked`) the difference is one clause. Both run the same test suite.
 //!
 //! Every transition follows `vint_core::state`; completion and failure are fenced on the lease
-//! holder and attempt, so a worker whose lease expired can change nothing. Times are passed in
-//! (`now_ms`) rather than read from a clock, which keeps the queue logic testable.
+//! holder and attempt, so a worker whose lease expired can change nothing. States, stages and
+//! attempt outcomes travel as the `vint_core` enums, bound as parameters, and the database refuses
+//! any name the enums do not define (migration 0004); `tests/states.rs` checks every transition the
+//! store makes against `TaskState::can_transition`. Times are passed in (`now_ms`) rather than read
+//! from a clock, which keeps the queue logic testable.
 
 mod jobs;
 mod lineage;
@@ -149,10 +152,18 @@ impl Store {
     }
 }
 
-/// SQL assembled from constants of this crate (column lists, dialect clauses, `Stage` names),
+/// SQL assembled from constants of this crate (column lists, dialect clauses, enum names),
 /// never from caller text; values always travel as bind parameters.
 fn trusted(sql: String) -> sqlx::AssertSqlSafe<String> {
     sqlx::AssertSqlSafe(sql)
+}
+
+/// An enum's name (`TaskState::as_str`, `Stage::as_str`) as an SQL string literal, for the few
+/// statements whose text must name a state or stage: Postgres and SQLite use a partial index
+/// (`tasks_ready`, `tasks_leased`) only for a query that names the index's state literally, not
+/// through a bound parameter. `'static` keeps caller text out.
+fn literal(name: &'static str) -> String {
+    format!("'{name}'")
 }
 
 fn parse<T: FromStr>(what: &str, s: &str) -> Result<T> {

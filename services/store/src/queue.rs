@@ -6,12 +6,23 @@
 //! and (for completion and heartbeats) before the lease deadline.
 
 use sqlx::{Any, Row, Transaction};
-use vint_core::Stage;
 use vint_core::plan::NewTask;
 use vint_core::state::retry_backoff_ms;
+use vint_core::{AttemptOutcome, Stage, TaskState};
 
 use crate::jobs::task_from_row;
-use crate::{ArtifactRecord, Completion, Fence, LeasedTask, Result, Store, StoreError, parse, to_u32, trusted};
+use crate::{
+    ArtifactRecord, Completion, Fence, LeasedTask, Result, Store, StoreError, literal, parse, to_u32, trusted,
+};
+
+/// Why an attempt ends without success.
+#[derive(Clone, Copy, Debug)]
+enum Failure {
+    /// The worker reported it; fenced on the worker's unexpired lease.
+    Reported { retryable: bool },
+    /// The worker stopped heartbeating and its lease ran out (the reaper); always retryable.
+    LeaseExpired,
+}
 
 impl Store {
     /// Leases up to `capacity` ready tasks of `stages` to `worker_id` until `now_ms + lease_ms`.
@@ -26,18 +37,19 @@ impl Store {
         if stages.is_empty() || capacity == 0 {
             return Ok(Vec::new());
         }
-        // Stage names come from the `Stage` enum, never from the caller's text.
-        let stage_list = stages.iter().map(|s| format!("'{}'", s.as_str())).collect::<Vec<_>>().join(", ");
+        let stage_list = stages.iter().map(|s| literal(s.as_str())).collect::<Vec<_>>().join(", ");
         let sql = format!(
-            "UPDATE tasks SET state = 'running', attempt = attempt + 1, lease_owner = $1, lease_deadline_ms = $2, \
-             updated_ms = $3 WHERE id IN (SELECT id FROM tasks WHERE state = 'queued' AND not_before_ms <= $3 \
-             AND stage IN ({stage_list}) ORDER BY priority, created_ms, id LIMIT $4 {}) \
+            "UPDATE tasks SET state = $1, attempt = attempt + 1, lease_owner = $2, lease_deadline_ms = $3, \
+             updated_ms = $4 WHERE id IN (SELECT id FROM tasks WHERE state = {queued} AND not_before_ms <= $4 \
+             AND stage IN ({stage_list}) ORDER BY priority, created_ms, id LIMIT $5 {skip_locked}) \
              RETURNING id, job_id, key, stage, attempt, params_json, lease_deadline_ms",
-            self.backend.skip_locked()
+            queued = literal(TaskState::Queued.as_str()),
+            skip_locked = self.backend.skip_locked(),
         );
         let deadline = now_ms + lease_ms;
         let mut tx = self.pool.begin().await?;
         let rows = sqlx::query(trusted(sql))
+            .bind(TaskState::Running.as_str())
             .bind(worker_id)
             .bind(deadline)
             .bind(now_ms)
@@ -83,12 +95,13 @@ impl Store {
         let mut lost = Vec::new();
         for (task_id, attempt) in held {
             let n = sqlx::query(
-                "UPDATE tasks SET lease_deadline_ms = $1, updated_ms = $2 WHERE id = $3 AND state = 'running' \
-                 AND lease_owner = $4 AND attempt = $5 AND lease_deadline_ms >= $2",
+                "UPDATE tasks SET lease_deadline_ms = $1, updated_ms = $2 WHERE id = $3 AND state = $4 \
+                 AND lease_owner = $5 AND attempt = $6 AND lease_deadline_ms >= $2",
             )
             .bind(now_ms + lease_ms)
             .bind(now_ms)
             .bind(task_id)
+            .bind(TaskState::Running.as_str())
             .bind(worker_id)
             .bind(i64::from(*attempt))
             .execute(&self.pool)
@@ -108,10 +121,12 @@ impl Store {
         let f = &c.fence;
         let mut tx = self.pool.begin().await?;
         let row = sqlx::query(
-            "UPDATE tasks SET state = 'succeeded', lease_owner = NULL, lease_deadline_ms = NULL, engine_json = $1, \
-             result_json = $2, updated_ms = $3 WHERE id = $4 AND state = 'running' AND lease_owner = $5 \
-             AND attempt = $6 AND lease_deadline_ms >= $3 RETURNING job_id",
+            "UPDATE tasks SET state = $1, lease_owner = NULL, lease_deadline_ms = NULL, engine_json = $3, \
+             result_json = $4, updated_ms = $5 WHERE id = $6 AND state = $2 AND lease_owner = $7 \
+             AND attempt = $8 AND lease_deadline_ms >= $5 RETURNING job_id",
         )
+        .bind(TaskState::Succeeded.as_str())
+        .bind(TaskState::Running.as_str())
         .bind(&c.engine_json)
         .bind(&c.result_json)
         .bind(now_ms)
@@ -148,21 +163,9 @@ impl Store {
         .bind(&f.task_id)
         .execute(&mut *tx)
         .await?;
-        end_attempt(&mut tx, f, now_ms, "succeeded", None, Some((&c.engine_json, &c.timings_json))).await?;
-        sqlx::query(
-            "UPDATE tasks SET deps_pending = deps_pending - 1 WHERE id IN (SELECT task_id FROM task_deps WHERE depends_on = $1)",
-        )
-        .bind(&f.task_id)
-        .execute(&mut *tx)
-        .await?;
-        sqlx::query(
-            "UPDATE tasks SET state = 'queued', updated_ms = $2 WHERE state = 'waiting' AND deps_pending = 0 \
-             AND id IN (SELECT task_id FROM task_deps WHERE depends_on = $1)",
-        )
-        .bind(&f.task_id)
-        .bind(now_ms)
-        .execute(&mut *tx)
-        .await?;
+        let timings = Some((c.engine_json.as_str(), c.timings_json.as_str()));
+        end_attempt(&mut tx, f, now_ms, AttemptOutcome::Succeeded, None, timings).await?;
+        unblock_dependents(&mut tx, &f.task_id, now_ms).await?;
         self.insert_tasks(&mut tx, &job_id, children, now_ms).await?;
         for sample in &c.samples {
             sqlx::query(
@@ -184,17 +187,16 @@ impl Store {
     /// and returns `true`; otherwise the task fails permanently (keeping `message`), its waiting
     /// dependents fail with it, and this returns `false`.
     pub async fn fail(&self, f: &Fence, retryable: bool, message: &str, now_ms: i64) -> Result<bool> {
-        self.fail_attempt(f, retryable, message, "failed", now_ms, false).await
+        self.fail_attempt(f, Failure::Reported { retryable }, message, now_ms).await
     }
 
     /// Returns tasks whose lease expired to the queue (or fails them when out of attempts).
     pub async fn reap_expired(&self, now_ms: i64) -> Result<u64> {
-        let rows = sqlx::query(
-            "SELECT id, lease_owner, attempt FROM tasks WHERE state = 'running' AND lease_deadline_ms < $1",
-        )
-        .bind(now_ms)
-        .fetch_all(&self.pool)
-        .await?;
+        let sql = format!(
+            "SELECT id, lease_owner, attempt FROM tasks WHERE state = {running} AND lease_deadline_ms < $1",
+            running = literal(TaskState::Running.as_str()),
+        );
+        let rows = sqlx::query(trusted(sql)).bind(now_ms).fetch_all(&self.pool).await?;
         let mut reaped = 0;
         for row in rows {
             let owner: Option<String> = row.try_get("lease_owner")?;
@@ -204,7 +206,7 @@ impl Store {
                 attempt: to_u32("attempt", row.try_get("attempt")?)?,
             };
             let msg = format!("lease expired (worker {} stopped heartbeating)", fence.worker_id);
-            match self.fail_attempt(&fence, true, &msg, "lease_expired", now_ms, true).await {
+            match self.fail_attempt(&fence, Failure::LeaseExpired, &msg, now_ms).await {
                 Ok(_) => reaped += 1,
                 Err(StoreError::LeaseLost { .. }) => {} // finished or reaped concurrently
                 Err(e) => return Err(e),
@@ -216,24 +218,25 @@ impl Store {
         Ok(reaped)
     }
 
-    async fn fail_attempt(
-        &self,
-        f: &Fence,
-        retryable: bool,
-        message: &str,
-        outcome: &str,
-        now_ms: i64,
-        expired_ok: bool,
-    ) -> Result<bool> {
+    /// Ends a running attempt that did not succeed: requeues the task after a backoff when the
+    /// failure is retryable and attempts are left (returns `true`), else fails it and its
+    /// dependents. Refused with `LeaseLost` unless the fence still holds.
+    async fn fail_attempt(&self, f: &Fence, failure: Failure, message: &str, now_ms: i64) -> Result<bool> {
         let mut tx = self.pool.begin().await?;
+        // The reaper fails a lease precisely because its deadline passed.
+        let reported = matches!(failure, Failure::Reported { .. });
         let sql = format!(
-            "SELECT attempt, max_attempts FROM tasks WHERE id = $1 AND state = 'running' AND lease_owner = $2 \
-             AND attempt = $3{} {}",
-            if expired_ok { "" } else { " AND lease_deadline_ms >= $4" },
-            self.backend.lock_row()
+            "SELECT attempt, max_attempts FROM tasks WHERE id = $1 AND state = $2 AND lease_owner = $3 \
+             AND attempt = $4{deadline} {lock_row}",
+            deadline = if reported { " AND lease_deadline_ms >= $5" } else { "" },
+            lock_row = self.backend.lock_row(),
         );
-        let mut q = sqlx::query(trusted(sql)).bind(&f.task_id).bind(&f.worker_id).bind(i64::from(f.attempt));
-        if !expired_ok {
+        let mut q = sqlx::query(trusted(sql))
+            .bind(&f.task_id)
+            .bind(TaskState::Running.as_str())
+            .bind(&f.worker_id)
+            .bind(i64::from(f.attempt));
+        if reported {
             q = q.bind(now_ms);
         }
         let Some(row) = q.fetch_optional(&mut *tx).await? else {
@@ -242,15 +245,24 @@ impl Store {
         };
         let attempts = to_u32("attempt", row.try_get("attempt")?)?;
         let max_attempts = to_u32("max_attempts", row.try_get("max_attempts")?)?;
+        let retryable = match failure {
+            Failure::Reported { retryable } => retryable,
+            Failure::LeaseExpired => true,
+        };
         let will_retry = retryable && attempts < max_attempts;
-        let attempt_outcome = if will_retry && outcome == "failed" { "retry" } else { outcome };
-        end_attempt(&mut tx, f, now_ms, attempt_outcome, Some(message), None).await?;
+        let outcome = match failure {
+            Failure::LeaseExpired => AttemptOutcome::LeaseExpired,
+            Failure::Reported { .. } if will_retry => AttemptOutcome::Retry,
+            Failure::Reported { .. } => AttemptOutcome::Failed,
+        };
+        end_attempt(&mut tx, f, now_ms, outcome, Some(message), None).await?;
         if will_retry {
             let backoff = retry_backoff_ms(attempts, self.retry.backoff_base_ms, self.retry.backoff_cap_ms);
             sqlx::query(
-                "UPDATE tasks SET state = 'queued', lease_owner = NULL, lease_deadline_ms = NULL, last_error = $1, \
-                 not_before_ms = $2, updated_ms = $3 WHERE id = $4",
+                "UPDATE tasks SET state = $1, lease_owner = NULL, lease_deadline_ms = NULL, last_error = $2, \
+                 not_before_ms = $3, updated_ms = $4 WHERE id = $5",
             )
+            .bind(TaskState::Queued.as_str())
             .bind(message)
             .bind(now_ms + backoff)
             .bind(now_ms)
@@ -259,9 +271,10 @@ impl Store {
             .await?;
         } else {
             sqlx::query(
-                "UPDATE tasks SET state = 'failed', lease_owner = NULL, lease_deadline_ms = NULL, last_error = $1, \
-                 updated_ms = $2 WHERE id = $3",
+                "UPDATE tasks SET state = $1, lease_owner = NULL, lease_deadline_ms = NULL, last_error = $2, \
+                 updated_ms = $3 WHERE id = $4",
             )
+            .bind(TaskState::Failed.as_str())
             .bind(message)
             .bind(now_ms)
             .bind(&f.task_id)
@@ -293,7 +306,10 @@ impl Store {
                     worker_id: r.try_get("worker_id")?,
                     started_ms: r.try_get("started_ms")?,
                     ended_ms: r.try_get("ended_ms")?,
-                    outcome: r.try_get("outcome")?,
+                    outcome: r
+                        .try_get::<Option<String>, _>("outcome")?
+                        .map(|o| parse("attempt outcome", &o))
+                        .transpose()?,
                     error: r.try_get("error")?,
                 })
             })
@@ -302,8 +318,8 @@ impl Store {
 
     /// Running tasks, for tests and operators.
     pub async fn running_tasks(&self) -> Result<Vec<crate::TaskRecord>> {
-        let sql = format!("SELECT {} FROM tasks WHERE state = 'running' ORDER BY id", crate::jobs::TASK_COLUMNS);
-        let rows = sqlx::query(trusted(sql)).fetch_all(&self.pool).await?;
+        let sql = format!("SELECT {} FROM tasks WHERE state = $1 ORDER BY id", crate::jobs::TASK_COLUMNS);
+        let rows = sqlx::query(trusted(sql)).bind(TaskState::Running.as_str()).fetch_all(&self.pool).await?;
         rows.iter().map(task_from_row).collect()
     }
 }
@@ -316,7 +332,7 @@ async fn end_attempt(
     tx: &mut Transaction<'static, Any>,
     f: &Fence,
     now_ms: i64,
-    outcome: &str,
+    outcome: AttemptOutcome,
     error: Option<&str>,
     engine_and_timings: Option<(&str, &str)>,
 ) -> Result<()> {
@@ -326,7 +342,7 @@ async fn end_attempt(
          WHERE task_id = $6 AND attempt = $7",
     )
     .bind(now_ms)
-    .bind(outcome)
+    .bind(outcome.as_str())
     .bind(error)
     .bind(engine)
     .bind(timings)
@@ -337,16 +353,40 @@ async fn end_attempt(
     Ok(())
 }
 
+/// Counts the success of `task_id` in its dependents and queues those with no dependency left.
+async fn unblock_dependents(tx: &mut Transaction<'static, Any>, task_id: &str, now_ms: i64) -> Result<()> {
+    sqlx::query(
+        "UPDATE tasks SET deps_pending = deps_pending - 1 \
+         WHERE id IN (SELECT task_id FROM task_deps WHERE depends_on = $1)",
+    )
+    .bind(task_id)
+    .execute(&mut **tx)
+    .await?;
+    sqlx::query(
+        "UPDATE tasks SET state = $1, updated_ms = $2 WHERE state = $3 AND deps_pending = 0 \
+         AND id IN (SELECT task_id FROM task_deps WHERE depends_on = $4)",
+    )
+    .bind(TaskState::Queued.as_str())
+    .bind(now_ms)
+    .bind(TaskState::Waiting.as_str())
+    .bind(task_id)
+    .execute(&mut **tx)
+    .await?;
+    Ok(())
+}
+
 /// Fails, transitively, every waiting task that depends on `task_id`.
 async fn fail_dependents(tx: &mut Transaction<'static, Any>, task_id: &str, now_ms: i64) -> Result<()> {
     let mut frontier = vec![task_id.to_string()];
     while let Some(failed) = frontier.pop() {
         let rows = sqlx::query(
-            "UPDATE tasks SET state = 'failed', last_error = $1, updated_ms = $2 WHERE state = 'waiting' \
-             AND id IN (SELECT task_id FROM task_deps WHERE depends_on = $3) RETURNING id",
+            "UPDATE tasks SET state = $1, last_error = $2, updated_ms = $3 WHERE state = $4 \
+             AND id IN (SELECT task_id FROM task_deps WHERE depends_on = $5) RETURNING id",
         )
+        .bind(TaskState::Failed.as_str())
         .bind(format!("upstream task {failed} failed"))
         .bind(now_ms)
+        .bind(TaskState::Waiting.as_str())
         .bind(&failed)
         .fetch_all(&mut **tx)
         .await?;

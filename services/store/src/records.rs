@@ -2,7 +2,7 @@
 
 use std::collections::BTreeMap;
 
-use vint_core::{JobState, Stage, TaskState};
+use vint_core::{AttemptOutcome, JobState, Stage, TaskState};
 
 #[derive(Clone, Debug, PartialEq)]
 pub struct NewJob {
@@ -117,17 +117,17 @@ pub struct Completion {
 /// Counts of a job's tasks by stage and state.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Progress {
-    pub by_stage: BTreeMap<String, BTreeMap<String, u64>>,
+    pub by_stage: BTreeMap<Stage, BTreeMap<TaskState, u64>>,
     pub samples: u64,
 }
 
 impl Progress {
     pub fn count(&self, state: TaskState) -> u64 {
-        self.by_stage.values().filter_map(|m| m.get(state.as_str())).sum()
+        self.by_stage.values().filter_map(|m| m.get(&state)).sum()
     }
 
     pub fn stage_count(&self, stage: Stage, state: TaskState) -> u64 {
-        self.by_stage.get(stage.as_str()).and_then(|m| m.get(state.as_str())).copied().unwrap_or(0)
+        self.by_stage.get(&stage).and_then(|m| m.get(&state)).copied().unwrap_or(0)
     }
 
     pub fn total(&self) -> u64 {
@@ -152,6 +152,7 @@ pub struct AttemptRecord {
     pub worker_id: String,
     pub started_ms: i64,
     pub ended_ms: Option<i64>,
-    pub outcome: Option<String>,
+    /// `None` while the attempt runs.
+    pub outcome: Option<AttemptOutcome>,
     pub error: Option<String>,
 }
