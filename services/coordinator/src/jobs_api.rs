@@ -81,15 +81,7 @@ impl JobApi {
             sample_id.parse().map_err(|e: vint_core::sample::BadSampleId| Status::invalid_argument(e.to_string()))?;
         let (job_id, package_task) = self.job_of_sample(job_id, sample_id).await?;
         let job = self.job_record(&job_id).await?;
-        let assets: Vec<Asset> = self
-            .store
-            .job_assets(&job.id)
-            .await
-            .map_err(status)?
-            .into_iter()
-            .map(|a| Asset { path: a.path, sha256: a.sha256, size: a.size })
-            .collect();
-        let job_plan = crate::planner::job_plan(&job, &assets).map_err(|e| Status::internal(e.to_string()))?;
+        let job_plan = crate::planner::job_plan(&self.store, &job).await?;
         let own: BTreeSet<String> = [
             plan::noise_key(&id.object, &id.hand, id.grasp_index),
             plan::render_key(&id.object, &id.hand, id.grasp_index),

@@ -10,12 +10,13 @@
 use std::collections::BTreeSet;
 
 use serde_json::Value;
+use vint_core::asset::Asset;
 use vint_core::contract::grasp::GraspResult;
 use vint_core::contract::package::{self, GRASP_RECORD_FILE, META_FILE, PackageResult};
 use vint_core::contract::{self, BadResult};
 use vint_core::plan::{self, GraspChunk, JobPlan, NewTask};
 use vint_core::{DatasetSpec, GraspId, SampleId, Stage};
-use vint_store::{JobRecord, NewArtifact, TaskRecord};
+use vint_store::{JobRecord, NewArtifact, Store, TaskRecord};
 
 #[derive(Debug, thiserror::Error)]
 pub enum PlanError {
@@ -41,17 +42,22 @@ pub struct Unlocked {
     pub samples: Vec<String>,
 }
 
-/// The job's plan: kept with the job since it was submitted, or derived from its spec for jobs
-/// from before plans were kept (their specs name no user files: `assets` are the job's files).
-pub fn job_plan(job: &JobRecord, assets: &[vint_core::asset::Asset]) -> Result<JobPlan, PlanError> {
-    let bad = |reason: String| PlanError::Plan { job: job.id.clone(), reason };
-    match &job.plan_json {
-        Some(text) => serde_json::from_str(text).map_err(|e| bad(e.to_string())),
-        None => {
-            let spec = DatasetSpec::parse(&job.spec_toml).map_err(|e| bad(e.to_string()))?;
-            JobPlan::new(&spec, assets).map_err(|e| bad(e.to_string()))
-        }
+/// The job's plan: kept with the job since it was submitted, or, for a job from before plans were
+/// kept, derived from its spec and stored files.
+pub async fn job_plan(store: &Store, job: &JobRecord) -> Result<JobPlan, tonic::Status> {
+    let bad = |reason: String| tonic::Status::internal(PlanError::Plan { job: job.id.clone(), reason }.to_string());
+    if let Some(text) = &job.plan_json {
+        return serde_json::from_str(text).map_err(|e| bad(e.to_string()));
     }
+    let assets: Vec<Asset> = store
+        .job_assets(&job.id)
+        .await
+        .map_err(crate::convert::status)?
+        .into_iter()
+        .map(|a| Asset { path: a.path, sha256: a.sha256, size: a.size })
+        .collect();
+    let spec = DatasetSpec::parse(&job.spec_toml).map_err(|e| bad(e.to_string()))?;
+    JobPlan::new(&spec, &assets).map_err(|e| bad(e.to_string()))
 }
 
 /// What `task`'s completion unlocks, given its result and outputs. `plan` is needed for a grasp
@@ -118,7 +124,7 @@ fn package_samples(
     if recorded != grasps {
         return Err(mismatch(format!("grasp records {recorded:?} are not its samples' grasps {grasps:?}")));
     }
-    let mut with_meta = BTreeSet::new();
+    let (mut with_meta, mut written) = (BTreeSet::new(), BTreeSet::new());
     for o in outputs {
         let Some((owner, file)) = o.name.split_once('/') else {
             return Err(mismatch(format!("output {:?} is not <sample_id>/<file> or <grasp_id>/<file>", o.name)));
@@ -127,15 +133,150 @@ fn package_samples(
             if file == META_FILE {
                 with_meta.insert(owner);
             }
-        } else if !(recorded.contains(owner) && file == GRASP_RECORD_FILE && owner.parse::<GraspId>().is_ok()) {
+        } else if recorded.contains(owner) && file == GRASP_RECORD_FILE && owner.parse::<GraspId>().is_ok() {
+            written.insert(owner.to_string());
+        } else {
             return Err(mismatch(format!("output {:?} belongs to no sample or grasp record it made", o.name)));
         }
     }
     if with_meta != made {
-        return Err(mismatch(format!(
-            "samples without {META_FILE}: {:?}",
-            made.difference(&with_meta).collect::<Vec<_>>()
-        )));
+        let missing: Vec<_> = made.difference(&with_meta).collect();
+        return Err(mismatch(format!("samples without {META_FILE}: {missing:?}")));
+    }
+    if written != recorded {
+        let missing: Vec<_> = recorded.difference(&written).collect();
+        return Err(mismatch(format!("grasp records not written: {missing:?}")));
     }
     Ok(result.samples.clone())
+}
+
+#[cfg(test)]
+mod tests {
+    use serde_json::json;
+    use vint_core::TaskState;
+    use vint_store::RetryPolicy;
+
+    use super::*;
+
+    const SPEC: &str = "objects = [\"tomato_soup_can\"]\n[dataset]\nname = \"t\"\nseed = 1\n\
+                        [grasp]\ntrials_per_pair = 4\nchunk_size = 2\n[render]\nviews_per_environment = 2\n";
+
+    fn job(plan_json: Option<String>) -> JobRecord {
+        JobRecord {
+            id: "j".into(),
+            name: "t".into(),
+            seed: 1,
+            spec_toml: SPEC.into(),
+            plan_json,
+            state: vint_core::JobState::Running,
+            created_ms: 0,
+            finished_ms: None,
+        }
+    }
+
+    fn task(key: &str, stage: Stage, params: serde_json::Value) -> TaskRecord {
+        TaskRecord {
+            id: format!("j/{key}"),
+            job_id: "j".into(),
+            key: key.into(),
+            stage,
+            state: TaskState::Running,
+            params_json: params.to_string(),
+            attempt: 1,
+            max_attempts: 4,
+            not_before_ms: 0,
+            lease_owner: Some("w".into()),
+            lease_deadline_ms: Some(1),
+            last_error: None,
+            engine_json: None,
+            result_json: None,
+        }
+    }
+
+    fn plan() -> JobPlan {
+        JobPlan::new(&DatasetSpec::parse(SPEC).unwrap(), &[]).unwrap()
+    }
+
+    fn artifact(name: &str) -> NewArtifact {
+        NewArtifact {
+            name: name.into(),
+            sha256: "a".repeat(64),
+            size: 1,
+            media_type: "application/json".into(),
+            object_key: String::new(),
+        }
+    }
+
+    #[test]
+    fn a_grasp_result_unlocks_render_noise_and_package_tasks_for_its_accepted_trials() {
+        let grasp = task("grasp/tomato_soup_can/trx3/c00001", Stage::Grasp, json!({}));
+        let result = r#"{"accepted": [3], "rejected": {"no_contact": 1}}"#;
+        let unlocked = on_complete(&job(None), Some(&plan()), &grasp, result, &[]).unwrap();
+        let keys: Vec<&str> = unlocked.children.iter().map(|t| t.key.as_str()).collect();
+        assert_eq!(
+            keys,
+            [
+                "render/tomato_soup_can/trx3/g000003",
+                "noise/tomato_soup_can/trx3/g000003",
+                "package/tomato_soup_can/trx3/c00001"
+            ]
+        );
+    }
+
+    #[test]
+    fn a_grasp_result_naming_a_trial_of_another_chunk_or_of_the_wrong_shape_is_refused() {
+        let grasp = task("grasp/tomato_soup_can/trx3/c00001", Stage::Grasp, json!({}));
+        let foreign = on_complete(&job(None), Some(&plan()), &grasp, r#"{"accepted": [0]}"#, &[]);
+        assert!(matches!(foreign, Err(PlanError::ForeignGrasp { grasp: 0, .. })));
+        // The worker of old read grasps.json itself and sent a count: not the contract.
+        let shape = on_complete(&job(None), Some(&plan()), &grasp, r#"{"accepted": 2}"#, &[]);
+        assert!(matches!(shape, Err(PlanError::Result { .. })), "{:?}", shape.err());
+        let render = task("render/tomato_soup_can/trx3/g000003", Stage::Render, json!({}));
+        assert!(on_complete(&job(None), None, &render, r#"{"views": 2, "device": "CPU"}"#, &[]).is_ok());
+        assert!(on_complete(&job(None), None, &render, "{}", &[]).is_err());
+    }
+
+    #[test]
+    fn a_package_result_must_name_exactly_its_samples_and_their_grasp_records() {
+        let params = json!({"samples": [
+            {"sample_id": "tomato_soup_can.trx3.g000003.v00", "grasp_index": 3, "view_index": 0},
+            {"sample_id": "tomato_soup_can.trx3.g000003.v01", "grasp_index": 3, "view_index": 1}],
+            "modalities": ["pose"]});
+        let package = task("package/tomato_soup_can/trx3/c00001", Stage::Package, params);
+        let outputs = [
+            artifact("tomato_soup_can.trx3.g000003/grasp.json"),
+            artifact("tomato_soup_can.trx3.g000003.v00/meta.json"),
+            artifact("tomato_soup_can.trx3.g000003.v01/meta.json"),
+        ];
+        let result = json!({"samples": ["tomato_soup_can.trx3.g000003.v00", "tomato_soup_can.trx3.g000003.v01"],
+                            "grasps": ["tomato_soup_can.trx3.g000003"]});
+        let unlocked = on_complete(&job(None), None, &package, &result.to_string(), &outputs).unwrap();
+        assert_eq!(unlocked.samples.len(), 2);
+
+        let mut missing_sample = result.clone();
+        missing_sample["samples"] = json!(["tomato_soup_can.trx3.g000003.v00"]);
+        let stray_output = [&outputs[..], &[artifact("elsewhere/meta.json")]].concat();
+        let mut no_record = result.clone();
+        no_record["grasps"] = json!([]);
+        for (result, outputs) in [
+            (missing_sample, &outputs[..]),
+            (result.clone(), &stray_output[..]),
+            (no_record, &outputs[..]),
+            (result.clone(), &outputs[1..]),
+        ] {
+            let refused = on_complete(&job(None), None, &package, &result.to_string(), outputs);
+            assert!(matches!(refused, Err(PlanError::PackageMismatch { .. })), "{result}: {:?}", refused.err());
+        }
+    }
+
+    #[tokio::test]
+    async fn a_job_from_before_plans_were_kept_is_planned_from_its_spec() {
+        let dir = tempfile::tempdir().unwrap();
+        let url = format!("sqlite://{}", dir.path().join("vint.db").display());
+        let store = Store::open(&url, RetryPolicy::default()).await.unwrap();
+        let stored = serde_json::to_string(&plan()).unwrap();
+        assert_eq!(job_plan(&store, &job(Some(stored))).await.unwrap(), plan());
+        assert_eq!(job_plan(&store, &job(None)).await.unwrap(), plan());
+        assert!(job_plan(&store, &job(Some("{\"seed\": 1}".into()))).await.is_err());
+    }
 }

@@ -7,7 +7,6 @@
 use tonic::{Request, Response, Status};
 use tracing::Instrument;
 use vint_core::Stage;
-use vint_core::asset::Asset;
 use vint_proto::v1 as pb;
 use vint_proto::v1::work_service_server::WorkService;
 use vint_store::{Completion, Fence, NewArtifact, Store};
@@ -134,17 +133,8 @@ impl WorkService for WorkApi {
                 .map_err(status)?
                 .ok_or_else(|| Status::not_found(format!("job {} not found", task.job_id)))?;
             // Only a grasp chunk unlocks tasks, planned from the job's plan.
-            let plan = if task.stage == Stage::Grasp {
-                let assets: Vec<Asset> = if job.plan_json.is_none() {
-                    let stored = self.store.job_assets(&job.id).await.map_err(status)?;
-                    stored.into_iter().map(|a| Asset { path: a.path, sha256: a.sha256, size: a.size }).collect()
-                } else {
-                    Vec::new()
-                };
-                Some(planner::job_plan(&job, &assets).map_err(|e| Status::internal(e.to_string()))?)
-            } else {
-                None
-            };
+            let plan =
+                if task.stage == Stage::Grasp { Some(planner::job_plan(&self.store, &job).await?) } else { None };
             let unlocked = planner::on_complete(&job, plan.as_ref(), &task, &req.result_json, &outputs)
                 .map_err(|e| Status::invalid_argument(e.to_string()))?;
             let completion = Completion {

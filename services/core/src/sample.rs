@@ -27,16 +27,10 @@ impl FromStr for SampleId {
     type Err = BadSampleId;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         let bad = || BadSampleId(s.to_string());
-        let parts: Vec<&str> = s.split('.').collect();
-        let [object, hand, grasp, view] = parts.as_slice() else {
-            return Err(bad());
-        };
-        let grasp_index = grasp.strip_prefix('g').and_then(|g| g.parse().ok()).ok_or_else(bad)?;
+        let (grasp, view) = s.rsplit_once('.').ok_or_else(bad)?;
+        let grasp: GraspId = grasp.parse().map_err(|_| bad())?;
         let view_index = view.strip_prefix('v').and_then(|v| v.parse().ok()).ok_or_else(bad)?;
-        if object.is_empty() || hand.is_empty() {
-            return Err(bad());
-        }
-        Ok(SampleId { object: object.to_string(), hand: hand.to_string(), grasp_index, view_index })
+        Ok(grasp.view(view_index))
     }
 }
 
