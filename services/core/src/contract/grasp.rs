@@ -45,6 +45,8 @@ pub const RESPONSE_DEPTH_M: Bound<f64> = Bound::new(1e-4, 0.02, 0.002);
 pub const GAIN_SIGMA: Bound<f64> = Bound::new(0.0, 1.0, 0.1);
 pub const AGING: Bound<f64> = Bound::new(0.01, 1.0, 1.0);
 pub const MIN_ACTIVE_TAXELS: Bound<u32> = Bound::new(0, 10_000, 3);
+/// The gain seed of a task that names none (the studies'); planned tasks always carry the hand's.
+pub const GAIN_SEED_DEFAULT: u64 = 123;
 
 /// A grasp task's parameters.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
@@ -224,7 +226,7 @@ impl Default for Touch {
             response_depth_m: RESPONSE_DEPTH_M.default,
             gain_sigma: GAIN_SIGMA.default,
             aging: AGING.default,
-            gain_seed: 0,
+            gain_seed: GAIN_SEED_DEFAULT,
             min_active_taxels: MIN_ACTIVE_TAXELS.default,
         }
     }
