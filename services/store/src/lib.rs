@@ -10,6 +10,7 @@
 //! holder and attempt, so a worker whose lease expired can change nothing. Times are passed in
 //! (`now_ms`) rather than read from a clock, which keeps the queue logic testable.
 
+mod failures;
 mod jobs;
 mod lineage;
 mod queue;
@@ -21,6 +22,7 @@ use std::time::Duration;
 use sqlx::any::{AnyPoolOptions, install_default_drivers};
 use sqlx::{AnyPool, Executor};
 
+pub use failures::FailedTask;
 pub use lineage::ASSET_TASK_KEY;
 pub use records::*;
 
