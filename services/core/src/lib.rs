@@ -12,6 +12,7 @@ pub mod seed;
 pub mod spec;
 pub mod stage;
 pub mod state;
+pub mod suggest;
 
 pub use sample::SampleId;
 pub use spec::{DatasetSpec, SpecError, SpecErrors};
