@@ -12,6 +12,7 @@ use vint_proto::v1 as pb;
 use vint_proto::v1::get_lineage_request::Subject;
 
 use crate::client::Coordinator;
+use crate::estimate::Estimate;
 use crate::report::{self, JsonProgress, ProgressView};
 use crate::spec_file::load_spec;
 use crate::{CliResult, Failure, bad_input, export};
@@ -29,18 +30,13 @@ pub fn validate(path: &Path, json: bool) -> CliResult {
         }
     };
     let spec = &loaded.spec;
+    let estimate = Estimate::of(spec);
     if json {
-        report::print_json(&json!({"valid": true, "spec": spec, "max_samples": spec.max_samples()}));
+        report::print_json(&json!({
+            "valid": true, "spec": spec, "max_samples": spec.max_samples(), "estimate": estimate,
+        }));
     } else {
-        println!(
-            "{}: valid — {} hand(s) × {} object(s) × {} trials × {} views: at most {} samples",
-            path.display(),
-            spec.hands.len(),
-            spec.objects.len(),
-            spec.grasp.trials_per_pair,
-            spec.render.views_per_grasp(),
-            spec.max_samples()
-        );
+        report::valid_spec(path, spec, &estimate);
     }
     Ok(())
 }

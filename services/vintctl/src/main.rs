@@ -9,6 +9,7 @@
 mod client;
 mod commands;
 mod embedded;
+mod estimate;
 mod export;
 mod failure;
 mod report;

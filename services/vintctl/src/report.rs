@@ -8,6 +8,7 @@ use vint_core::{SpecError, SpecErrors};
 use vint_proto::v1 as pb;
 
 use crate::Failure;
+use crate::estimate::{self, Estimate};
 use crate::export::ExportSummary;
 
 pub fn print_json(v: &Value) {
@@ -40,6 +41,38 @@ fn error_json(f: &Failure) -> Value {
 pub fn spec_errors_json(errors: &SpecErrors) -> Value {
     let one = |e: &SpecError| json!({"path": e.path, "value": e.value, "rule": e.rule, "message": e.to_string()});
     Value::Array(errors.0.iter().map(one).collect())
+}
+
+/// `validate` of a valid spec: its size, what it would cost, and a warning when that is a lot.
+pub fn valid_spec(path: &std::path::Path, spec: &vint_core::DatasetSpec, e: &Estimate) {
+    println!(
+        "{}: valid — {} hand(s) × {} object(s) × {} trials × {} views: at most {} samples",
+        path.display(),
+        spec.hands.len(),
+        spec.objects.len(),
+        spec.grasp.trials_per_pair,
+        spec.render.views_per_grasp(),
+        spec.max_samples()
+    );
+    let t = &e.tasks;
+    println!(
+        "  tasks: {} grasp, and if every trial is accepted {} render, {} noise and {} package",
+        t.grasp, t.render_max, t.noise_max, t.package_max
+    );
+    let c = &e.cpu_seconds;
+    println!(
+        "  rough cost if every trial is accepted: {} (grasp {}, render {}, noise {}, package {}), {} written",
+        estimate::cpu_time(c.total),
+        estimate::cpu_time(c.grasp),
+        estimate::cpu_time(c.render),
+        estimate::cpu_time(c.noise),
+        estimate::cpu_time(c.package),
+        estimate::size(e.output_bytes)
+    );
+    println!("  ({})", estimate::BASIS);
+    for w in &e.warnings {
+        eprintln!("warning: {w}");
+    }
 }
 
 pub fn progress_json(p: &pb::JobProgress) -> Value {
