@@ -89,6 +89,7 @@ fn a_failed_job_names_each_failed_task_and_its_error_in_run_status_watch_and_exp
     assert!(text.contains(&format!("job {job} failed: 2 task(s) failed permanently")), "{text}");
     assert!(text.contains("\n  grasp/cup/trx3/c00000 (grasp, 1 attempt): engine: "), "{text}");
     assert!(text.contains("'open.obj'"), "{text}");
+    assert!(text.contains("task grasp/cup/trx3/c00000 failed (1 attempt): engine: "), "as it happens: {text}");
 
     // The job's database and artifacts, served by a coordinator (given without http://).
     let port = free_port();

@@ -1,6 +1,9 @@
 //! How vintctl shows things: text for people, `--json` for scripts, a progress bar for waiting.
 //! Everything here takes data and prints it; nothing talks to a coordinator or writes datasets.
 
+use std::collections::BTreeSet;
+use std::sync::Mutex;
+
 use chrono::{Local, TimeZone};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::{Value, json};
@@ -117,18 +120,21 @@ fn progress_line(p: &pb::JobProgress) -> String {
 pub fn failed_task_lines(p: &pb::JobProgress) -> Vec<String> {
     let mut lines = Vec::new();
     for t in &p.failed_tasks {
-        let tried = match t.attempts {
-            _ if t.failed_upstream => "never ran".to_string(),
-            1 => "1 attempt".to_string(),
-            n => format!("{n} attempts"),
-        };
-        lines.push(format!("{} ({}, {tried}): {}", t.key, t.stage, t.last_error));
+        lines.push(format!("{} ({}, {}): {}", t.key, t.stage, attempts(t), t.last_error));
     }
     let more = p.tasks_failed.saturating_sub(p.failed_tasks.len() as u64);
     if more > 0 {
         lines.push(format!("… and {more} more (vintctl status --json lists the first {})", p.failed_tasks.len()));
     }
     lines
+}
+
+fn attempts(t: &pb::FailedTask) -> String {
+    match t.attempts {
+        _ if t.failed_upstream => "never ran".to_string(),
+        1 => "1 attempt".to_string(),
+        n => format!("{n} attempts"),
+    }
 }
 
 /// A job's state and progress (`status`, `cancel`), with why its tasks failed.
@@ -225,9 +231,12 @@ pub enum JsonProgress {
 }
 
 /// How a job's progress is shown while it runs: a progress bar, or JSON lines with `--json`.
+/// Text mode also prints each task that fails permanently as it happens (the ones that failed
+/// themselves; the job's end lists the rest).
 pub struct ProgressView {
     bar: ProgressBar,
     json: Option<JsonProgress>,
+    reported: Mutex<BTreeSet<String>>,
 }
 
 impl ProgressView {
@@ -237,18 +246,28 @@ impl ProgressView {
             ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} tasks  {msg}")
                 .unwrap_or_else(|_| ProgressStyle::default_bar()),
         );
-        ProgressView { bar, json }
+        ProgressView { bar, json, reported: Mutex::default() }
     }
 
     pub fn show(&self, p: &pb::JobProgress) {
         match self.json {
             Some(JsonProgress::Stdout) => println!("{}", progress_json(p)),
             Some(JsonProgress::Stderr) => eprintln!("{}", progress_json(p)),
-            None => {}
+            None => self.report_new_failures(p),
         }
         self.bar.set_length(p.tasks_total);
         self.bar.set_position(p.tasks_succeeded + p.tasks_failed + p.tasks_cancelled);
         self.bar.set_message(progress_line(p));
+    }
+
+    fn report_new_failures(&self, p: &pb::JobProgress) {
+        let Ok(mut reported) = self.reported.lock() else { return };
+        for t in p.failed_tasks.iter().filter(|t| !t.failed_upstream) {
+            if reported.insert(t.key.clone()) {
+                // Above the bar, and in a log too (where the bar is hidden and `println` is not).
+                self.bar.suspend(|| eprintln!("task {} failed ({}): {}", t.key, attempts(t), t.last_error));
+            }
+        }
     }
 
     /// The job ended: clear the bar and say how (text only; JSON lines already said it).
