@@ -1,16 +1,103 @@
-//! The store's contract, run against a real Postgres and a real SQLite: the same suite for both
-//! (`support`: the databases and the `store_test!` macro).
+//! The store's contract, run against a real Postgres and a real SQLite: the same suite for both.
+//!
+//! Postgres comes from `VINT_TEST_POSTGRES_URL` (default `postgres://postgres@127.0.0.1:5432/postgres`);
+//! each test gets a database of its own. A missing Postgres fails these tests: it never skips them.
 
 use std::collections::BTreeSet;
 
 use serde_json::json;
 use vint_core::plan::NewTask;
 use vint_core::{JobState, Stage, TaskState};
-use vint_store::{Store, StoreError};
+use vint_store::{Completion, Fence, NewArtifact, NewJob, RetryPolicy, Store, StoreError};
 
-#[macro_use]
-mod support;
-use support::{artifact, completion, fence, job, task};
+const RETRY: RetryPolicy = RetryPolicy { max_attempts: 3, backoff_base_ms: 100, backoff_cap_ms: 1_000 };
+
+async fn sqlite_store() -> (Store, tempfile::TempDir) {
+    let dir = tempfile::tempdir().unwrap();
+    let url = format!("sqlite://{}", dir.path().join("vint.db").display());
+    (Store::open(&url, RETRY).await.unwrap(), dir)
+}
+
+async fn postgres_store() -> (Store, String) {
+    let admin = std::env::var("VINT_TEST_POSTGRES_URL")
+        .unwrap_or_else(|_| "postgres://postgres@127.0.0.1:5432/postgres".to_string());
+    // vint_test_<pid>_<tag>_<nanos>_<n>, as vint_tests::postgres_database names them: scripts/test.sh
+    // reads the pid to drop the databases of test processes that no longer run.
+    let db = format!("vint_test_{}_queue_{}", std::process::id(), uuid_like());
+    sqlx::any::install_default_drivers();
+    let mut conn = <sqlx::AnyConnection as sqlx::Connection>::connect(&admin)
+        .await
+        .unwrap_or_else(|e| panic!("Postgres is required for the store tests ({admin}): {e}"));
+    sqlx::Executor::execute(&mut conn, sqlx::AssertSqlSafe(format!("CREATE DATABASE {db}"))).await.unwrap();
+    let base = admin.rsplit_once('/').map(|(b, _)| b.to_string()).unwrap();
+    (Store::open(&format!("{base}/{db}"), RETRY).await.unwrap(), db)
+}
+
+fn uuid_like() -> String {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static N: AtomicU64 = AtomicU64::new(0);
+    let t = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().as_nanos();
+    format!("{}_{}", t % 1_000_000_000, N.fetch_add(1, Ordering::Relaxed))
+}
+
+/// Runs one contract test against both backends.
+macro_rules! store_test {
+    ($name:ident, $body:expr) => {
+        mod $name {
+            use super::*;
+            #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+            async fn sqlite() {
+                let (store, _dir) = sqlite_store().await;
+                ($body)(store).await;
+            }
+            #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+            async fn postgres() {
+                let (store, _db) = postgres_store().await;
+                ($body)(store).await;
+            }
+        }
+    };
+}
+
+fn task(key: &str, stage: Stage, deps: &[&str]) -> NewTask {
+    NewTask { key: key.into(), stage, params: json!({"k": key}), deps: deps.iter().map(|d| d.to_string()).collect() }
+}
+
+fn job(id: &str) -> NewJob {
+    NewJob {
+        id: id.into(),
+        name: "t".into(),
+        seed: 1,
+        spec_toml: "".into(),
+        idempotency_key: format!("key-{id}"),
+        assets: vec![],
+    }
+}
+
+fn artifact(name: &str) -> NewArtifact {
+    NewArtifact {
+        name: name.into(),
+        sha256: format!("{:0>64}", name.len()),
+        size: 3,
+        media_type: "application/octet-stream".into(),
+        object_key: format!("sha256/{name}"),
+    }
+}
+
+fn completion(fence: Fence, outputs: &[&str]) -> Completion {
+    Completion {
+        fence,
+        outputs: outputs.iter().map(|n| artifact(n)).collect(),
+        engine_json: r#"{"name":"test-double"}"#.into(),
+        timings_json: "{}".into(),
+        result_json: "{}".into(),
+        samples: vec![],
+    }
+}
+
+fn fence(t: &vint_store::LeasedTask, worker: &str) -> Fence {
+    Fence { task_id: t.id.clone(), worker_id: worker.into(), attempt: t.attempt }
+}
 
 async fn submit_chain(store: &Store, id: &str) {
     let tasks = [

@@ -74,10 +74,11 @@ impl Coordinator {
         Ok(self.client.get_lineage(request).await.map_err(|s| rpc_failure("lineage", s))?.into_inner())
     }
 
-    pub async fn samples(&mut self, job_id: &str) -> Result<Vec<pb::Sample>, Failure> {
+    /// A job's packaged samples with their files.
+    pub async fn samples(&mut self, job_id: &str) -> Result<pb::ListSamplesResponse, Failure> {
         let request = pb::ListSamplesRequest { job_id: job_id.into() };
         let response = self.client.list_samples(request).await.map_err(|s| rpc_failure("listing samples", s))?;
-        Ok(response.into_inner().samples)
+        Ok(response.into_inner())
     }
 
     pub async fn server_info(&mut self) -> Result<pb::ServerInfo, Failure> {

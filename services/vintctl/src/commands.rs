@@ -129,8 +129,8 @@ pub async fn export(url: &str, job_id: &str, out: &Path, store: Option<String>, 
         )));
     }
     let store = artifact_store(&mut coordinator, store).await?;
-    let samples = coordinator.samples(job_id).await?;
-    let summary = export::export(&store, job_id, &samples, out).await?;
+    let listed = coordinator.samples(job_id).await?;
+    let summary = export::export(&store, job_id, &listed, out).await?;
     // The spec's upper bound (every trial accepted): what a failed job could have had.
     let planned = vint_core::DatasetSpec::parse(&job.spec_toml).ok().map(|spec| spec.max_samples());
     if json {

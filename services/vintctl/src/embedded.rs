@@ -72,8 +72,8 @@ pub async fn run(spec_path: &Path, out: &Path, state: &Path, workers: u32, json:
         };
         pool.stop().await;
         let last = followed?;
-        let samples = coordinator.samples(&job.job_id).await?;
-        let summary = export::export(&artifacts, &job.job_id, &samples, out).await?;
+        let listed = coordinator.samples(&job.job_id).await?;
+        let summary = export::export(&artifacts, &job.job_id, &listed, out).await?;
         let outcome = commands::job_outcome(&last);
         if !json {
             report::export_text(&summary);

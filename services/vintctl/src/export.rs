@@ -40,15 +40,16 @@ struct ManifestFile<'a> {
     media_type: &'a str,
 }
 
-/// Writes `samples` of job `job_id`, read from `store`, to `out` (replacing an earlier dataset
-/// there, never anything else).
+/// Writes the samples the coordinator `listed` for job `job_id`, read from `store`, to `out`
+/// (replacing an earlier dataset there, never anything else).
 pub async fn export(
     store: &ArtifactStore,
     job_id: &str,
-    samples: &[pb::Sample],
+    listed: &pb::ListSamplesResponse,
     out: &Path,
 ) -> Result<ExportSummary, Failure> {
     check_destination(out)?;
+    let samples = &listed.samples;
     let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
     let staging = parent.join(format!(

@@ -1,15 +1,13 @@
-//! What every store contract test needs: a fresh Postgres database and a fresh SQLite file, and a
-//! macro that runs one test body against both.
+//! What a store contract test needs: a fresh Postgres database and a fresh SQLite file, a macro
+//! that runs one test body against both, and small builders for jobs, tasks and fences.
 //!
 //! Postgres comes from `VINT_TEST_POSTGRES_URL` (default `postgres://postgres@127.0.0.1:5432/postgres`);
 //! each test gets a database of its own. A missing Postgres fails these tests: it never skips them.
 
-#![allow(dead_code)] // each test file uses a subset
-
 use serde_json::json;
 use vint_core::Stage;
 use vint_core::plan::NewTask;
-use vint_store::{Completion, Fence, NewArtifact, NewJob, RetryPolicy, Store};
+use vint_store::{Fence, LeasedTask, NewJob, RetryPolicy, Store};
 
 pub const RETRY: RetryPolicy = RetryPolicy { max_attempts: 3, backoff_base_ms: 100, backoff_cap_ms: 1_000 };
 
@@ -41,7 +39,7 @@ fn uuid_like() -> String {
     format!("{}_{}", t % 1_000_000_000, N.fetch_add(1, Ordering::Relaxed))
 }
 
-// Fixtures: a task, a job, an artifact, a completion and a fence as the tests write them.
+// Builders: a task, a job and a fence as the tests write them.
 
 pub fn task(key: &str, stage: Stage, deps: &[&str]) -> NewTask {
     NewTask { key: key.into(), stage, params: json!({"k": key}), deps: deps.iter().map(|d| d.to_string()).collect() }
@@ -58,28 +56,7 @@ pub fn job(id: &str) -> NewJob {
     }
 }
 
-pub fn artifact(name: &str) -> NewArtifact {
-    NewArtifact {
-        name: name.into(),
-        sha256: format!("{:0>64}", name.len()),
-        size: 3,
-        media_type: "application/octet-stream".into(),
-        object_key: format!("sha256/{name}"),
-    }
-}
-
-pub fn completion(fence: Fence, outputs: &[&str]) -> Completion {
-    Completion {
-        fence,
-        outputs: outputs.iter().map(|n| artifact(n)).collect(),
-        engine_json: r#"{"name":"test-double"}"#.into(),
-        timings_json: "{}".into(),
-        result_json: "{}".into(),
-        samples: vec![],
-    }
-}
-
-pub fn fence(t: &vint_store::LeasedTask, worker: &str) -> Fence {
+pub fn fence(t: &LeasedTask, worker: &str) -> Fence {
     Fence { task_id: t.id.clone(), worker_id: worker.into(), attempt: t.attempt }
 }
 
