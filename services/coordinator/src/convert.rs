@@ -2,7 +2,7 @@
 
 use tonic::Status;
 use vint_proto::v1 as pb;
-use vint_store::{ArtifactRecord, JobRecord, Progress, StoreError};
+use vint_store::{ArtifactRecord, FailedTask, JobRecord, Progress, StoreError};
 
 pub fn status(e: StoreError) -> Status {
     match e {
@@ -55,6 +55,7 @@ pub fn progress(job: &JobRecord, p: &Progress) -> pb::JobProgress {
         tasks_cancelled: p.count(S::Cancelled),
         samples_packaged: p.samples,
         stages,
+        failed_tasks: Vec::new(), // a store query of its own: `JobApi` adds them when tasks failed
     }
 }
 
@@ -68,5 +69,26 @@ pub fn job(job: &JobRecord, p: &Progress) -> pb::Job {
         created_ms: job.created_ms,
         finished_ms: job.finished_ms.unwrap_or(0),
         progress: Some(progress(job, p)),
+    }
+}
+
+/// Longest `last_error` a failed task carries on the wire: an engine's message is a line, a crash
+/// report can be a traceback; its end says the most, so the start gives way.
+const MAX_ERROR_CHARS: usize = 2000;
+
+pub fn failed_task(t: &FailedTask) -> pb::FailedTask {
+    let chars = t.last_error.chars().count();
+    let last_error = if chars > MAX_ERROR_CHARS {
+        let tail: String = t.last_error.chars().skip(chars - (MAX_ERROR_CHARS - 1)).collect();
+        format!("…{tail}")
+    } else {
+        t.last_error.clone()
+    };
+    pb::FailedTask {
+        key: t.key.clone(),
+        stage: t.stage.as_str().to_string(),
+        attempts: t.attempts,
+        last_error,
+        failed_upstream: t.failed_upstream(),
     }
 }

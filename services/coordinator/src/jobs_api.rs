@@ -16,6 +16,10 @@ use vint_store::{JobAsset, JobRecord, LineageEntry, NewJob, Store};
 use crate::convert::{self, status};
 use crate::{CoordinatorConfig, now_ms};
 
+/// Failed tasks a job's progress lists (of `tasks_failed`, which counts them all): enough to see
+/// every distinct cause in practice, few enough that a 2-million-sample job's message stays small.
+const FAILED_TASKS_SHOWN: u32 = 20;
+
 #[derive(Clone)]
 pub struct JobApi {
     store: Store,
@@ -62,9 +66,23 @@ impl JobApi {
         Ok(out)
     }
 
+    /// A job with its progress and, when tasks failed permanently, why (`FAILED_TASKS_SHOWN`).
     async fn job_message(&self, job: &JobRecord) -> Result<pb::Job, Status> {
         let p = self.store.progress(&job.id).await.map_err(status)?;
-        Ok(convert::job(job, &p))
+        let mut message = convert::job(job, &p);
+        if let Some(progress) = message.progress.as_mut() {
+            progress.failed_tasks = self.failed_tasks(&job.id, progress.tasks_failed).await?;
+        }
+        Ok(message)
+    }
+
+    /// The failed tasks a progress message shows; none asked of the store when none failed.
+    async fn failed_tasks(&self, job_id: &str, tasks_failed: u64) -> Result<Vec<pb::FailedTask>, Status> {
+        if tasks_failed == 0 {
+            return Ok(Vec::new());
+        }
+        let failed = self.store.failed_tasks(job_id, FAILED_TASKS_SHOWN).await.map_err(status)?;
+        Ok(failed.iter().map(convert::failed_task).collect())
     }
 
     /// The job that packaged `sample_id`: the given one, or the most recent that has it.
@@ -242,7 +260,9 @@ impl JobService for JobApi {
         };
         let mut jobs = Vec::new();
         for job in self.store.list_jobs(limit).await.map_err(status)? {
-            jobs.push(self.job_message(&job).await?);
+            // A listing counts failed tasks but does not explain them (GetJob does).
+            let p = self.store.progress(&job.id).await.map_err(status)?;
+            jobs.push(convert::job(&job, &p));
         }
         Ok(Response::new(pb::ListJobsResponse { jobs }))
     }
@@ -255,12 +275,18 @@ impl JobService for JobApi {
         let (tx, rx) = tokio::sync::mpsc::channel(16);
         let api = self.clone();
         tokio::spawn(async move {
-            let mut last = None;
+            let mut last: Option<pb::JobProgress> = None;
             loop {
                 let update = async {
                     let job = api.job_record(&job_id).await?;
                     let p = api.store.progress(&job_id).await.map_err(status)?;
-                    Ok::<_, Status>((job.state.is_terminal(), convert::progress(&job, &p)))
+                    let mut progress = convert::progress(&job, &p);
+                    // Failed tasks stay failed: ask again only when more have failed.
+                    progress.failed_tasks = match &last {
+                        Some(l) if l.tasks_failed == progress.tasks_failed => l.failed_tasks.clone(),
+                        _ => api.failed_tasks(&job_id, progress.tasks_failed).await?,
+                    };
+                    Ok::<_, Status>((job.state.is_terminal(), progress))
                 }
                 .await;
                 match update {
@@ -316,6 +342,16 @@ impl JobService for JobApi {
             }
             None => Err(Status::invalid_argument("lineage needs a sample_id or an artifact_sha256")),
         }
+    }
+
+    async fn get_server_info(
+        &self,
+        _request: Request<pb::GetServerInfoRequest>,
+    ) -> Result<Response<pb::ServerInfo>, Status> {
+        Ok(Response::new(pb::ServerInfo {
+            version: env!("CARGO_PKG_VERSION").to_string(),
+            store_url: self.config.artifacts.as_ref().map(|a| a.url().to_string()).unwrap_or_default(),
+        }))
     }
 
     async fn list_samples(

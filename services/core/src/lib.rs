@@ -13,6 +13,7 @@ pub mod seed;
 pub mod spec;
 pub mod stage;
 pub mod state;
+pub mod suggest;
 
 pub use sample::{GraspId, SampleId};
 pub use spec::{DatasetSpec, SpecError, SpecErrors};

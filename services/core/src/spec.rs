@@ -23,6 +23,7 @@ use crate::contract::render::{self as render_contract, Bounces};
 use crate::contract::{Bound, grasp, noise, object};
 
 pub use crate::contract::noise::NoiseModel as NoiseSettings;
+use crate::suggest;
 
 /// A validated dataset spec.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -375,20 +376,24 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
 
     let hand_defs = read_user_hands(r, root);
     let object_defs = read_user_objects(r, root);
+    let known_hands: Vec<&str> =
+        catalog::hands().iter().map(|h| h.entry.name.as_str()).chain(hand_defs.keys().map(String::as_str)).collect();
     let hands = r.name_list(
         root,
         "",
         "hands",
         &["trx3"],
-        |n| catalog::hand(n).is_some() || hand_defs.contains_key(n),
+        &known_hands,
         "a hand in `vintctl hands` or one a [hand.NAME] table defines",
     );
+    let known_objects: Vec<&str> =
+        catalog::objects().iter().map(|o| o.name.as_str()).chain(object_defs.keys().map(String::as_str)).collect();
     let objects = r.name_list(
         root,
         "",
         "objects",
         &[],
-        |n| catalog::object(n).is_some() || object_defs.contains_key(n),
+        &known_objects,
         "an object in the built-in catalog or one an [object.NAME] table defines",
     );
 
@@ -525,7 +530,7 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
                 "outputs",
                 "modalities",
                 &modality_names,
-                |m| Modality::parse(m).is_some(),
+                &modality_names,
                 &format!("one of {}", modality_names.join(", ")),
             )
             .iter()
@@ -643,7 +648,8 @@ fn read_environments(r: &mut Reader, rd: &mut Table) -> Vec<Environment> {
         } else if env.file.is_some() && bundled {
             r.error(&name_path, Value::String(env.name), "must not reuse the name of a bundled HDRI");
         } else if env.file.is_none() && !bundled {
-            r.error(&name_path, Value::String(env.name), format!("must be {ENVIRONMENT_RULE}"));
+            let hint = did_you_mean(&env.name, catalog::ENVIRONMENTS);
+            r.error(&name_path, Value::String(env.name), format!("must be {ENVIRONMENT_RULE}{hint}"));
         } else if out.iter().any(|e| e.name == env.name) {
             r.error(&name_path, Value::String(env.name), "must not repeat an earlier environment");
         } else {
@@ -675,6 +681,11 @@ fn read_bounces(r: &mut Reader, rd: &mut Table) -> Bounces {
     };
     r.finish(b, "render.bounces", &["total", "diffuse", "glossy", "transmission", "transparent"]);
     bounces
+}
+
+/// ` (did you mean `NAME`?)` for the known name nearest to an unknown `name`, or nothing.
+fn did_you_mean(name: &str, known: &[&str]) -> String {
+    suggest::nearest(name, known.iter().copied()).map(|s| format!(" (did you mean `{s}`?)")).unwrap_or_default()
 }
 
 /// Collects errors while taking values out of TOML tables; what is left in a table at `finish` is
@@ -722,7 +733,10 @@ impl Reader {
             if known.contains(&k.as_str()) {
                 continue; // already reported (e.g. wrong type) when taken
             }
-            self.error(&join(parent, &k), v, format!("unknown key (known keys: {})", known.join(", ")));
+            let hint = suggest::nearest(&k, known.iter().copied())
+                .map(|s| format!("did you mean `{s}`? "))
+                .unwrap_or_default();
+            self.error(&join(parent, &k), v, format!("unknown key ({hint}known keys: {})", known.join(", ")));
         }
     }
 
@@ -996,14 +1010,15 @@ impl Reader {
         names.iter().position(|n| *n == chosen).map(|i| choices[i]).or(default).unwrap_or(choices[0])
     }
 
-    /// A non-empty list of distinct names, each accepted by `known`.
+    /// A non-empty list of distinct names, each one of `known`; an unknown one is reported with
+    /// the known name nearest to it.
     fn name_list(
         &mut self,
         t: &mut Table,
         parent: &str,
         key: &str,
         default: &[&str],
-        known: impl Fn(&str) -> bool,
+        known: &[&str],
         rule: &str,
     ) -> Vec<String> {
         let path = join(parent, key);
@@ -1029,8 +1044,9 @@ impl Reader {
             let Some(name) = self.check_name(&p, v) else {
                 continue;
             };
-            if !known(&name) {
-                self.error(&p, Value::String(name), format!("must be {rule}"));
+            if !known.contains(&name.as_str()) {
+                let hint = did_you_mean(&name, known);
+                self.error(&p, Value::String(name), format!("must be {rule}{hint}"));
             } else if out.contains(&name) {
                 self.error(&p, Value::String(name), "must not repeat an earlier entry");
             } else {

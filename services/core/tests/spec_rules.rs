@@ -289,7 +289,8 @@ fn a_listed_name_must_be_built_in_or_defined() {
     let text = custom("").replace("hands = [\"grip\", \"trx3\"]", "hands = [\"gripper\"]");
     assert_single_error(
         &text,
-        "hands[0]: must be a hand in `vintctl hands` or one a [hand.NAME] table defines, got \"gripper\"",
+        "hands[0]: must be a hand in `vintctl hands` or one a [hand.NAME] table defines (did you mean `grip`?), \
+         got \"gripper\"",
     );
 }
 

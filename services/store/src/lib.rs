@@ -13,6 +13,7 @@
 //! store makes against `TaskState::can_transition`. Times are passed in (`now_ms`) rather than read
 //! from a clock, which keeps the queue logic testable.
 
+mod failures;
 mod jobs;
 mod lineage;
 mod queue;
@@ -24,6 +25,7 @@ use std::time::Duration;
 use sqlx::any::{AnyPoolOptions, install_default_drivers};
 use sqlx::{AnyPool, Executor};
 
+pub use failures::FailedTask;
 pub use lineage::ASSET_TASK_KEY;
 pub use records::*;
 

@@ -1,151 +1,109 @@
-//! Commands that talk to a coordinator over gRPC (and `validate`, which talks to nobody).
+//! Talking to a coordinator over gRPC: the URL a user gives, the connection, each call's failure
+//! as an exit code, and following a job's progress stream. It prints nothing (`report` does).
 
-use std::path::Path;
+use std::time::Duration;
 
-use anyhow::{Context, anyhow};
+use anyhow::anyhow;
+use futures::StreamExt;
 use tonic::Code;
 use tonic::transport::Channel;
-use vint_core::asset::{MAX_ASSET_BYTES, MAX_ASSETS_TOTAL_BYTES};
-use vint_core::{DatasetSpec, SpecError, SpecErrors};
 use vint_proto::v1 as pb;
-use vint_proto::v1::get_lineage_request::Subject;
 use vint_proto::v1::job_service_client::JobServiceClient;
 
-use crate::report;
-use crate::{CliResult, Failure, bad_input};
+use crate::report::ProgressView;
+use crate::{Failure, bad_input};
 
-/// A spec as a submission carries it: its text, its parsed form and the user files it names.
-pub struct LoadedSpec {
-    pub text: String,
-    pub spec: DatasetSpec,
-    pub assets: Vec<pb::AssetFile>,
+/// A connected coordinator.
+pub struct Coordinator {
+    pub url: String,
+    client: JobServiceClient<Channel>,
 }
 
-/// Reads and validates a spec and reads the files it names; every problem is reported and the
-/// exit code is 2.
-pub fn load_spec(path: &Path) -> Result<LoadedSpec, Failure> {
-    let text = read_spec(path)?;
-    let spec = DatasetSpec::parse(&text).map_err(|errors| invalid_spec(path, &errors))?;
-    let assets = read_assets(path, &spec).map_err(|errors| invalid_spec(path, &errors))?;
-    Ok(LoadedSpec { text, spec, assets })
-}
-
-/// The files the spec's own hands, objects and HDRIs name, read relative to the spec file's directory;
-/// a missing, unreadable or oversized file is a spec error naming the field and the path.
-fn read_assets(spec_path: &Path, spec: &DatasetSpec) -> Result<Vec<pb::AssetFile>, SpecErrors> {
-    let base = spec_path.parent().unwrap_or(Path::new("."));
-    let mut errors = Vec::new();
-    let mut files: Vec<pb::AssetFile> = Vec::new();
-    let mut total = 0u64;
-    for used in spec.asset_uses() {
-        if files.iter().any(|f| f.path == used.path) {
-            continue;
-        }
-        let error = |rule: String, value: String| SpecError { path: used.field.clone(), value, rule };
-        let file = base.join(&used.path);
-        let size = match std::fs::metadata(&file) {
-            Ok(m) if m.is_file() => m.len(),
-            Ok(_) => {
-                errors.push(error(
-                    format!("must name a file ({} is not one)", file.display()),
-                    format!("{:?}", used.path),
-                ));
-                continue;
-            }
-            Err(e) => {
-                errors.push(error(
-                    format!("must name a readable file ({}: {e})", file.display()),
-                    format!("{:?}", used.path),
-                ));
-                continue;
-            }
-        };
-        if size > MAX_ASSET_BYTES {
-            errors.push(error(
-                format!("must be a file of at most {MAX_ASSET_BYTES} bytes"),
-                format!("{:?} ({size} bytes)", used.path),
-            ));
-            continue;
-        }
-        match std::fs::read(&file) {
-            Ok(content) => {
-                total += content.len() as u64;
-                files.push(pb::AssetFile { path: used.path, content });
-            }
-            Err(e) => errors.push(error(
-                format!("must name a readable file ({}: {e})", file.display()),
-                format!("{:?}", used.path),
-            )),
-        }
+/// The coordinator URL for `raw` as a user wrote it (`--coordinator` or `VINT_COORDINATOR`):
+/// `HOST:PORT` gets `http://`; any scheme but `http` is bad input (this build speaks plain
+/// HTTP/2, no TLS: put a TLS proxy in front of a coordinator on an untrusted network).
+pub fn coordinator_url(raw: &str) -> Result<String, Failure> {
+    let raw = raw.trim();
+    let bad = |rule: &str| bad_input(anyhow!("--coordinator (or VINT_COORDINATOR): {rule}, got {raw:?}"));
+    if raw.is_empty() {
+        return Err(bad("must be a URL like http://HOST:PORT"));
     }
-    if total > MAX_ASSETS_TOTAL_BYTES {
-        errors.push(SpecError {
-            path: String::new(),
-            value: format!("{total} bytes"),
-            rule: format!("the spec's files add up to {total} bytes, more than the limit of {MAX_ASSETS_TOTAL_BYTES}"),
-        });
-    }
-    if errors.is_empty() { Ok(files) } else { Err(SpecErrors(errors)) }
-}
-
-fn read_spec(path: &Path) -> Result<String, Failure> {
-    std::fs::read_to_string(path).with_context(|| format!("reading spec {}", path.display())).map_err(bad_input)
-}
-
-/// Every problem of an invalid spec, as one bad-input failure (exit code 2).
-fn invalid_spec(path: &Path, errors: &SpecErrors) -> Failure {
-    let n = errors.0.len();
-    bad_input(anyhow!(
-        "{} is not a valid spec ({n} problem{}):\n{errors}",
-        path.display(),
-        if n == 1 { "" } else { "s" }
-    ))
-}
-
-pub fn validate(path: &Path, json: bool) -> CliResult {
-    let text = read_spec(path)?;
-    match DatasetSpec::parse(&text).and_then(|spec| read_assets(path, &spec).map(|_| spec)) {
-        Ok(spec) => {
-            if json {
-                report::print_json(
-                    &serde_json::json!({"valid": true, "spec": spec, "max_samples": spec.max_samples()}),
-                );
-            } else {
-                println!(
-                    "{}: valid — {} hand(s) × {} object(s) × {} trials × {} views: at most {} samples",
-                    path.display(),
-                    spec.hands.len(),
-                    spec.objects.len(),
-                    spec.grasp.trials_per_pair,
-                    spec.render.views_per_grasp(),
-                    spec.max_samples()
-                );
-            }
-            Ok(())
-        }
-        Err(errors) => {
-            if json {
-                let list: Vec<_> = errors
-                    .0
-                    .iter()
-                    .map(|e| serde_json::json!({"path": e.path, "value": e.value, "rule": e.rule, "message": e.to_string()}))
-                    .collect();
-                report::print_json(&serde_json::json!({"valid": false, "errors": list}));
-            }
-            Err(invalid_spec(path, &errors))
-        }
+    let url = match raw.split_once("://") {
+        Some((scheme, _)) if scheme.eq_ignore_ascii_case("http") => raw.to_string(),
+        Some(_) => return Err(bad("must be an http:// URL (vintctl speaks plain HTTP/2 to the coordinator)")),
+        None => format!("http://{raw}"),
+    };
+    match url.parse::<tonic::transport::Uri>() {
+        Ok(uri) if uri.host().is_some_and(|h| !h.is_empty()) => Ok(url),
+        _ => Err(bad("must be a URL like http://HOST:PORT")),
     }
 }
 
-pub async fn connect(url: &str) -> Result<JobServiceClient<Channel>, Failure> {
-    let endpoint = Channel::from_shared(url.to_string())
-        .map_err(|e| bad_input(anyhow!("invalid coordinator URL {url:?}: {e}")))?
-        .connect_timeout(std::time::Duration::from_secs(5));
-    let channel = endpoint.connect().await.with_context(|| format!("connecting to coordinator {url}"))?;
-    Ok(JobServiceClient::new(channel).max_decoding_message_size(64 << 20))
+impl Coordinator {
+    /// Connects to the coordinator at `raw` (see `coordinator_url`). An unreachable one is a
+    /// failure (exit 1) that says how to get one.
+    pub async fn connect(raw: &str) -> Result<Coordinator, Failure> {
+        let url = coordinator_url(raw)?;
+        let endpoint = Channel::from_shared(url.clone())
+            .map_err(|e| bad_input(anyhow!("--coordinator {url:?}: {e}")))?
+            .connect_timeout(Duration::from_secs(5));
+        let channel = endpoint.connect().await.map_err(|e| unreachable(&url, &e))?;
+        Ok(Coordinator { url, client: JobServiceClient::new(channel).max_decoding_message_size(64 << 20) })
+    }
+
+    pub async fn submit(&mut self, request: pb::SubmitJobRequest) -> Result<pb::SubmitJobResponse, Failure> {
+        Ok(self.client.submit_job(request).await.map_err(|s| rpc_failure("submit", s))?.into_inner())
+    }
+
+    pub async fn job(&mut self, job_id: &str) -> Result<pb::Job, Failure> {
+        let request = pb::GetJobRequest { job_id: job_id.into() };
+        Ok(self.client.get_job(request).await.map_err(|s| rpc_failure("job", s))?.into_inner())
+    }
+
+    pub async fn jobs(&mut self, limit: u32) -> Result<Vec<pb::Job>, Failure> {
+        let request = pb::ListJobsRequest { limit };
+        Ok(self.client.list_jobs(request).await.map_err(|s| rpc_failure("jobs", s))?.into_inner().jobs)
+    }
+
+    pub async fn cancel(&mut self, job_id: &str) -> Result<pb::Job, Failure> {
+        let request = pb::CancelJobRequest { job_id: job_id.into() };
+        Ok(self.client.cancel_job(request).await.map_err(|s| rpc_failure("cancel", s))?.into_inner())
+    }
+
+    pub async fn lineage(&mut self, request: pb::GetLineageRequest) -> Result<pb::Lineage, Failure> {
+        Ok(self.client.get_lineage(request).await.map_err(|s| rpc_failure("lineage", s))?.into_inner())
+    }
+
+    /// A job's packaged samples with their files.
+    pub async fn samples(&mut self, job_id: &str) -> Result<pb::ListSamplesResponse, Failure> {
+        let request = pb::ListSamplesRequest { job_id: job_id.into() };
+        let response = self.client.list_samples(request).await.map_err(|s| rpc_failure("listing samples", s))?;
+        Ok(response.into_inner())
+    }
+
+    pub async fn server_info(&mut self) -> Result<pb::ServerInfo, Failure> {
+        let request = pb::GetServerInfoRequest {};
+        Ok(self.client.get_server_info(request).await.map_err(|s| rpc_failure("server info", s))?.into_inner())
+    }
+
+    /// Follows a job's progress until it reaches a final state, showing each update on `view`;
+    /// returns the last one.
+    pub async fn follow(&mut self, job_id: &str, view: &ProgressView) -> Result<pb::JobProgress, Failure> {
+        let request = pb::WatchJobRequest { job_id: job_id.into() };
+        let mut stream = self.client.watch_job(request).await.map_err(|s| rpc_failure("watch", s))?.into_inner();
+        let mut last = None;
+        while let Some(update) = stream.next().await {
+            let p = update.map_err(|s| rpc_failure("watch", s))?;
+            view.show(&p);
+            last = Some(p);
+        }
+        let last = last.ok_or_else(|| anyhow!("the coordinator closed the watch without any progress"))?;
+        view.finish(&last);
+        Ok(last)
+    }
 }
 
-/// Maps "not found" and "invalid argument" answers to exit code 2.
+/// A call's failure: "not found" and "invalid argument" are the user's (exit 2), the rest exit 1.
 pub fn rpc_failure(what: &str, s: tonic::Status) -> Failure {
     let error = anyhow!("{what}: {}", s.message());
     match s.code() {
@@ -154,92 +112,25 @@ pub fn rpc_failure(what: &str, s: tonic::Status) -> Failure {
     }
 }
 
-pub async fn submit(url: &str, path: &Path, key: Option<String>, json: bool) -> CliResult {
-    let loaded = load_spec(path)?;
-    let mut client = connect(url).await?;
-    let request = pb::SubmitJobRequest {
-        spec_toml: loaded.text,
-        idempotency_key: key.unwrap_or_default(),
-        assets: loaded.assets,
+/// No coordinator answered at `url`: say what was tried, why it failed (once) and what to do.
+fn unreachable(url: &str, e: &tonic::transport::Error) -> Failure {
+    let mut cause: &dyn std::error::Error = e;
+    while let Some(source) = cause.source() {
+        cause = source;
+    }
+    let why = match cause.downcast_ref::<std::io::Error>().map(std::io::Error::kind) {
+        Some(std::io::ErrorKind::ConnectionRefused) => "connection refused".to_string(),
+        Some(std::io::ErrorKind::TimedOut) => "timed out".to_string(),
+        _ => cause.to_string(),
     };
-    let resp = client.submit_job(request).await.map_err(|s| rpc_failure("submit", s))?.into_inner();
-    let job = resp.job.ok_or_else(|| anyhow!("coordinator returned no job"))?;
-    if json {
-        report::print_json(&serde_json::json!({"job_id": job.job_id, "created": resp.created, "state": job.state}));
-    } else {
-        if !resp.created {
-            eprintln!("this spec was already submitted (same idempotency key): returning that job");
-        }
-        println!("{}", job.job_id);
+    Failure {
+        code: 1,
+        error: anyhow!(
+            "no coordinator answers at {url} ({why}). This command needs a running coordinator:\n  \
+             - start one: vint-coordinator --database sqlite:///ABS/PATH/vint.db --store file:///ABS/PATH/objects, \
+             and workers (README, \"On a cluster\");\n  \
+             - or point vintctl at yours: --coordinator http://HOST:PORT, or VINT_COORDINATOR=http://HOST:PORT;\n  \
+             - or make a dataset on this machine with no server: vintctl run SPEC --out DIR"
+        ),
     }
-    Ok(())
-}
-
-pub async fn status(url: &str, job: &str, json: bool) -> CliResult {
-    let mut client = connect(url).await?;
-    let job = client
-        .get_job(pb::GetJobRequest { job_id: job.into() })
-        .await
-        .map_err(|s| rpc_failure("status", s))?
-        .into_inner();
-    report::job(&job, json);
-    Ok(())
-}
-
-pub async fn jobs(url: &str, limit: u32, json: bool) -> CliResult {
-    let mut client = connect(url).await?;
-    let resp = client.list_jobs(pb::ListJobsRequest { limit }).await.map_err(|s| rpc_failure("jobs", s))?.into_inner();
-    report::jobs(&resp.jobs, json);
-    Ok(())
-}
-
-pub async fn cancel(url: &str, job: &str, json: bool) -> CliResult {
-    let mut client = connect(url).await?;
-    let job = client
-        .cancel_job(pb::CancelJobRequest { job_id: job.into() })
-        .await
-        .map_err(|s| rpc_failure("cancel", s))?
-        .into_inner();
-    report::job(&job, json);
-    Ok(())
-}
-
-/// Follows a job until it ends; exits 1 unless it succeeded.
-pub async fn watch(url: &str, job: &str, json: bool) -> CliResult {
-    let mut client = connect(url).await?;
-    let last = report::follow(&mut client, job, json.then_some(report::JsonProgress::Stdout)).await?;
-    job_outcome(&last)
-}
-
-/// Exit status of a finished job.
-pub fn job_outcome(p: &pb::JobProgress) -> CliResult {
-    match p.state.as_str() {
-        "succeeded" => Ok(()),
-        state => Err(Failure {
-            code: 1,
-            error: anyhow!(
-                "job {} {state}: {} task(s) failed permanently, {} sample(s) packaged",
-                p.job_id,
-                p.tasks_failed,
-                p.samples_packaged
-            ),
-        }),
-    }
-}
-
-pub async fn lineage(url: &str, subject: &str, job: Option<String>, artifact: bool, json: bool) -> CliResult {
-    let mut client = connect(url).await?;
-    let subject = if artifact { Subject::ArtifactSha256(subject.into()) } else { Subject::SampleId(subject.into()) };
-    let request = pb::GetLineageRequest { job_id: job.unwrap_or_default(), subject: Some(subject) };
-    let lineage = client.get_lineage(request).await.map_err(|s| rpc_failure("lineage", s))?.into_inner();
-    report::lineage(&lineage, json);
-    Ok(())
-}
-
-pub async fn export(url: &str, job: &str, out: &Path, store: &str, json: bool) -> CliResult {
-    let mut client = connect(url).await?;
-    let store = vint_artifacts::ArtifactStore::open(store).map_err(|e| bad_input(e.into()))?;
-    let summary = crate::export::export(&mut client, &store, job, out).await?;
-    report::export(&summary, json);
-    Ok(())
 }

@@ -17,14 +17,16 @@ use vint_coordinator::CoordinatorConfig;
 use vint_proto::v1 as pb;
 use vint_store::{RetryPolicy, Store};
 
-use crate::client::{self, load_spec};
-use crate::{CliResult, Failure, bad_input, report};
+use crate::client::Coordinator;
+use crate::report::{self, JsonProgress, ProgressView};
+use crate::spec_file::{LoadedSpec, load_spec};
+use crate::{CliResult, Failure, bad_input, commands, export};
 
 /// Lease used by local workers: short, so a crashed worker's task is retried within seconds.
 const LOCAL_LEASE_MS: u32 = 10_000;
 
 pub async fn run(spec_path: &Path, out: &Path, state: &Path, workers: u32, json: bool) -> CliResult {
-    let client::LoadedSpec { text, spec, assets } = load_spec(spec_path)?;
+    let LoadedSpec { text, spec, assets } = load_spec(spec_path)?;
     if workers == 0 || workers > 64 {
         return Err(bad_input(anyhow!("--workers: must be 1..=64, got {workers}")));
     }
@@ -47,12 +49,10 @@ pub async fn run(spec_path: &Path, out: &Path, state: &Path, workers: u32, json:
     let url = format!("http://{addr}");
 
     let result = async {
-        let mut client = client::connect(&url).await?;
-        let submitted = client
-            .submit_job(pb::SubmitJobRequest { spec_toml: text, idempotency_key: String::new(), assets })
-            .await
-            .map_err(|s| client::rpc_failure("submit", s))?
-            .into_inner();
+        let mut coordinator = Coordinator::connect(&url).await?;
+        let submitted = coordinator
+            .submit(pb::SubmitJobRequest { spec_toml: text, idempotency_key: String::new(), assets })
+            .await?;
         let job = submitted.job.ok_or_else(|| anyhow!("coordinator returned no job"))?;
         if !json {
             let verb = if submitted.created { "started" } else { "resumed" };
@@ -65,15 +65,32 @@ pub async fn run(spec_path: &Path, out: &Path, state: &Path, workers: u32, json:
             );
         }
         let mut pool = WorkerPool::start(&url, &store_url, &state, workers)?;
+        let view = ProgressView::new(json.then_some(JsonProgress::Stderr));
         let followed = tokio::select! {
-            r = report::follow(&mut client, &job.job_id, json.then_some(report::JsonProgress::Stderr)) => r,
+            r = coordinator.follow(&job.job_id, &view) => r,
             e = pool.supervise() => Err(e),
         };
         pool.stop().await;
         let last = followed?;
-        let summary = crate::export::export(&mut client, &artifacts, &job.job_id, out).await?;
-        report::export(&summary, json);
-        client::job_outcome(&last)
+        let listed = coordinator.samples(&job.job_id).await?;
+        let summary = export::export(&artifacts, &job.job_id, &listed, out).await?;
+        let outcome = commands::job_outcome(&last);
+        if !json {
+            report::export_text(&summary);
+            return outcome;
+        }
+        // One document: what was exported, how the job ended and, when it failed, why.
+        let mut doc = report::export_json(&summary);
+        doc["state"] = last.state.clone().into();
+        doc["tasks_failed"] = last.tasks_failed.into();
+        doc["failed_tasks"] = report::failed_tasks_json(&last.failed_tasks);
+        match outcome {
+            Ok(()) => {
+                report::print_json(&doc);
+                Ok(())
+            }
+            Err(f) => Err(f.with_report(doc)),
+        }
     }
     .await;
 

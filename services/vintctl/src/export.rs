@@ -5,6 +5,7 @@
 //!
 //! The dataset is assembled in a sibling temporary directory and renamed into place, so a reader
 //! never sees half a dataset. Every file is verified against its hash as it is read from storage.
+//! It is given the samples (the coordinator lists them) and the store; it talks to no one else.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -12,12 +13,10 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, anyhow};
 use serde::Serialize;
 use sha2::{Digest, Sha256};
-use tonic::transport::Channel;
 use vint_artifacts::ArtifactStore;
 use vint_proto::v1 as pb;
-use vint_proto::v1::job_service_client::JobServiceClient;
 
-use crate::{Failure, bad_input, client::rpc_failure};
+use crate::{Failure, bad_input};
 
 #[derive(Debug, Serialize)]
 pub struct ExportSummary {
@@ -46,19 +45,16 @@ struct ManifestFile<'a> {
     media_type: &'a str,
 }
 
+/// Writes the samples the coordinator `listed` for job `job_id`, read from `store`, to `out`
+/// (replacing an earlier dataset there, never anything else).
 pub async fn export(
-    client: &mut JobServiceClient<Channel>,
     store: &ArtifactStore,
     job_id: &str,
+    listed: &pb::ListSamplesResponse,
     out: &Path,
 ) -> Result<ExportSummary, Failure> {
     check_destination(out)?;
-    let listed = client
-        .list_samples(pb::ListSamplesRequest { job_id: job_id.into() })
-        .await
-        .map_err(|s| rpc_failure("listing samples", s))?
-        .into_inner();
-    let samples = listed.samples;
+    let samples = &listed.samples;
     let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
     let staging = parent.join(format!(
@@ -69,7 +65,7 @@ pub async fn export(
     if staging.exists() {
         std::fs::remove_dir_all(&staging).with_context(|| format!("removing stale {}", staging.display()))?;
     }
-    let written = write_dataset(store, &samples, &listed.grasps, &staging).await;
+    let written = write_dataset(store, samples, &listed.grasps, &staging).await;
     let (files, bytes, manifest) = match written {
         Ok(w) => w,
         Err(e) => {

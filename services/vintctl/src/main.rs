@@ -1,41 +1,66 @@
 //! `vintctl`: the command line of vint. It parses arguments and wires the libraries together:
 //! `run` starts an embedded coordinator, SQLite store and local workers; the other commands talk
-//! to a coordinator over gRPC.
+//! to a coordinator over gRPC (`client`), print with `report` and write datasets with `export`.
 //!
 //! Exit codes: 0 success, 1 failure (a job failed, a service is unreachable), 2 bad input
-//! (an invalid spec, an unknown job or sample, a bad argument).
+//! (an invalid spec, an unknown job or sample, a bad argument). With `--json`, a failure is JSON
+//! on stdout too (`{"error": {"message", "code", …}}`), with the same exit code.
 
 mod client;
+mod commands;
 mod diff;
 mod embedded;
+mod estimate;
 mod export;
+mod failure;
 mod report;
+mod spec_file;
 mod study;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand};
+use anyhow::anyhow;
+use clap::{CommandFactory, Parser, Subcommand};
+
+pub use failure::{CliResult, Failure, InvalidSpec, bad_input};
+
+/// Shown after `vintctl --help` and by a bare `vintctl`: how to start.
+const GETTING_STARTED: &str = "\
+Getting started:
+  vintctl validate examples/tiny.toml                  check a spec: every problem, and what it would cost
+  vintctl run examples/tiny.toml --out out/tiny        make its dataset on this machine (no server needed)
+  vintctl hands; vintctl objects                       what a spec can name
+
+On a cluster (a running vint-coordinator; --coordinator URL or VINT_COORDINATOR):
+  vintctl submit SPEC, then watch / status / jobs / cancel / lineage / export JOB
+
+Specs, the cluster and every output are described in README.md.";
 
 #[derive(Parser)]
-#[command(name = "vintctl", version, about = "Generate visuo-tactile in-hand datasets")]
+#[command(name = "vintctl", version, about = "Generate visuo-tactile in-hand datasets", after_help = GETTING_STARTED)]
 struct Cli {
-    /// Print machine-readable JSON instead of text.
+    /// Print machine-readable JSON instead of text (errors too, on stdout).
     #[arg(long, global = true)]
     json: bool,
-    /// Coordinator URL for the commands that talk to one (all but validate, run, hands and objects).
+    /// Coordinator URL for the commands that talk to one (all but validate, run, study, hands and
+    /// objects); HOST:PORT means http://HOST:PORT.
     #[arg(long, global = true, env = "VINT_COORDINATOR", default_value = "http://127.0.0.1:7700")]
     coordinator: String,
     #[command(subcommand)]
-    command: Command,
+    command: Option<Command>,
 }
 
 #[derive(Subcommand)]
 enum Command {
     /// Check a dataset spec and report every problem.
-    Validate { spec: PathBuf },
+    Validate {
+        /// The spec file (TOML; see examples/tiny.toml).
+        spec: PathBuf,
+    },
     /// Run a spec on this machine: embedded coordinator, SQLite, local object store and workers.
     Run {
+        /// The spec file (TOML; see examples/tiny.toml).
         spec: PathBuf,
         /// Where the packaged dataset and manifest.jsonl are written.
         #[arg(long)]
@@ -50,19 +75,30 @@ enum Command {
     },
     /// Submit a spec to a coordinator and print the job id.
     Submit {
+        /// The spec file (TOML); the files it names travel with it.
         spec: PathBuf,
         /// Retrying with the same key returns the same job (default: the spec's content hash).
         #[arg(long)]
         idempotency_key: Option<String>,
     },
-    /// Show a job's state and progress.
-    Status { job: String },
+    /// Show a job's state and progress, and why its tasks failed.
+    Status {
+        /// The job id `submit` printed (`vintctl jobs` lists them).
+        job: String,
+    },
     /// Follow a job's progress until it ends.
-    Watch { job: String },
+    Watch {
+        /// The job id `submit` printed (`vintctl jobs` lists them).
+        job: String,
+    },
     /// Cancel a job: nothing more of it is leased; running attempts are discarded.
-    Cancel { job: String },
+    Cancel {
+        /// The job id `submit` printed (`vintctl jobs` lists them).
+        job: String,
+    },
     /// List recent jobs.
     Jobs {
+        /// How many jobs, most recent first.
         #[arg(long, default_value_t = 20)]
         limit: u32,
     },
@@ -71,19 +107,24 @@ enum Command {
     Lineage {
         /// A sample id (OBJECT.HAND.gNNNNNN.vNN) or, with --artifact, a sha256.
         subject: String,
+        /// The job that packaged the sample (default: the most recent one that did).
         #[arg(long)]
         job: Option<String>,
+        /// SUBJECT is an artifact's (or a submitted file's) sha256, not a sample id.
         #[arg(long)]
         artifact: bool,
     },
     /// Write a finished job's samples and manifest.jsonl to a directory.
     Export {
+        /// The job id `submit` printed (`vintctl jobs` lists them).
         job: String,
+        /// Where the dataset and manifest.jsonl are written.
         #[arg(long)]
         out: PathBuf,
-        /// Artifact store URL the workers wrote to (file:///… or s3://…).
+        /// Artifact store URL the workers wrote to (file:///… or s3://…); default: the
+        /// coordinator's own --store.
         #[arg(long, env = "VINT_STORE")]
-        store: String,
+        store: Option<String>,
     },
     /// Accuracy-versus-cost studies: run the same work at several settings against a fine
     /// reference and write CSV, a log-log plot and a markdown table.
@@ -111,58 +152,62 @@ enum Command {
     Objects,
 }
 
-/// A failure and the exit code it deserves.
-pub struct Failure {
-    pub code: u8,
-    pub error: anyhow::Error,
-}
-
-impl<E: Into<anyhow::Error>> From<E> for Failure {
-    fn from(e: E) -> Self {
-        Failure { code: 1, error: e.into() }
-    }
-}
-
-/// Bad input from the user: exit code 2.
-pub fn bad_input(error: anyhow::Error) -> Failure {
-    Failure { code: 2, error }
-}
-
-pub type CliResult = Result<(), Failure>;
-
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let json = std::env::args().any(|a| a == "--json");
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) if !json || !e.use_stderr() => e.exit(), // help and version, or a usage error for people
+        Err(e) => {
+            let rendered = e.render().to_string();
+            let message = rendered.trim_end().trim_start_matches("error: ");
+            report::failure(&bad_input(anyhow!("{message}")), true);
+            return ExitCode::from(2);
+        }
+    };
+    let Some(command) = cli.command else {
+        return getting_started(cli.json);
+    };
     let runtime = match tokio::runtime::Builder::new_multi_thread().enable_all().build() {
         Ok(rt) => rt,
         Err(e) => {
-            eprintln!("error: cannot start the async runtime: {e}");
+            report::failure(&anyhow!("cannot start the async runtime: {e}").into(), cli.json);
             return ExitCode::from(1);
         }
     };
-    match runtime.block_on(dispatch(cli)) {
+    match runtime.block_on(dispatch(command, cli.json, &cli.coordinator)) {
         Ok(()) => ExitCode::SUCCESS,
         Err(f) => {
-            eprintln!("error: {:#}", f.error);
+            report::failure(&f, cli.json);
             ExitCode::from(f.code)
         }
     }
 }
 
-async fn dispatch(cli: Cli) -> CliResult {
-    let json = cli.json;
-    let coordinator = cli.coordinator;
-    match cli.command {
-        Command::Validate { spec } => client::validate(&spec, json),
+/// A bare `vintctl`: the commands and how to start, instead of a terse usage error (exit 2: no
+/// command ran).
+fn getting_started(json: bool) -> ExitCode {
+    if json {
+        report::failure(&bad_input(anyhow!("no command given\n\n{GETTING_STARTED}")), true);
+    } else {
+        let mut cli = Cli::command();
+        eprintln!("{}", cli.render_help());
+    }
+    ExitCode::from(2)
+}
+
+async fn dispatch(command: Command, json: bool, coordinator: &str) -> CliResult {
+    match command {
+        Command::Validate { spec } => commands::validate(&spec, json),
         Command::Run { spec, out, state, workers } => embedded::run(&spec, &out, &state, workers, json).await,
-        Command::Submit { spec, idempotency_key } => client::submit(&coordinator, &spec, idempotency_key, json).await,
-        Command::Status { job } => client::status(&coordinator, &job, json).await,
-        Command::Watch { job } => client::watch(&coordinator, &job, json).await,
-        Command::Cancel { job } => client::cancel(&coordinator, &job, json).await,
-        Command::Jobs { limit } => client::jobs(&coordinator, limit, json).await,
+        Command::Submit { spec, idempotency_key } => commands::submit(coordinator, &spec, idempotency_key, json).await,
+        Command::Status { job } => commands::status(coordinator, &job, json).await,
+        Command::Watch { job } => commands::watch(coordinator, &job, json).await,
+        Command::Cancel { job } => commands::cancel(coordinator, &job, json).await,
+        Command::Jobs { limit } => commands::jobs(coordinator, limit, json).await,
         Command::Lineage { subject, job, artifact } => {
-            client::lineage(&coordinator, &subject, job, artifact, json).await
+            commands::lineage(coordinator, &subject, job, artifact, json).await
         }
-        Command::Export { job, out, store } => client::export(&coordinator, &job, &out, &store, json).await,
+        Command::Export { job, out, store } => commands::export(coordinator, &job, &out, store, json).await,
         Command::Study { subject, out, quick, extra } => study::run(&subject, &out, quick, &extra).await,
         Command::Diff(args) => diff::run(&args, json),
         Command::Hands => {
@@ -173,5 +218,28 @@ async fn dispatch(cli: Cli) -> CliResult {
             report::objects(json);
             Ok(())
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every command, positional and flag says what it is in `--help`.
+    #[test]
+    fn every_argument_has_help_text() {
+        let cli = Cli::command();
+        let mut missing = Vec::new();
+        for cmd in std::iter::once(&cli).chain(cli.get_subcommands()) {
+            if cmd.get_about().is_none() {
+                missing.push(cmd.get_name().to_string());
+            }
+            for arg in cmd.get_arguments().filter(|a| !matches!(a.get_id().as_str(), "help" | "version")) {
+                if arg.get_help().is_none() {
+                    missing.push(format!("{} {}", cmd.get_name(), arg.get_id()));
+                }
+            }
+        }
+        assert!(missing.is_empty(), "no help text: {missing:?}");
     }
 }

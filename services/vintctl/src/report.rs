@@ -1,19 +1,81 @@
 //! How vintctl shows things: text for people, `--json` for scripts, a progress bar for waiting.
+//! Everything here takes data and prints it; nothing talks to a coordinator or writes datasets.
 
-use anyhow::anyhow;
-use futures::StreamExt;
+use std::collections::BTreeSet;
+use std::sync::Mutex;
+
+use chrono::{Local, TimeZone};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::{Value, json};
-use tonic::transport::Channel;
+use vint_core::{SpecError, SpecErrors};
 use vint_proto::v1 as pb;
-use vint_proto::v1::job_service_client::JobServiceClient;
 
 use crate::Failure;
-use crate::client::rpc_failure;
+use crate::estimate::{self, Estimate};
 use crate::export::ExportSummary;
 
 pub fn print_json(v: &Value) {
     println!("{}", serde_json::to_string_pretty(v).unwrap_or_else(|_| v.to_string()));
+}
+
+/// A failed command: the error on stderr, and with `--json` also as JSON on stdout — the
+/// command's own report with an `error` member when it had one, `{"error": …}` otherwise — on
+/// one line, so that it also ends `watch --json`'s JSON lines.
+pub fn failure(f: &Failure, json: bool) {
+    eprintln!("error: {:#}", f.error);
+    if json {
+        let mut doc = f.report().cloned().unwrap_or_else(|| json!({}));
+        if let Value::Object(map) = &mut doc {
+            map.insert("error".into(), error_json(f));
+        }
+        println!("{doc}");
+    }
+}
+
+/// `{"message", "code"}`, and `errors` (field by field, as `validate --json`) for an invalid spec.
+fn error_json(f: &Failure) -> Value {
+    let mut error = json!({"message": format!("{:#}", f.error), "code": f.code});
+    if let Some(errors) = f.spec_errors() {
+        error["errors"] = spec_errors_json(errors);
+    }
+    error
+}
+
+pub fn spec_errors_json(errors: &SpecErrors) -> Value {
+    let one = |e: &SpecError| json!({"path": e.path, "value": e.value, "rule": e.rule, "message": e.to_string()});
+    Value::Array(errors.0.iter().map(one).collect())
+}
+
+/// `validate` of a valid spec: its size, what it would cost, and a warning when that is a lot.
+pub fn valid_spec(path: &std::path::Path, spec: &vint_core::DatasetSpec, e: &Estimate) {
+    println!(
+        "{}: valid — {} hand(s) × {} object(s) × {} trials × {} views: at most {} samples",
+        path.display(),
+        spec.hands.len(),
+        spec.objects.len(),
+        spec.grasp.trials_per_pair,
+        spec.render.views_per_grasp(),
+        spec.max_samples()
+    );
+    let t = &e.tasks;
+    println!(
+        "  tasks: {} grasp, and if every trial is accepted {} render, {} noise and {} package",
+        t.grasp, t.render_max, t.noise_max, t.package_max
+    );
+    let c = &e.cpu_seconds;
+    println!(
+        "  rough cost if every trial is accepted: {} (grasp {}, render {}, noise {}, package {}), {} written",
+        estimate::cpu_time(c.total),
+        estimate::cpu_time(c.grasp),
+        estimate::cpu_time(c.render),
+        estimate::cpu_time(c.noise),
+        estimate::cpu_time(c.package),
+        estimate::size(e.output_bytes)
+    );
+    println!("  ({})", estimate::BASIS);
+    for w in &e.warnings {
+        eprintln!("warning: {w}");
+    }
 }
 
 pub fn progress_json(p: &pb::JobProgress) -> Value {
@@ -27,7 +89,16 @@ pub fn progress_json(p: &pb::JobProgress) -> Value {
         "tasks_failed": p.tasks_failed, "tasks_running": p.tasks_running, "tasks_queued": p.tasks_queued,
         "tasks_waiting": p.tasks_waiting, "tasks_cancelled": p.tasks_cancelled,
         "samples_packaged": p.samples_packaged, "stages": stages,
+        "failed_tasks": failed_tasks_json(&p.failed_tasks),
     })
+}
+
+pub fn failed_tasks_json(tasks: &[pb::FailedTask]) -> Value {
+    let one = |t: &pb::FailedTask| {
+        json!({"key": t.key, "stage": t.stage, "attempts": t.attempts, "last_error": t.last_error,
+               "failed_upstream": t.failed_upstream})
+    };
+    Value::Array(tasks.iter().map(one).collect())
 }
 
 fn progress_line(p: &pb::JobProgress) -> String {
@@ -44,6 +115,29 @@ fn progress_line(p: &pb::JobProgress) -> String {
     )
 }
 
+/// Why tasks failed, a line each (root causes first, as the coordinator orders them), and how
+/// many more there are; empty when none failed.
+pub fn failed_task_lines(p: &pb::JobProgress) -> Vec<String> {
+    let mut lines = Vec::new();
+    for t in &p.failed_tasks {
+        lines.push(format!("{} ({}, {}): {}", t.key, t.stage, attempts(t), t.last_error));
+    }
+    let more = p.tasks_failed.saturating_sub(p.failed_tasks.len() as u64);
+    if more > 0 {
+        lines.push(format!("… and {more} more (vintctl status --json lists the first {})", p.failed_tasks.len()));
+    }
+    lines
+}
+
+fn attempts(t: &pb::FailedTask) -> String {
+    match t.attempts {
+        _ if t.failed_upstream => "never ran".to_string(),
+        1 => "1 attempt".to_string(),
+        n => format!("{n} attempts"),
+    }
+}
+
+/// A job's state and progress (`status`, `cancel`), with why its tasks failed.
 pub fn job(job: &pb::Job, json: bool) {
     let p = job.progress.clone().unwrap_or_default();
     if json {
@@ -51,24 +145,80 @@ pub fn job(job: &pb::Job, json: bool) {
             "job_id": job.job_id, "name": job.name, "state": job.state, "seed": job.seed,
             "created_ms": job.created_ms, "finished_ms": job.finished_ms, "progress": progress_json(&p),
         }));
-    } else {
-        println!("job {} ({}): {}", job.job_id, job.name, job.state);
-        println!("  {}", progress_line(&p));
+        return;
+    }
+    println!("job {} ({}): {}", job.job_id, job.name, job.state);
+    println!("  created {}, {}", local_time(job.created_ms), took(job));
+    println!("  {}", progress_line(&p));
+    if p.tasks_failed > 0 {
+        println!("  {} task(s) failed permanently:", p.tasks_failed);
+        for line in failed_task_lines(&p) {
+            println!("    {line}");
+        }
     }
 }
 
+/// `jobs`: most recent first, with a header and times people read.
 pub fn jobs(jobs: &[pb::Job], json: bool) {
     if json {
         let list: Vec<Value> = jobs
             .iter()
-            .map(|j| json!({"job_id": j.job_id, "name": j.name, "state": j.state, "created_ms": j.created_ms}))
+            .map(|j| {
+                let p = j.progress.clone().unwrap_or_default();
+                json!({"job_id": j.job_id, "name": j.name, "state": j.state, "created_ms": j.created_ms,
+                       "finished_ms": j.finished_ms, "samples_packaged": p.samples_packaged,
+                       "tasks_failed": p.tasks_failed})
+            })
             .collect();
         print_json(&Value::Array(list));
+        return;
+    }
+    if jobs.is_empty() {
+        println!("no jobs yet (vintctl submit SPEC starts one)");
+        return;
+    }
+    println!("{:<14} {:<10} {:<20} {:>8}  {:<19}  TOOK", "JOB", "STATE", "NAME", "SAMPLES", "CREATED");
+    for j in jobs {
+        let samples = j.progress.as_ref().map(|p| p.samples_packaged).unwrap_or(0);
+        println!(
+            "{:<14} {:<10} {:<20} {:>8}  {:<19}  {}",
+            j.job_id,
+            j.state,
+            j.name,
+            samples,
+            local_time(j.created_ms),
+            took(j)
+        );
+    }
+}
+
+/// Unix milliseconds as local wall-clock time, to the second.
+fn local_time(ms: i64) -> String {
+    match Local.timestamp_millis_opt(ms).single() {
+        Some(t) => t.format("%Y-%m-%d %H:%M:%S").to_string(),
+        None => format!("{ms} ms"),
+    }
+}
+
+/// How long a finished job took, or how long a running one has been running.
+fn took(j: &pb::Job) -> String {
+    if j.finished_ms > 0 {
+        format!("took {}", duration(j.finished_ms - j.created_ms))
     } else {
-        for j in jobs {
-            let samples = j.progress.as_ref().map(|p| p.samples_packaged).unwrap_or(0);
-            println!("{}  {:<10} {:<20} {} samples", j.job_id, j.state, j.name, samples);
-        }
+        format!("running for {}", duration(chrono::Utc::now().timestamp_millis() - j.created_ms))
+    }
+}
+
+/// A duration as people say it: `850ms`, `42s`, `3m 05s`, `2h 10m`, `3d 4h`.
+pub fn duration(ms: i64) -> String {
+    let ms = ms.max(0);
+    let s = ms / 1000;
+    match s {
+        0 => format!("{ms}ms"),
+        1..=59 => format!("{s}s"),
+        60..=3599 => format!("{}m {:02}s", s / 60, s % 60),
+        3600..=86_399 => format!("{}h {:02}m", s / 3600, s % 3600 / 60),
+        _ => format!("{}d {}h", s / 86_400, s % 86_400 / 3600),
     }
 }
 
@@ -80,41 +230,53 @@ pub enum JsonProgress {
     Stderr,
 }
 
-/// Streams a job's progress until it ends, as a progress bar (text) or JSON lines (`--json`).
-pub async fn follow(
-    client: &mut JobServiceClient<Channel>,
-    job_id: &str,
+/// How a job's progress is shown while it runs: a progress bar, or JSON lines with `--json`.
+/// Text mode also prints each task that fails permanently as it happens (the ones that failed
+/// themselves; the job's end lists the rest).
+pub struct ProgressView {
+    bar: ProgressBar,
     json: Option<JsonProgress>,
-) -> Result<pb::JobProgress, Failure> {
-    let mut stream = client
-        .watch_job(pb::WatchJobRequest { job_id: job_id.into() })
-        .await
-        .map_err(|s| rpc_failure("watch", s))?
-        .into_inner();
-    let bar = if json.is_some() { ProgressBar::hidden() } else { ProgressBar::new(0) };
-    bar.set_style(
-        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} tasks  {msg}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
-    let mut last = None;
-    while let Some(update) = stream.next().await {
-        let p = update.map_err(|s| rpc_failure("watch", s))?;
-        match json {
-            Some(JsonProgress::Stdout) => println!("{}", progress_json(&p)),
-            Some(JsonProgress::Stderr) => eprintln!("{}", progress_json(&p)),
-            None => {}
+    reported: Mutex<BTreeSet<String>>,
+}
+
+impl ProgressView {
+    pub fn new(json: Option<JsonProgress>) -> ProgressView {
+        let bar = if json.is_some() { ProgressBar::hidden() } else { ProgressBar::new(0) };
+        bar.set_style(
+            ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} tasks  {msg}")
+                .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        );
+        ProgressView { bar, json, reported: Mutex::default() }
+    }
+
+    pub fn show(&self, p: &pb::JobProgress) {
+        match self.json {
+            Some(JsonProgress::Stdout) => println!("{}", progress_json(p)),
+            Some(JsonProgress::Stderr) => eprintln!("{}", progress_json(p)),
+            None => self.report_new_failures(p),
         }
-        bar.set_length(p.tasks_total);
-        bar.set_position(p.tasks_succeeded + p.tasks_failed + p.tasks_cancelled);
-        bar.set_message(progress_line(&p));
-        last = Some(p);
+        self.bar.set_length(p.tasks_total);
+        self.bar.set_position(p.tasks_succeeded + p.tasks_failed + p.tasks_cancelled);
+        self.bar.set_message(progress_line(p));
     }
-    bar.finish_and_clear();
-    let last = last.ok_or_else(|| anyhow!("the coordinator closed the watch without any progress"))?;
-    if json.is_none() {
-        eprintln!("job {} {}: {}", last.job_id, last.state, progress_line(&last));
+
+    fn report_new_failures(&self, p: &pb::JobProgress) {
+        let Ok(mut reported) = self.reported.lock() else { return };
+        for t in p.failed_tasks.iter().filter(|t| !t.failed_upstream) {
+            if reported.insert(t.key.clone()) {
+                // Above the bar, and in a log too (where the bar is hidden and `println` is not).
+                self.bar.suspend(|| eprintln!("task {} failed ({}): {}", t.key, attempts(t), t.last_error));
+            }
+        }
     }
-    Ok(last)
+
+    /// The job ended: clear the bar and say how (text only; JSON lines already said it).
+    pub fn finish(&self, last: &pb::JobProgress) {
+        self.bar.finish_and_clear();
+        if self.json.is_none() {
+            eprintln!("job {} {}: {}", last.job_id, last.state, progress_line(last));
+        }
+    }
 }
 
 pub fn lineage(l: &pb::Lineage, json: bool) {
@@ -170,19 +332,20 @@ pub fn lineage(l: &pb::Lineage, json: bool) {
     }
 }
 
-pub fn export(s: &ExportSummary, json: bool) {
-    if json {
-        print_json(&serde_json::to_value(s).unwrap_or(Value::Null));
-    } else {
-        println!(
-            "wrote {} samples ({} files, {} bytes) to {}\nmanifest.jsonl sha256 {}",
-            s.samples,
-            s.files,
-            s.bytes,
-            s.out.display(),
-            s.manifest_sha256
-        );
-    }
+pub fn export_json(s: &ExportSummary) -> Value {
+    serde_json::to_value(s).unwrap_or(Value::Null)
+}
+
+/// What an export wrote (text); `--json` callers print `export_json` inside their own report.
+pub fn export_text(s: &ExportSummary) {
+    println!(
+        "wrote {} samples ({} files, {} bytes) to {}\nmanifest.jsonl sha256 {}",
+        s.samples,
+        s.files,
+        s.bytes,
+        s.out.display(),
+        s.manifest_sha256
+    );
 }
 
 /// `vintctl hands`: each built-in hand with its DoF and taxels per region.
@@ -228,6 +391,50 @@ pub fn objects(json: bool) {
         println!(
             "{:<22} {:>5} {:>8.3} {:<10} {:<13} {:<9}  {}",
             o.name, o.ycb_id, o.mass_kg, o.material, o.symmetry, shape, o.description
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn durations_read_as_people_say_them() {
+        assert_eq!(duration(850), "850ms");
+        assert_eq!(duration(42_400), "42s");
+        assert_eq!(duration(185_000), "3m 05s");
+        assert_eq!(duration(7_800_000), "2h 10m");
+        assert_eq!(duration(100 * 3_600_000), "4d 4h");
+        assert_eq!(duration(-5), "0ms");
+    }
+
+    #[test]
+    fn failed_tasks_read_root_cause_first_and_count_the_rest() {
+        let task = |key: &str, attempts, error: &str| pb::FailedTask {
+            key: key.into(),
+            stage: key.split('/').next().unwrap_or_default().into(),
+            attempts,
+            last_error: error.into(),
+            failed_upstream: attempts == 0,
+        };
+        let p = pb::JobProgress {
+            tasks_failed: 5,
+            failed_tasks: vec![
+                task("grasp/cup/gripper/c00000", 1, "engine: object.cup: not a closed surface"),
+                task("render/cup/gripper/g000001", 3, "engine: out of memory"),
+                task("package/cup/gripper/c00000", 0, "upstream task j1/render/cup/gripper/g000001 failed"),
+            ],
+            ..Default::default()
+        };
+        assert_eq!(
+            failed_task_lines(&p),
+            [
+                "grasp/cup/gripper/c00000 (grasp, 1 attempt): engine: object.cup: not a closed surface",
+                "render/cup/gripper/g000001 (render, 3 attempts): engine: out of memory",
+                "package/cup/gripper/c00000 (package, never ran): upstream task j1/render/cup/gripper/g000001 failed",
+                "… and 2 more (vintctl status --json lists the first 3)",
+            ]
         );
     }
 }

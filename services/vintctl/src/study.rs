@@ -16,9 +16,7 @@ pub async fn run(subject: &str, out: &Path, quick: bool, extra: &[String]) -> Cl
     if !SUBJECTS.contains(&subject) {
         return Err(bad_input(anyhow!("study: unknown subject {subject:?}; expected one of {}", SUBJECTS.join(", "))));
     }
-    let (default_engines, default_python) = vint_runtime::checkout_defaults();
-    let python = std::env::var_os("VINT_PYTHON").map(Into::into).unwrap_or(default_python);
-    let engines = std::env::var_os("VINT_ENGINES_DIR").map(Into::into).unwrap_or(default_engines);
+    let vint_engine_env::EngineEnv { engines_dir: engines, python } = vint_engine_env::EngineEnv::from_env();
     let mut cmd = Command::new(&python);
     cmd.args(["-m", "vint_engines", "study", subject, "--out"]).arg(out).env("PYTHONPATH", &engines);
     if quick {

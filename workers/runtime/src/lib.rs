@@ -9,15 +9,3 @@
 pub mod engine;
 pub mod package;
 pub mod worker;
-
-use std::path::PathBuf;
-
-/// Default engines directory and Python interpreter of a source checkout: `workers/engines` and
-/// `.venv/bin/python` at the repository root (overridable by flags or `VINT_ENGINES_DIR` /
-/// `VINT_PYTHON`).
-pub fn checkout_defaults() -> (PathBuf, PathBuf) {
-    let runtime = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
-    let engines = runtime.join("../engines");
-    let python = runtime.join("../../.venv/bin/python");
-    (engines, python)
-}

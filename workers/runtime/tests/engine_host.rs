@@ -8,8 +8,7 @@ use vint_core::Stage;
 use vint_runtime::engine::{Engine, EngineCommand, EngineError, EngineInput, RecyclePolicy};
 
 fn command() -> EngineCommand {
-    let (engines_dir, default_python) = vint_runtime::checkout_defaults();
-    let python = std::env::var("VINT_PYTHON").map(PathBuf::from).unwrap_or(default_python);
+    let vint_engine_env::EngineEnv { engines_dir, python } = vint_engine_env::EngineEnv::from_env();
     assert!(python.exists(), "engine Python {} is missing: run scripts/setup-python.sh", python.display());
     EngineCommand {
         python,

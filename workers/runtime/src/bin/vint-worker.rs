@@ -57,7 +57,7 @@ async fn main() -> anyhow::Result<()> {
     let args = Args::parse();
     vint_telemetry::init_tracing(args.log_json);
     let stages = args.stages.iter().map(|s| s.parse::<Stage>()).collect::<Result<Vec<_>, _>>().context("--stages")?;
-    let (default_engines, default_python) = vint_runtime::checkout_defaults();
+    let checkout = vint_engine_env::EngineEnv::checkout();
     let worker_id = args.worker_id.unwrap_or_else(|| {
         let host = std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap_or_else(|_| "host".into());
         format!("{}-{}-{}", host.trim(), std::process::id(), &uuid::Uuid::new_v4().simple().to_string()[..6])
@@ -71,8 +71,8 @@ async fn main() -> anyhow::Result<()> {
         lease_ms: args.lease_ms,
         scratch: scratch.clone(),
         engine: EngineCommand {
-            python: args.python.unwrap_or(default_python),
-            engines_dir: args.engines_dir.unwrap_or(default_engines),
+            python: args.python.unwrap_or(checkout.python),
+            engines_dir: args.engines_dir.unwrap_or(checkout.engines_dir),
             task_timeout: Duration::from_secs(args.task_timeout_s),
             start_timeout: Duration::from_secs(120),
             recycle: RecyclePolicy {

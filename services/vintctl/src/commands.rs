@@ -1,0 +1,184 @@
+//! The commands that take a spec or talk to a coordinator (all but `run`, `study`, `hands` and
+//! `objects`): each wires `spec_file`, `client`, `export` and `report` together and decides its
+//! exit code.
+
+use std::path::Path;
+
+use anyhow::anyhow;
+use serde_json::json;
+use vint_artifacts::ArtifactStore;
+use vint_core::JobState;
+use vint_proto::v1 as pb;
+use vint_proto::v1::get_lineage_request::Subject;
+
+use crate::client::Coordinator;
+use crate::estimate::Estimate;
+use crate::report::{self, JsonProgress, ProgressView};
+use crate::spec_file::load_spec;
+use crate::{CliResult, Failure, bad_input, export};
+
+pub fn validate(path: &Path, json: bool) -> CliResult {
+    let loaded = match load_spec(path) {
+        Ok(loaded) => loaded,
+        Err(f) => {
+            let report =
+                f.spec_errors().map(|errors| json!({"valid": false, "errors": report::spec_errors_json(errors)}));
+            return Err(match report {
+                Some(report) => f.with_report(report),
+                None => f,
+            });
+        }
+    };
+    let spec = &loaded.spec;
+    let estimate = Estimate::of(spec);
+    if json {
+        report::print_json(&json!({
+            "valid": true, "spec": spec, "max_samples": spec.max_samples(), "estimate": estimate,
+        }));
+    } else {
+        report::valid_spec(path, spec, &estimate);
+    }
+    Ok(())
+}
+
+pub async fn submit(url: &str, path: &Path, key: Option<String>, json: bool) -> CliResult {
+    let loaded = load_spec(path)?;
+    let mut coordinator = Coordinator::connect(url).await?;
+    let request = pb::SubmitJobRequest {
+        spec_toml: loaded.text,
+        idempotency_key: key.unwrap_or_default(),
+        assets: loaded.assets,
+    };
+    let resp = coordinator.submit(request).await?;
+    let job = resp.job.ok_or_else(|| anyhow!("coordinator returned no job"))?;
+    if json {
+        report::print_json(&json!({"job_id": job.job_id, "created": resp.created, "state": job.state}));
+    } else {
+        if !resp.created {
+            eprintln!("this spec was already submitted (same idempotency key): returning that job");
+        }
+        println!("{}", job.job_id);
+    }
+    Ok(())
+}
+
+pub async fn status(url: &str, job: &str, json: bool) -> CliResult {
+    let job = Coordinator::connect(url).await?.job(job).await?;
+    report::job(&job, json);
+    Ok(())
+}
+
+pub async fn jobs(url: &str, limit: u32, json: bool) -> CliResult {
+    let jobs = Coordinator::connect(url).await?.jobs(limit).await?;
+    report::jobs(&jobs, json);
+    Ok(())
+}
+
+pub async fn cancel(url: &str, job: &str, json: bool) -> CliResult {
+    let job = Coordinator::connect(url).await?.cancel(job).await?;
+    report::job(&job, json);
+    Ok(())
+}
+
+/// Follows a job until it ends; exits 1 unless it succeeded, naming the tasks that failed.
+pub async fn watch(url: &str, job: &str, json: bool) -> CliResult {
+    let mut coordinator = Coordinator::connect(url).await?;
+    let last = coordinator.follow(job, &ProgressView::new(json.then_some(JsonProgress::Stdout))).await?;
+    job_outcome(&last)
+}
+
+/// Exit status of a finished job: a failed or cancelled one is a failure that says which tasks
+/// failed and why.
+pub fn job_outcome(p: &pb::JobProgress) -> CliResult {
+    if p.state == JobState::Succeeded.as_str() {
+        return Ok(());
+    }
+    let mut message = format!(
+        "job {} {}: {} task(s) failed permanently, {} sample(s) packaged",
+        p.job_id, p.state, p.tasks_failed, p.samples_packaged
+    );
+    for (i, line) in report::failed_task_lines(p).into_iter().enumerate() {
+        message.push_str(if i == 0 { ":\n  " } else { "\n  " });
+        message.push_str(&line);
+    }
+    Err(Failure { code: 1, error: anyhow!(message) })
+}
+
+pub async fn lineage(url: &str, subject: &str, job: Option<String>, artifact: bool, json: bool) -> CliResult {
+    let subject = if artifact { Subject::ArtifactSha256(subject.into()) } else { Subject::SampleId(subject.into()) };
+    let request = pb::GetLineageRequest { job_id: job.unwrap_or_default(), subject: Some(subject) };
+    let lineage = Coordinator::connect(url).await?.lineage(request).await?;
+    report::lineage(&lineage, json);
+    Ok(())
+}
+
+/// Writes a finished job's packaged samples to `out`. A running job is refused (its dataset is
+/// not there yet); a failed or cancelled one exports what it packaged and says what is missing.
+pub async fn export(url: &str, job_id: &str, out: &Path, store: Option<String>, json: bool) -> CliResult {
+    let mut coordinator = Coordinator::connect(url).await?;
+    let job = coordinator.job(job_id).await?;
+    let p = job.progress.clone().unwrap_or_default();
+    let state: JobState = job.state.parse().map_err(|e| anyhow!("coordinator answered job {job_id}: {e}"))?;
+    if state == JobState::Running {
+        let done = p.tasks_succeeded + p.tasks_failed + p.tasks_cancelled;
+        return Err(bad_input(anyhow!(
+            "job {job_id} is still running ({done} of {} tasks so far done, {} samples packaged): export writes \
+             a finished job's dataset; wait for it with `vintctl watch {job_id}`, then export",
+            p.tasks_total,
+            p.samples_packaged
+        )));
+    }
+    let store = artifact_store(&mut coordinator, store).await?;
+    let listed = coordinator.samples(job_id).await?;
+    let summary = export::export(&store, job_id, &listed, out).await?;
+    // The spec's upper bound (every trial accepted): what a failed job could have had.
+    let planned = vint_core::DatasetSpec::parse(&job.spec_toml).ok().map(|spec| spec.max_samples());
+    if json {
+        let mut doc = report::export_json(&summary);
+        doc["job_state"] = json!(job.state);
+        doc["max_samples"] = json!(planned);
+        doc["failed_tasks"] = report::failed_tasks_json(&p.failed_tasks);
+        report::print_json(&doc);
+        return Ok(());
+    }
+    report::export_text(&summary);
+    if state != JobState::Succeeded {
+        let of = planned.map(|n| format!(" of at most {n} (if every trial were accepted)")).unwrap_or_default();
+        eprintln!(
+            "note: job {job_id} {}: this is the {} sample(s) it packaged{of}; {} task(s) failed permanently \
+             (`vintctl status {job_id}` says why)",
+            job.state, summary.samples, p.tasks_failed
+        );
+    }
+    Ok(())
+}
+
+/// The artifact store to export from: `--store` when given, else the one the coordinator was
+/// started with; refused, saying so, when neither names one this machine can read.
+async fn artifact_store(coordinator: &mut Coordinator, flag: Option<String>) -> Result<ArtifactStore, Failure> {
+    let url = match flag {
+        Some(url) => url,
+        None => {
+            let info = coordinator.server_info().await?;
+            if info.store_url.is_empty() {
+                return Err(bad_input(anyhow!(
+                    "export reads samples from the artifact store the workers wrote to, and the coordinator at {} \
+                     was started without --store: pass --store URL (or set VINT_STORE), e.g. s3://bucket/prefix",
+                    coordinator.url
+                )));
+            }
+            if let Some(dir) = info.store_url.strip_prefix("file://")
+                && !Path::new(dir).is_dir()
+            {
+                return Err(anyhow!(
+                    "the coordinator's artifact store {} is not a directory on this machine (the coordinator runs \
+                     elsewhere?): pass --store with a URL this machine can read",
+                    info.store_url
+                )
+                .into());
+            }
+            info.store_url
+        }
+    };
+    ArtifactStore::open(&url).map_err(|e| bad_input(anyhow!("--store {url:?}: {e}")))
+}

@@ -1,0 +1,90 @@
+//! A spec file as vintctl reads it: the TOML text, its validation (`vint_core::spec`) and the
+//! user files it names, read relative to the spec's directory. Every problem is reported at once.
+
+use std::path::Path;
+
+use anyhow::Context;
+use vint_core::asset::{MAX_ASSET_BYTES, MAX_ASSETS_TOTAL_BYTES};
+use vint_core::{DatasetSpec, SpecError, SpecErrors};
+use vint_proto::v1 as pb;
+
+use crate::{Failure, InvalidSpec, bad_input};
+
+/// A spec as a submission carries it: its text, its parsed form and the user files it names.
+pub struct LoadedSpec {
+    pub text: String,
+    pub spec: DatasetSpec,
+    pub assets: Vec<pb::AssetFile>,
+}
+
+/// Reads and validates a spec and reads the files it names; every problem is reported and the
+/// exit code is 2.
+pub fn load_spec(path: &Path) -> Result<LoadedSpec, Failure> {
+    let text = read_spec(path)?;
+    let invalid = |errors| InvalidSpec::failure(path, errors);
+    let spec = DatasetSpec::parse(&text).map_err(invalid)?;
+    let assets = read_assets(path, &spec).map_err(invalid)?;
+    Ok(LoadedSpec { text, spec, assets })
+}
+
+/// The files the spec's own hands, objects and HDRIs name, read relative to the spec file's directory;
+/// a missing, unreadable or oversized file is a spec error naming the field and the path.
+pub fn read_assets(spec_path: &Path, spec: &DatasetSpec) -> Result<Vec<pb::AssetFile>, SpecErrors> {
+    let base = spec_path.parent().unwrap_or(Path::new("."));
+    let mut errors = Vec::new();
+    let mut files: Vec<pb::AssetFile> = Vec::new();
+    let mut total = 0u64;
+    for used in spec.asset_uses() {
+        if files.iter().any(|f| f.path == used.path) {
+            continue;
+        }
+        let error = |rule: String, value: String| SpecError { path: used.field.clone(), value, rule };
+        let file = base.join(&used.path);
+        let size = match std::fs::metadata(&file) {
+            Ok(m) if m.is_file() => m.len(),
+            Ok(_) => {
+                errors.push(error(
+                    format!("must name a file ({} is not one)", file.display()),
+                    format!("{:?}", used.path),
+                ));
+                continue;
+            }
+            Err(e) => {
+                errors.push(error(
+                    format!("must name a readable file ({}: {e})", file.display()),
+                    format!("{:?}", used.path),
+                ));
+                continue;
+            }
+        };
+        if size > MAX_ASSET_BYTES {
+            errors.push(error(
+                format!("must be a file of at most {MAX_ASSET_BYTES} bytes"),
+                format!("{:?} ({size} bytes)", used.path),
+            ));
+            continue;
+        }
+        match std::fs::read(&file) {
+            Ok(content) => {
+                total += content.len() as u64;
+                files.push(pb::AssetFile { path: used.path, content });
+            }
+            Err(e) => errors.push(error(
+                format!("must name a readable file ({}: {e})", file.display()),
+                format!("{:?}", used.path),
+            )),
+        }
+    }
+    if total > MAX_ASSETS_TOTAL_BYTES {
+        errors.push(SpecError {
+            path: String::new(),
+            value: format!("{total} bytes"),
+            rule: format!("the spec's files add up to {total} bytes, more than the limit of {MAX_ASSETS_TOTAL_BYTES}"),
+        });
+    }
+    if errors.is_empty() { Ok(files) } else { Err(SpecErrors(errors)) }
+}
+
+pub fn read_spec(path: &Path) -> Result<String, Failure> {
+    std::fs::read_to_string(path).with_context(|| format!("reading spec {}", path.display())).map_err(bad_input)
+}
