@@ -78,12 +78,14 @@ impl Copy {
         std::fs::write(self.dir.join("manifest.jsonl"), text).unwrap();
     }
 
-    /// `vintctl --json diff REFERENCE COPY ARGS…`: exit code and report.
+    /// `vintctl --json diff REFERENCE COPY ARGS…`: exit code and report — one JSON document on
+    /// stdout, which names the error when the datasets differ.
     fn diff(&self, args: &[&str]) -> (Option<i32>, serde_json::Value) {
         let (a, b) = (reference().to_str().unwrap(), self.dir.to_str().unwrap());
         let o = vintctl(&[&["--json", "diff", a, b], args].concat());
-        let report = serde_json::from_str(&stdout(&o))
+        let report: serde_json::Value = serde_json::from_str(&stdout(&o))
             .unwrap_or_else(|e| panic!("--json report: {e}\n{}\n{}", stdout(&o), stderr(&o)));
+        assert_eq!(report.get("error").is_some(), o.status.code() != Some(0), "{report}");
         (o.status.code(), report)
     }
 }

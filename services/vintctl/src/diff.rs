@@ -449,16 +449,20 @@ pub fn run(args: &DiffArgs, json: bool) -> CliResult {
     let a = Manifest::read(&args.a, "A")?;
     let b = Manifest::read(&args.b, "B")?;
     let report = compare(&a, &b, &args.tolerances);
-    if json {
-        println!("{}", serde_json::to_string_pretty(&report).context("encoding the report")?);
-    } else {
+    if !json {
         print!("{}", text(&report));
     }
     if report.within_tolerance() {
+        if json {
+            println!("{}", serde_json::to_string_pretty(&report).context("encoding the report")?);
+        }
         Ok(())
     } else {
         let count = report.samples.differing.len() + report.samples.only_in_a.len() + report.samples.only_in_b.len();
-        Err(Failure { code: 1, error: anyhow!("{count} sample(s) differ beyond tolerance or are missing on one side") })
+        let failure =
+            Failure { code: 1, error: anyhow!("{count} sample(s) differ beyond tolerance or are missing on one side") };
+        // With --json the report is the output, with the error in it: one document on stdout.
+        Err(if json { failure.with_report(serde_json::to_value(&report).context("encoding the report")?) } else { failure })
     }
 }
 
