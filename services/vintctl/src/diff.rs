@@ -462,7 +462,11 @@ pub fn run(args: &DiffArgs, json: bool) -> CliResult {
         let failure =
             Failure { code: 1, error: anyhow!("{count} sample(s) differ beyond tolerance or are missing on one side") };
         // With --json the report is the output, with the error in it: one document on stdout.
-        Err(if json { failure.with_report(serde_json::to_value(&report).context("encoding the report")?) } else { failure })
+        Err(if json {
+            failure.with_report(serde_json::to_value(&report).context("encoding the report")?)
+        } else {
+            failure
+        })
     }
 }
 

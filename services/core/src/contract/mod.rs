@@ -139,6 +139,18 @@ mod tests {
     }
 
     #[test]
+    fn render_tasks_read_poses_and_the_mesh_but_not_touch_and_noise_tasks_read_depth_alone() {
+        assert!(reads(Stage::Render, grasp::GRASPS_FILE) && reads(Stage::Render, grasp::MODEL_FILE));
+        assert!(!reads(Stage::Render, grasp::TOUCH_FILE), "touch.json is the bulk of a chunk's output");
+        assert!(reads(Stage::Noise, &render::ViewFile::Depth.name(7)));
+        for file in [render::ViewFile::Rgb, render::ViewFile::Camera, render::ViewFile::Mask] {
+            assert!(!reads(Stage::Noise, &file.name(7)), "{}", file.name(7));
+        }
+        assert!(!reads(Stage::Noise, &noise::noisy_depth_file(7)) && !reads(Stage::Noise, grasp::TOUCH_FILE));
+        assert!(!reads(Stage::Grasp, grasp::GRASPS_FILE) && !reads(Stage::Package, grasp::GRASPS_FILE));
+    }
+
+    #[test]
     fn every_stage_has_params_and_result_in_the_schema() {
         let schema = schema();
         for stage in Stage::ALL {
