@@ -756,14 +756,21 @@ impl Reader {
                 }
                 fallback
             }
-            Some(Value::Integer(i)) if range.contains(&i) => i,
-            Some(v @ Value::Integer(_)) => {
+            Some(v) => self.int_value(path, v, range).unwrap_or(fallback),
+        }
+    }
+
+    /// An integer within `range`; `None` (reported) otherwise.
+    fn int_value(&mut self, path: &str, v: Value, range: std::ops::RangeInclusive<i64>) -> Option<i64> {
+        match v {
+            Value::Integer(i) if range.contains(&i) => Some(i),
+            v @ Value::Integer(_) => {
                 self.error(path, v, format!("must be {}..={}", range.start(), range.end()));
-                fallback
+                None
             }
-            Some(v) => {
+            v => {
                 self.error(path, v, "must be an integer");
-                fallback
+                None
             }
         }
     }
@@ -869,17 +876,8 @@ impl Reader {
     }
 
     fn count_value(&mut self, path: &str, v: Value, bound: Bound<u32>) -> Option<u32> {
-        match v {
-            Value::Integer(i) if (i64::from(bound.min)..=i64::from(bound.max)).contains(&i) => u32::try_from(i).ok(),
-            v @ Value::Integer(_) => {
-                self.error(path, v, format!("must be {}..={}", bound.min, bound.max));
-                None
-            }
-            v => {
-                self.error(path, v, "must be an integer");
-                None
-            }
-        }
+        let i = self.int_value(path, v, i64::from(bound.min)..=i64::from(bound.max))?;
+        u32::try_from(i).ok()
     }
 
     /// A number `parent.key` within `bound`; its default when absent.
