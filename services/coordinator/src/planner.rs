@@ -63,7 +63,6 @@ pub async fn job_plan(store: &Store, job: &JobRecord) -> Result<JobPlan, tonic::
 /// What `task`'s completion unlocks, given its result and outputs. `plan` is needed for a grasp
 /// task only (pass `None` for the others).
 pub fn on_complete(
-    job: &JobRecord,
     plan: Option<&JobPlan>,
     task: &TaskRecord,
     result_json: &str,
@@ -75,7 +74,7 @@ pub fn on_complete(
     match task.stage {
         Stage::Grasp => {
             let result: GraspResult = contract::result(Stage::Grasp, &result).map_err(typed)?;
-            let plan = plan.ok_or_else(|| PlanError::Plan { job: job.id.clone(), reason: "not given".into() })?;
+            let plan = plan.ok_or_else(|| PlanError::Plan { job: task.job_id.clone(), reason: "not given".into() })?;
             let chunk = GraspChunk::from_key(&task.key).ok_or_else(|| PlanError::BadKey { task: task.id.clone() })?;
             let trials = plan.trials(&chunk);
             let accepted: BTreeSet<u32> = result.accepted.into_iter().collect();
@@ -84,7 +83,7 @@ pub fn on_complete(
             }
             let accepted: Vec<u32> = accepted.into_iter().collect();
             let children = plan::after_grasp(plan, &chunk, &accepted)
-                .map_err(|source| PlanError::Planning { job: job.id.clone(), source })?;
+                .map_err(|source| PlanError::Planning { job: task.job_id.clone(), source })?;
             Ok(Unlocked { children, samples: vec![] })
         }
         Stage::Package => {
@@ -211,7 +210,7 @@ mod tests {
     fn a_grasp_result_unlocks_render_noise_and_package_tasks_for_its_accepted_trials() {
         let grasp = task("grasp/tomato_soup_can/trx3/c00001", Stage::Grasp, json!({}));
         let result = r#"{"accepted": [3], "rejected": {"no_contact": 1}}"#;
-        let unlocked = on_complete(&job(None), Some(&plan()), &grasp, result, &[]).unwrap();
+        let unlocked = on_complete(Some(&plan()), &grasp, result, &[]).unwrap();
         let keys: Vec<&str> = unlocked.children.iter().map(|t| t.key.as_str()).collect();
         assert_eq!(
             keys,
@@ -226,14 +225,14 @@ mod tests {
     #[test]
     fn a_grasp_result_naming_a_trial_of_another_chunk_or_of_the_wrong_shape_is_refused() {
         let grasp = task("grasp/tomato_soup_can/trx3/c00001", Stage::Grasp, json!({}));
-        let foreign = on_complete(&job(None), Some(&plan()), &grasp, r#"{"accepted": [0]}"#, &[]);
+        let foreign = on_complete(Some(&plan()), &grasp, r#"{"accepted": [0]}"#, &[]);
         assert!(matches!(foreign, Err(PlanError::ForeignGrasp { grasp: 0, .. })));
         // The worker of old read grasps.json itself and sent a count: not the contract.
-        let shape = on_complete(&job(None), Some(&plan()), &grasp, r#"{"accepted": 2}"#, &[]);
+        let shape = on_complete(Some(&plan()), &grasp, r#"{"accepted": 2}"#, &[]);
         assert!(matches!(shape, Err(PlanError::Result { .. })), "{:?}", shape.err());
         let render = task("render/tomato_soup_can/trx3/g000003", Stage::Render, json!({}));
-        assert!(on_complete(&job(None), None, &render, r#"{"views": 2, "device": "CPU"}"#, &[]).is_ok());
-        assert!(on_complete(&job(None), None, &render, "{}", &[]).is_err());
+        assert!(on_complete(None, &render, r#"{"views": 2, "device": "CPU"}"#, &[]).is_ok());
+        assert!(on_complete(None, &render, "{}", &[]).is_err());
     }
 
     #[test]
@@ -250,7 +249,7 @@ mod tests {
         ];
         let result = json!({"samples": ["tomato_soup_can.trx3.g000003.v00", "tomato_soup_can.trx3.g000003.v01"],
                             "grasps": ["tomato_soup_can.trx3.g000003"]});
-        let unlocked = on_complete(&job(None), None, &package, &result.to_string(), &outputs).unwrap();
+        let unlocked = on_complete(None, &package, &result.to_string(), &outputs).unwrap();
         assert_eq!(unlocked.samples.len(), 2);
 
         let mut missing_sample = result.clone();
@@ -264,7 +263,7 @@ mod tests {
             (no_record, &outputs[..]),
             (result.clone(), &outputs[1..]),
         ] {
-            let refused = on_complete(&job(None), None, &package, &result.to_string(), outputs);
+            let refused = on_complete(None, &package, &result.to_string(), outputs);
             assert!(matches!(refused, Err(PlanError::PackageMismatch { .. })), "{result}: {:?}", refused.err());
         }
     }

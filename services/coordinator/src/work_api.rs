@@ -126,16 +126,20 @@ impl WorkService for WorkApi {
             .ok_or_else(|| Status::not_found(format!("task {} not found", req.task_id)))?;
         let span = tracing::info_span!("complete", job = %task.job_id, task = %task.key, stage = %task.stage, attempt = req.attempt);
         async {
-            let job = self
-                .store
-                .job(&task.job_id)
-                .await
-                .map_err(status)?
-                .ok_or_else(|| Status::not_found(format!("job {} not found", task.job_id)))?;
-            // Only a grasp chunk unlocks tasks, planned from the job's plan.
-            let plan =
-                if task.stage == Stage::Grasp { Some(planner::job_plan(&self.store, &job).await?) } else { None };
-            let unlocked = planner::on_complete(&job, plan.as_ref(), &task, &req.result_json, &outputs)
+            // Only a grasp chunk unlocks tasks, planned from the job's plan: no other completion
+            // reads the job.
+            let plan = if task.stage == Stage::Grasp {
+                let job = self
+                    .store
+                    .job(&task.job_id)
+                    .await
+                    .map_err(status)?
+                    .ok_or_else(|| Status::not_found(format!("job {} not found", task.job_id)))?;
+                Some(planner::job_plan(&self.store, &job).await?)
+            } else {
+                None
+            };
+            let unlocked = planner::on_complete(plan.as_ref(), &task, &req.result_json, &outputs)
                 .map_err(|e| Status::invalid_argument(e.to_string()))?;
             let completion = Completion {
                 fence: Fence { task_id: req.task_id.clone(), worker_id: req.worker_id.clone(), attempt: req.attempt },
