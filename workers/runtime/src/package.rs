@@ -16,7 +16,7 @@ use vint_core::contract::grasp::{GRASPS_FILE, TOUCH_FILE};
 use vint_core::contract::noise::noisy_depth_file;
 use vint_core::contract::package::{GRASP_RECORD_FILE, META_FILE, PackageResult, Params, Source};
 use vint_core::contract::render::ViewFile;
-use vint_core::plan::{noise_key, render_key};
+use vint_core::plan::{GraspChunk, noise_key, render_key};
 use vint_core::{GraspId, SampleId};
 
 /// An input of the package task: an artifact of one of its dependencies.
@@ -69,6 +69,12 @@ pub async fn package(params: &Value, inputs: &[PackageInput], store: &ArtifactSt
     let params: Params = serde_json::from_value(params.clone()).map_err(|e| PackageError::Params(e.to_string()))?;
     let by_origin: BTreeMap<(&str, &str), &PackageInput> =
         inputs.iter().map(|i| ((i.task_key.as_str(), i.name.as_str()), i)).collect();
+    // Each (object, hand)'s grasp document, found once rather than by a scan of every input per sample.
+    let grasp_inputs: BTreeMap<(String, String), &PackageInput> = inputs
+        .iter()
+        .filter(|i| i.name == GRASPS_FILE)
+        .filter_map(|i| GraspChunk::from_key(&i.task_key).map(|c| ((c.object, c.hand), i)))
+        .collect();
     let mut documents: BTreeMap<String, Value> = BTreeMap::new();
     let mut records: BTreeMap<GraspId, (String, PackagedFile)> = BTreeMap::new();
     let mut files = Vec::new();
@@ -103,14 +109,13 @@ pub async fn package(params: &Value, inputs: &[PackageInput], store: &ArtifactSt
         }
         let camera_ref = find(render, ViewFile::Camera.name(id.view_index))?;
         let camera = read_json(store, camera_ref, &s.sample_id).await?;
-        let grasp_ref = inputs
-            .iter()
-            .find(|i| i.name == GRASPS_FILE && i.task_key.starts_with(&format!("grasp/{}/{}/", id.object, id.hand)))
-            .ok_or_else(|| PackageError::MissingInput {
+        let grasp_ref = grasp_inputs.get(&(id.object.clone(), id.hand.clone())).copied().ok_or_else(|| {
+            PackageError::MissingInput {
                 sample: s.sample_id.clone(),
                 task_key: format!("grasp/{}/{}/…", id.object, id.hand),
                 name: GRASPS_FILE.into(),
-            })?;
+            }
+        })?;
         let touch_ref = find(grasp_ref.task_key.clone(), TOUCH_FILE.to_string())?;
         for input in [grasp_ref, touch_ref] {
             if !documents.contains_key(&input.sha256) {
