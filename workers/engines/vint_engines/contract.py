@@ -19,7 +19,7 @@ from typing import Any
 from jsonschema import Draft202012Validator
 from jsonschema.exceptions import ValidationError, best_match
 
-from vint_engines.errors import BadInput
+from vint_engines.errors import BadInput, shown
 
 SCHEMA_FILE = Path(__file__).with_name("contract.schema.json")
 
@@ -60,7 +60,7 @@ def validated_part(name: str, obj: object, where: str) -> Json:
     """`obj` checked against the type `name` of the schema's `$defs` (a part of some stage's
     parameters, e.g. `GraspPhysics`), defaults filled in. `{}` gives the defaults."""
     if not isinstance(obj, Mapping):
-        raise BadInput(f"{where}: expected an object, got {_show(obj)}")
+        raise BadInput(f"{where}: expected an object, got {shown(obj)}")
     validator = _validator_of(f"#/$defs/{name}")
     _check(validator, obj, where)
     filled = copy.deepcopy(dict(obj))
@@ -117,7 +117,7 @@ def _path(where: str, error: ValidationError) -> str:
 
 def _rule(error: ValidationError) -> str:
     """The rule, worded like the spec validator's: the value, then what it breaks."""
-    value = _show(error.instance)
+    value = shown(error.instance)
     keyword = error.validator
     if keyword == "minimum" or keyword == "maximum":
         low = _find(error.schema, "minimum")
@@ -130,11 +130,6 @@ def _rule(error: ValidationError) -> str:
 
 def _find(schema: Mapping[str, Any], key: str) -> object:
     return schema.get(key, "…")
-
-
-def _show(value: object) -> str:
-    text = repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _resolve(node: Mapping[str, Any]) -> Mapping[str, Any]:

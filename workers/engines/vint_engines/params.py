@@ -9,14 +9,14 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from vint_engines.protocol import BadInput
+from vint_engines.errors import BadInput, shown
 
 
 def section(obj: Mapping[str, Any], key: str, where: str) -> Mapping[str, Any]:
     """The JSON object at `obj[key]`; `where` names `obj` in error messages (e.g. "params")."""
     value = obj.get(key)
     if not isinstance(value, Mapping):
-        raise BadInput(f"{where}.{key}: expected an object, got {_show(value)}")
+        raise BadInput(f"{where}.{key}: expected an object, got {shown(value)}")
     return value
 
 
@@ -24,10 +24,10 @@ def items(obj: Mapping[str, Any], key: str, where: str) -> list[Mapping[str, Any
     """The list of JSON objects at `obj[key]` (at least one)."""
     value = obj.get(key)
     if not isinstance(value, list) or not value:
-        raise BadInput(f"{where}.{key}: expected a non-empty list, got {_show(value)}")
+        raise BadInput(f"{where}.{key}: expected a non-empty list, got {shown(value)}")
     for i, item in enumerate(value):
         if not isinstance(item, Mapping):
-            raise BadInput(f"{where}.{key}[{i}]: expected an object, got {_show(item)}")
+            raise BadInput(f"{where}.{key}[{i}]: expected an object, got {shown(item)}")
     return value
 
 
@@ -43,7 +43,7 @@ def number(
     """A finite number in [low, high]; `default` when the key is absent (if given)."""
     value = obj.get(key, default)
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise BadInput(f"{where}.{key}: expected a finite number, got {_show(value)}")
+        raise BadInput(f"{where}.{key}: expected a finite number, got {shown(value)}")
     if (low is not None and value < low) or (high is not None and value > high):
         raise BadInput(f"{where}.{key}: {value} is outside [{low}, {high}]")
     return float(value)
@@ -61,7 +61,7 @@ def integer(
     """An integer in [low, high]; `default` when the key is absent (if given)."""
     value = obj.get(key, default)
     if isinstance(value, bool) or not isinstance(value, int):
-        raise BadInput(f"{where}.{key}: expected an integer, got {_show(value)}")
+        raise BadInput(f"{where}.{key}: expected an integer, got {shown(value)}")
     if (low is not None and value < low) or (high is not None and value > high):
         raise BadInput(f"{where}.{key}: {value} is outside [{low}, {high}]")
     return value
@@ -87,14 +87,14 @@ def boolean(obj: Mapping[str, Any], key: str, where: str, default: bool | None =
     """A JSON boolean; `default` when the key is absent (if given)."""
     value = obj.get(key, default)
     if not isinstance(value, bool):
-        raise BadInput(f"{where}.{key}: expected true or false, got {_show(value)}")
+        raise BadInput(f"{where}.{key}: expected true or false, got {shown(value)}")
     return value
 
 
 def string(obj: Mapping[str, Any], key: str, where: str, default: str | None = None) -> str:
     value = obj.get(key, default)
     if not isinstance(value, str) or not value:
-        raise BadInput(f"{where}.{key}: expected a non-empty string, got {_show(value)}")
+        raise BadInput(f"{where}.{key}: expected a non-empty string, got {shown(value)}")
     return value
 
 
@@ -104,15 +104,10 @@ def number_range(
     """A `[min, max]` pair of finite numbers with min <= max."""
     value = obj.get(key, list(default))
     if not isinstance(value, list) or len(value) != 2:
-        raise BadInput(f"{where}.{key}: expected [min, max], got {_show(value)}")
+        raise BadInput(f"{where}.{key}: expected [min, max], got {shown(value)}")
     pair = {"min": value[0], "max": value[1]}
     lo = number(pair, "min", f"{where}.{key}", low=low)
     hi = number(pair, "max", f"{where}.{key}", low=low)
     if lo > hi:
         raise BadInput(f"{where}.{key}: min {lo} exceeds max {hi}")
     return lo, hi
-
-
-def _show(value: object) -> str:
-    text = repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."
