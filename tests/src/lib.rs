@@ -316,3 +316,52 @@ pub fn start_s3(logs: &Path) -> (Proc, Vec<(String, String)>) {
     assert!(made.status.success(), "creating the test bucket: {}", String::from_utf8_lossy(&made.stderr));
     (proc, env)
 }
+
+/// How widely the object's orientation in camera space spreads over a dataset's samples, computed
+/// from each sample's camera (`R_w2c`) and the object's world pose (its quaternion) — not from the
+/// renderer's own `R_m2c`. The object's z axis in the camera frame is binned two ways: its
+/// direction in the image (12 sectors of 30°) and its octant of the sphere (8 sign patterns).
+#[derive(Debug)]
+pub struct OrientationCoverage {
+    pub samples: usize,
+    /// Samples per 30° image sector of the projected z axis, counter-clockwise from image right.
+    pub image_sectors: [usize; 12],
+    /// Samples per octant of the camera-frame z axis (bit 0: x < 0, bit 1: y < 0, bit 2: z < 0).
+    pub octants: [usize; 8],
+}
+
+impl OrientationCoverage {
+    pub fn of(samples: &[serde_json::Value], dir: &Path) -> OrientationCoverage {
+        let mut out = OrientationCoverage { samples: 0, image_sectors: [0; 12], octants: [0; 8] };
+        for line in samples {
+            let sample = line["sample_id"].as_str().expect("sample_id");
+            let meta: serde_json::Value =
+                serde_json::from_slice(&std::fs::read(dir.join(sample).join("meta.json")).expect("meta.json")).unwrap();
+            let number = |v: &serde_json::Value| v.as_f64().expect("a number");
+            let r: Vec<Vec<f64>> = meta["camera"]["R_w2c"]
+                .as_array()
+                .expect("R_w2c")
+                .iter()
+                .map(|row| row.as_array().expect("a row").iter().map(number).collect())
+                .collect();
+            let q: Vec<f64> = meta["poses"]["object"]["q"].as_array().expect("q").iter().map(number).collect();
+            let (w, x, y, z) = (q[0], q[1], q[2], q[3]);
+            // The object's z axis in the world: the third column of its rotation matrix.
+            let axis = [2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y)];
+            let c: Vec<f64> = (0..3).map(|i| (0..3).map(|j| r[i][j] * axis[j]).sum()).collect();
+            let angle = (-c[1]).atan2(c[0]).rem_euclid(std::f64::consts::TAU); // image y points down
+            out.image_sectors[((angle / (std::f64::consts::TAU / 12.0)) as usize).min(11)] += 1;
+            out.octants[usize::from(c[0] < 0.0) | usize::from(c[1] < 0.0) << 1 | usize::from(c[2] < 0.0) << 2] += 1;
+            out.samples += 1;
+        }
+        out
+    }
+
+    pub fn sectors_hit(&self) -> usize {
+        self.image_sectors.iter().filter(|&&n| n > 0).count()
+    }
+
+    pub fn octants_hit(&self) -> usize {
+        self.octants.iter().filter(|&&n| n > 0).count()
+    }
+}

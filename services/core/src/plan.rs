@@ -98,6 +98,10 @@ pub struct JobPlan {
     pub seed: u64,
     pub trials_per_pair: u32,
     pub chunk_size: u32,
+    /// Stop each pair at this many accepted grasps (`PairBudget`); absent in plans stored before
+    /// it existed, which ran every trial.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub accepted_per_pair: Option<u32>,
     /// View `v` renders under `environments[v / views_per_environment]`.
     pub views_per_environment: u32,
     pub render: render::Settings,
@@ -147,6 +151,7 @@ impl JobPlan {
             seed: spec.dataset.seed,
             trials_per_pair: spec.grasp.trials_per_pair,
             chunk_size: spec.grasp.chunk_size,
+            accepted_per_pair: spec.grasp.accepted_per_pair,
             views_per_environment: r.views_per_environment,
             render: render::Settings {
                 width: r.resolution[0],
@@ -161,6 +166,7 @@ impl JobPlan {
                     .map_or_else(|| render::DEFAULT_ENVIRONMENT.into(), |e| e.name.clone()),
                 radius_m: r.radius_m,
                 elevation_deg: r.elevation_deg,
+                roll_deg: r.roll_deg,
             },
             environments,
             render_assets,
@@ -174,20 +180,87 @@ impl JobPlan {
         self.views_per_environment * self.environments.len() as u32
     }
 
-    /// The trial indices a chunk runs.
+    /// How a pair's trials and accepted grasps split into chunks.
+    pub fn budget(&self) -> PairBudget {
+        PairBudget { trials: self.trials_per_pair, accepted: self.accepted_per_pair, chunk_size: self.chunk_size }
+    }
+
+    /// The trial indices a chunk may run.
     pub fn trials(&self, chunk: &GraspChunk) -> std::ops::Range<u32> {
-        let start = chunk.chunk.saturating_mul(self.chunk_size);
-        start..start.saturating_add(self.chunk_size).min(self.trials_per_pair)
+        self.budget().trials(chunk.chunk)
     }
 
     /// The chunk a grasp index belongs to.
     pub fn chunk_of(&self, object: &str, hand: &str, grasp_index: u32) -> GraspChunk {
-        GraspChunk { object: object.to_string(), hand: hand.to_string(), chunk: grasp_index / self.chunk_size }
+        GraspChunk { object: object.to_string(), hand: hand.to_string(), chunk: self.budget().chunk_of(grasp_index) }
     }
 
     fn environment_of_view(&self, v: u32) -> &str {
         let i = (v / self.views_per_environment.max(1)) as usize;
         self.environments.get(i).map_or(render::DEFAULT_ENVIRONMENT, |e| e.name.as_str())
+    }
+}
+
+/// A pair's trial budget and its split into grasp tasks (chunks). Without a quota every one of
+/// the `trials` counts and chunk `c` runs trials `c·chunk_size ..` (`chunk_size` of them). With a
+/// quota of `accepted` grasps (the paper's "until 2,500 successful grasps"), the pair aims at
+/// `n = min(accepted, trials)` grasps: chunk `c` owns `quota(c)` of them (`chunk_size` but the
+/// last) and a share of the trial indices in proportion, `⌊trials·k/n⌋` for its first and one
+/// past its last grasp slot `k`, and stops once its quota is accepted. The shares tile
+/// `0..trials`, so the pair never runs more than `trials` trials, and which trials a chunk runs
+/// depends only on the spec — not on how many other chunks accepted, nor on the workers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PairBudget {
+    pub trials: u32,
+    pub accepted: Option<u32>,
+    pub chunk_size: u32,
+}
+
+impl PairBudget {
+    /// Grasps the pair aims at: every trial without a quota.
+    fn target(&self) -> u32 {
+        self.accepted.map_or(self.trials, |a| a.min(self.trials)).max(1)
+    }
+
+    pub fn chunks(&self) -> u32 {
+        self.target().div_ceil(self.chunk_size.max(1))
+    }
+
+    /// Chunk `c`'s quota of accepted grasps: `None` without a quota.
+    pub fn quota(&self, c: u32) -> Option<u32> {
+        self.accepted.map(|_| self.slots(c).len() as u32)
+    }
+
+    fn slots(&self, c: u32) -> std::ops::Range<u32> {
+        let start = c.saturating_mul(self.chunk_size).min(self.target());
+        start..start.saturating_add(self.chunk_size).min(self.target())
+    }
+
+    /// First trial index of grasp slot `k`.
+    fn trial_of_slot(&self, k: u32) -> u32 {
+        (u64::from(self.trials) * u64::from(k) / u64::from(self.target())) as u32
+    }
+
+    /// The trial indices chunk `c` may run.
+    pub fn trials(&self, c: u32) -> std::ops::Range<u32> {
+        let slots = self.slots(c);
+        self.trial_of_slot(slots.start)..self.trial_of_slot(slots.end)
+    }
+
+    /// The most trials one chunk may run.
+    pub fn max_task_trials(&self) -> u32 {
+        let per_slot = u64::from(self.trials).div_ceil(u64::from(self.target()));
+        u32::try_from(per_slot.saturating_mul(u64::from(self.chunk_size))).unwrap_or(u32::MAX).min(self.trials)
+    }
+
+    /// The chunk whose trials hold `grasp_index` (the last chunk for an index past them all).
+    pub fn chunk_of(&self, grasp_index: u32) -> u32 {
+        let (mut low, mut high) = (0, self.chunks().saturating_sub(1));
+        while low < high {
+            let middle = low + (high - low).div_ceil(2);
+            if self.trials(middle).start <= grasp_index { low = middle } else { high = middle - 1 }
+        }
+        low
     }
 }
 
@@ -205,7 +278,7 @@ pub fn initial_tasks(spec: &DatasetSpec, assets: &[Asset]) -> Result<Vec<NewTask
         return Err(PlanError::MissingAsset { field: u.field, path: u.path });
     }
     let plan = JobPlan::new(spec, assets)?;
-    let chunks = spec.chunks_per_pair();
+    let chunks = plan.budget().chunks();
     let mut tasks = Vec::with_capacity(spec.objects.len() * spec.hands.len() * chunks as usize);
     for object in &spec.objects {
         for hand in &spec.hands {
@@ -271,6 +344,7 @@ fn grasp_params(
     Ok(grasp::Params {
         object,
         hand,
+        accept: plan.budget().quota(c.chunk),
         trials: plan
             .trials(c)
             .map(|i| grasp::Trial { grasp_index: i, seed: seed::grasp_trial(plan.seed, &c.object, &c.hand, i) })
@@ -386,6 +460,60 @@ mod tests {
         let last = GraspChunk::from_key(&tasks[2].key).unwrap();
         assert_eq!(plan(&s).trials(&last), 8..10);
         assert_eq!(tasks[2].params["trials"].as_array().unwrap().len(), 2);
+    }
+
+    #[test]
+    fn without_a_quota_chunks_run_consecutive_trials() {
+        let b = PairBudget { trials: 10, accepted: None, chunk_size: 4 };
+        assert_eq!(b.chunks(), 3);
+        assert_eq!((0..3).map(|c| b.trials(c)).collect::<Vec<_>>(), vec![0..4, 4..8, 8..10]);
+        assert_eq!((0..3).map(|c| b.quota(c)).collect::<Vec<_>>(), vec![None, None, None]);
+    }
+
+    #[test]
+    fn a_quota_splits_the_trial_budget_in_proportion_and_tiles_it() {
+        for (trials, accepted, chunk_size) in [(10_000, 2_500, 64), (7, 3, 2), (5, 9, 2), (1_000, 999, 7), (3, 1, 1)] {
+            let b = PairBudget { trials, accepted: Some(accepted), chunk_size };
+            let target = accepted.min(trials);
+            let ranges: Vec<_> = (0..b.chunks()).map(|c| b.trials(c)).collect();
+            assert_eq!(ranges.first().map(|r| r.start), Some(0));
+            assert_eq!(ranges.last().map(|r| r.end), Some(trials), "{b:?}");
+            assert!(ranges.windows(2).all(|w| w[0].end == w[1].start), "{b:?}: {ranges:?}");
+            let quotas: Vec<u32> = (0..b.chunks()).map(|c| b.quota(c).unwrap()).collect();
+            assert_eq!(quotas.iter().sum::<u32>(), target, "{b:?}");
+            for (c, (r, q)) in ranges.iter().zip(&quotas).enumerate() {
+                assert!(r.len() as u32 >= *q, "{b:?}: chunk {c} has {} trials for a quota of {q}", r.len());
+                assert!(r.len() as u32 <= b.max_task_trials(), "{b:?}");
+                for g in r.clone() {
+                    assert_eq!(b.chunk_of(g), c as u32, "{b:?}: trial {g}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_quota_reaches_the_grasp_tasks() {
+        let s = spec("[grasp]\ntrials_per_pair = 12\naccepted_per_pair = 3\nchunk_size = 2\n");
+        let tasks = initial_tasks(&s, &[]).unwrap();
+        assert_eq!(tasks.len(), 2);
+        assert_eq!(tasks[0].params["accept"], 2);
+        assert_eq!(tasks[0].params["trials"].as_array().unwrap().len(), 8);
+        assert_eq!(tasks[1].params["accept"], 1);
+        assert_eq!(tasks[1].params["trials"][0]["grasp_index"], 8);
+        assert_eq!(s.max_samples(), 3 * u64::from(s.render.views_per_grasp()));
+        let without = spec("[grasp]\ntrials_per_pair = 12\nchunk_size = 2\n");
+        assert!(initial_tasks(&without, &[]).unwrap().iter().all(|t| t.params.get("accept").is_none()));
+    }
+
+    #[test]
+    fn a_quota_that_would_overfill_a_task_is_refused() {
+        let e = DatasetSpec::parse(
+            "objects = [\"mug\"]\n[dataset]\nname = \"t\"\nseed = 1\n[grasp]\ntrials_per_pair = 100000\naccepted_per_pair = 10\nchunk_size = 8\n",
+        )
+        .unwrap_err();
+        assert_eq!(e.0.len(), 1, "{e}");
+        assert_eq!(e.0[0].path, "grasp.chunk_size");
+        assert!(e.0[0].rule.contains("80000 trials"), "{}", e.0[0].rule);
     }
 
     #[test]

@@ -21,6 +21,7 @@ use crate::catalog;
 use crate::contract::package::Modality;
 use crate::contract::render::{self as render_contract, Bounces};
 use crate::contract::{Bound, grasp, noise, object};
+use crate::plan::PairBudget;
 
 pub use crate::contract::noise::NoiseModel as NoiseSettings;
 use crate::suggest;
@@ -81,8 +82,11 @@ impl UserObject {
 
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct GraspSettings {
-    /// Grasp trials per (object, hand) pair; only accepted ones become samples.
+    /// Grasp trials per (object, hand) pair; only accepted ones become samples. With
+    /// `accepted_per_pair`, the most trials a pair may run.
     pub trials_per_pair: u32,
+    /// Stop each pair at this many accepted grasps (the paper's 2,500); absent: run every trial.
+    pub accepted_per_pair: Option<u32>,
     /// Trials per grasp-sim task (and so per packaging shard).
     pub chunk_size: u32,
     pub timestep_s: f64,
@@ -135,12 +139,17 @@ pub struct RenderSettings {
     pub radius_m: [f64; 2],
     /// Camera elevation range above the horizontal plane.
     pub elevation_deg: [f64; 2],
+    /// Camera roll range about the optical axis.
+    pub roll_deg: [f64; 2],
 }
 
 /// Views of one grasp at most: view ids are two digits (`v00`..`v99`).
 pub const MAX_VIEWS_PER_GRASP: u32 = render_contract::MAX_VIEWS;
 /// Grasp trials per (object, hand) pair.
 pub const TRIALS_PER_PAIR: Bound<u32> = Bound::new(1, 1_000_000, 8);
+/// Accepted grasps a pair stops at (`grasp.accepted_per_pair`; the default is only the value the
+/// contract tests try: absent, there is no quota). VinT-Sim has 2,500 per (object, hand).
+pub const ACCEPTED_PER_PAIR: Bound<u32> = Bound::new(1, 1_000_000, 2_500);
 /// Views under each environment.
 pub const VIEWS_PER_ENVIRONMENT: Bound<u32> = Bound::new(1, MAX_VIEWS_PER_GRASP, 2);
 /// The spec's shake acceleration: 0 (the default) disables the shake test.
@@ -229,6 +238,7 @@ pub fn number_fields() -> Vec<NumberField> {
     vec![
         NumberField { path: "dataset.seed", bounds: NumberBounds::Integer(Bound::new(0, i64::MAX, 0)), pair: false },
         count("grasp.trials_per_pair", TRIALS_PER_PAIR),
+        count("grasp.accepted_per_pair", ACCEPTED_PER_PAIR),
         count("grasp.chunk_size", grasp::TRIALS_PER_TASK),
         float("grasp.timestep_s", grasp::TIMESTEP_S),
         float("grasp.lift_height_m", grasp::LIFT_HEIGHT_M),
@@ -256,6 +266,7 @@ pub fn number_fields() -> Vec<NumberField> {
         float("render.fov_deg", render_contract::FOV_DEG),
         pair(float("render.radius_m", render_contract::RADIUS_M)),
         pair(float("render.elevation_deg", render_contract::ELEVATION_DEG)),
+        pair(float("render.roll_deg", render_contract::ROLL_DEG)),
         float("noise.sigma_base_m", noise::SIGMA_BASE_M),
         float("noise.sigma_per_m", noise::SIGMA_PER_M),
         float("noise.min_range_m", noise::MIN_RANGE_M),
@@ -328,16 +339,22 @@ impl DatasetSpec {
         if r.errors.is_empty() { Ok(spec) } else { Err(SpecErrors(r.errors)) }
     }
 
-    /// Number of grasp-sim tasks (chunks) per (object, hand) pair.
-    pub fn chunks_per_pair(&self) -> u32 {
-        self.grasp.trials_per_pair.div_ceil(self.grasp.chunk_size)
+    /// How each (object, hand) pair's trials split into grasp-sim tasks.
+    pub fn pair_budget(&self) -> PairBudget {
+        let g = &self.grasp;
+        PairBudget { trials: g.trials_per_pair, accepted: g.accepted_per_pair, chunk_size: g.chunk_size }
     }
 
-    /// Upper bound on the number of samples, if every trial were accepted.
+    /// Number of grasp-sim tasks (chunks) per (object, hand) pair.
+    pub fn chunks_per_pair(&self) -> u32 {
+        self.pair_budget().chunks()
+    }
+
+    /// Upper bound on the number of samples: every trial accepted, up to the quota.
     pub fn max_samples(&self) -> u64 {
-        (self.hands.len() * self.objects.len()) as u64
-            * u64::from(self.grasp.trials_per_pair)
-            * u64::from(self.render.views_per_grasp())
+        let g = &self.grasp;
+        let grasps = g.accepted_per_pair.map_or(g.trials_per_pair, |a| a.min(g.trials_per_pair));
+        (self.hands.len() * self.objects.len()) as u64 * u64::from(grasps) * u64::from(self.render.views_per_grasp())
     }
 
     /// Every asset file the spec's listed hands and objects and its environments name, field by
@@ -400,6 +417,9 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
     let mut g = r.section(root, "grasp");
     let grasp = GraspSettings {
         trials_per_pair: r.count(&mut g, "grasp", "trials_per_pair", TRIALS_PER_PAIR),
+        accepted_per_pair: g
+            .contains_key("accepted_per_pair")
+            .then(|| r.count(&mut g, "grasp", "accepted_per_pair", ACCEPTED_PER_PAIR)),
         chunk_size: r.count(&mut g, "grasp", "chunk_size", grasp::TRIALS_PER_TASK),
         timestep_s: r.number(&mut g, "grasp", "timestep_s", grasp::TIMESTEP_S),
         lift_height_m: r.number(&mut g, "grasp", "lift_height_m", grasp::LIFT_HEIGHT_M),
@@ -421,6 +441,7 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
         "grasp",
         &[
             "trials_per_pair",
+            "accepted_per_pair",
             "chunk_size",
             "timestep_s",
             "lift_height_m",
@@ -432,6 +453,22 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
             "shake_duration_s",
         ],
     );
+    let budget =
+        PairBudget { trials: grasp.trials_per_pair, accepted: grasp.accepted_per_pair, chunk_size: grasp.chunk_size };
+    if budget.max_task_trials() > grasp::TRIALS_PER_TASK.max {
+        r.error(
+            "grasp.chunk_size",
+            Value::Integer(i64::from(grasp.chunk_size)),
+            format!(
+                "with trials_per_pair = {} and accepted_per_pair = {}, one grasp task may run {} trials \
+                 (chunk_size × trials per accepted grasp); at most {}: lower chunk_size",
+                grasp.trials_per_pair,
+                grasp.accepted_per_pair.unwrap_or(grasp.trials_per_pair),
+                budget.max_task_trials(),
+                grasp::TRIALS_PER_TASK.max
+            ),
+        );
+    }
 
     let mut t = r.section(root, "touch");
     let touch = TouchSettings {
@@ -475,6 +512,13 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
             render_contract::ELEVATION_DEG,
             render_contract::ELEVATION_DEG_DEFAULT,
         ),
+        roll_deg: r.float_range(
+            &mut rd,
+            "render",
+            "roll_deg",
+            render_contract::ROLL_DEG,
+            render_contract::ROLL_DEG_DEFAULT,
+        ),
     };
     if !render.environments.is_empty() && render.views_per_grasp() > MAX_VIEWS_PER_GRASP {
         r.error(
@@ -500,6 +544,7 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
             "fov_deg",
             "radius_m",
             "elevation_deg",
+            "roll_deg",
         ],
     );
 

@@ -68,7 +68,15 @@ mod tests {
 
     #[test]
     fn a_misspelt_key_or_name_finds_what_was_meant() {
-        let grasp = ["trials_per_pair", "chunk_size", "timestep_s", "lift_height_m", "hold_s", "max_drop_m"];
+        let grasp = [
+            "trials_per_pair",
+            "accepted_per_pair",
+            "chunk_size",
+            "timestep_s",
+            "lift_height_m",
+            "hold_s",
+            "max_drop_m",
+        ];
         assert_eq!(nearest("hold", grasp), Some("hold_s"));
         assert_eq!(nearest("hold_seconds", grasp), Some("hold_s"));
         assert_eq!(nearest("chunksize", grasp), Some("chunk_size"));

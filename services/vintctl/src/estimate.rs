@@ -134,6 +134,13 @@ impl Estimate {
         let total = grasp + render + noise + package;
 
         let mut warnings = Vec::new();
+        if let Some(n) = g.accepted_per_pair.filter(|&n| n > g.trials_per_pair) {
+            warnings.push(format!(
+                "grasp.accepted_per_pair = {n} exceeds grasp.trials_per_pair = {}: each pair stops at its trial budget \
+                 with at most {} accepted grasps; raise trials_per_pair (the bound on trials) to reach {n}",
+                g.trials_per_pair, g.trials_per_pair
+            ));
+        }
         if total > LARGE_CPU_S {
             warnings.push(format!(
                 "this spec would take about {} of compute (more than 1 CPU-day): check grasp.trials_per_pair, the views per grasp, \
@@ -152,8 +159,8 @@ impl Estimate {
             basis: BASIS,
             tasks: Tasks {
                 grasp: chunks,
-                render_max: trials,
-                noise_max: if noisy { trials } else { 0 },
+                render_max: grasps as u64,
+                noise_max: if noisy { grasps as u64 } else { 0 },
                 package_max: chunks,
             },
             samples_max: samples,
@@ -223,6 +230,19 @@ mod tests {
         assert_eq!(e.warnings.len(), 2, "{:?}", e.warnings);
         assert!(e.warnings[0].contains("CPU-days") && e.warnings[0].contains("more than 1 CPU-day"));
         assert!(e.warnings[1].contains("GB (more than 100 GB)"), "{:?}", e.warnings);
+    }
+
+    #[test]
+    fn a_quota_bounds_the_samples_and_one_beyond_the_trial_budget_is_warned_about() {
+        let e = tiny_with("trials_per_pair = 2", "trials_per_pair = 40\naccepted_per_pair = 10");
+        assert_eq!(e.samples_max, 6 * 10 * 6, "6 pairs × 10 grasps × 6 views");
+        assert_eq!(e.tasks.render_max, 6 * 10);
+        assert_eq!(e.tasks.grasp, 6 * 5, "10 grasps in chunks of 2");
+        assert!(e.warnings.is_empty(), "{:?}", e.warnings);
+        let beyond = tiny_with("trials_per_pair = 2", "trials_per_pair = 2\naccepted_per_pair = 10");
+        assert_eq!(beyond.samples_max, 6 * 2 * 6);
+        assert_eq!(beyond.warnings.len(), 1, "{:?}", beyond.warnings);
+        assert!(beyond.warnings[0].contains("exceeds grasp.trials_per_pair = 2"), "{:?}", beyond.warnings);
     }
 
     #[test]

@@ -48,12 +48,15 @@ pub fn spec_errors_json(errors: &SpecErrors) -> Value {
 
 /// `validate` of a valid spec: its size, what it would cost, and a warning when that is a lot.
 pub fn valid_spec(path: &std::path::Path, spec: &vint_core::DatasetSpec, e: &Estimate) {
+    let grasps = match spec.grasp.accepted_per_pair {
+        Some(n) => format!("{n} accepted grasps (at most {} trials)", spec.grasp.trials_per_pair),
+        None => format!("{} trials", spec.grasp.trials_per_pair),
+    };
     println!(
-        "{}: valid — {} hand(s) × {} object(s) × {} trials × {} views: at most {} samples",
+        "{}: valid — {} hand(s) × {} object(s) × {grasps} × {} views: at most {} samples",
         path.display(),
         spec.hands.len(),
         spec.objects.len(),
-        spec.grasp.trials_per_pair,
         spec.render.views_per_grasp(),
         spec.max_samples()
     );

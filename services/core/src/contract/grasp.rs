@@ -57,6 +57,11 @@ pub struct Params {
     pub hand: HandRef,
     #[schemars(length(min = TRIALS_PER_TASK.min, max = TRIALS_PER_TASK.max))]
     pub trials: Vec<Trial>,
+    /// Stop once this many trials are accepted (the chunk's quota of a spec's
+    /// `grasp.accepted_per_pair`); the trials run in the order listed. Absent: run them all.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schemars(range(min = TRIALS_PER_TASK.min, max = TRIALS_PER_TASK.max))]
+    pub accept: Option<u32>,
     #[serde(default)]
     pub physics: Physics,
     #[serde(default)]

@@ -21,6 +21,10 @@ pub const RADIUS_M_DEFAULT: [f64; 2] = [0.35, 0.5];
 /// Each end of the camera's elevation range above the horizontal plane (degrees).
 pub const ELEVATION_DEG: Bound<f64> = Bound::new(-90.0, 90.0, 15.0);
 pub const ELEVATION_DEG_DEFAULT: [f64; 2] = [15.0, 75.0];
+/// Each end of the camera's roll about its optical axis (degrees): the full turn by default, so
+/// an object's orientation in the image covers every direction, not only "world up is image up".
+pub const ROLL_DEG: Bound<f64> = Bound::new(-180.0, 180.0, -180.0);
+pub const ROLL_DEG_DEFAULT: [f64; 2] = [-180.0, 180.0];
 /// Each of Cycles' light-path caps.
 pub const BOUNCES: Bound<u32> = Bound::new(0, 1024, 12);
 /// An environment's turn about world +z (degrees) and strength.
@@ -81,6 +85,10 @@ pub struct Settings {
     /// Camera elevation range, [min, max] (min ≤ max).
     #[schemars(inner(range(min = ELEVATION_DEG.min, max = ELEVATION_DEG.max)))]
     pub elevation_deg: [f64; 2],
+    /// Camera roll range about the optical axis, [min, max] (min ≤ max); [0, 0] keeps world up
+    /// as image up.
+    #[schemars(inner(range(min = ROLL_DEG.min, max = ROLL_DEG.max)))]
+    pub roll_deg: [f64; 2],
 }
 
 impl Default for Settings {
@@ -96,6 +104,7 @@ impl Default for Settings {
             environment: DEFAULT_ENVIRONMENT.to_string(),
             radius_m: RADIUS_M_DEFAULT,
             elevation_deg: ELEVATION_DEG_DEFAULT,
+            roll_deg: ROLL_DEG_DEFAULT,
         }
     }
 }

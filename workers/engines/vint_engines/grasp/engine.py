@@ -73,7 +73,7 @@ class GraspEngine:
         layout, layout_info = self._layout(hand_key, hand, grasp.hand, assets)
         skin = Skin(scene, layout, touch)
         started = time.perf_counter()
-        records = [run_trial(scene, data, physics, skin, index, seed) for index, seed in trials]
+        records = run_trials(scene, data, physics, skin, trials, grasp.accept)
         trials_s = time.perf_counter() - started
         document: dict[str, Any] = {
             "object": object_record(scene, grasp.object_params),
@@ -170,6 +170,27 @@ class GraspEngine:
         return self._layouts[hand.name]
 
 
+def run_trials(
+    scene: GraspScene,
+    data: mujoco.MjData,
+    physics: Physics,
+    skin: Skin,
+    trials: list[tuple[int, int]],
+    accept: int | None,
+) -> list[dict[str, Any]]:
+    """Run `trials` (grasp index, seed) in order; with a quota `accept`, stop once that many are
+    accepted (the trials left are not run and leave no record)."""
+    records: list[dict[str, Any]] = []
+    accepted = 0
+    for index, seed in trials:
+        if accept is not None and accepted >= accept:
+            break
+        record = run_trial(scene, data, physics, skin, index, seed)
+        accepted += bool(record["accepted"])
+        records.append(record)
+    return records
+
+
 def without_readings(record: dict[str, Any]) -> dict[str, Any]:
     """A trial as `grasps.json` carries it: its touch cut to a summary (the full reading goes to
     `touch.json`, which every render task would otherwise download for nothing)."""
@@ -207,6 +228,7 @@ class GraspTask:
     physics: Physics
     touch: TouchParams
     trials: list[tuple[int, int]]
+    accept: int | None
 
     @staticmethod
     def parse(params: Mapping[str, Any]) -> GraspTask:
@@ -226,6 +248,7 @@ class GraspTask:
             physics=Physics.parse(checked["physics"]),
             touch=TouchParams.parse(checked["touch"]),
             trials=trials,
+            accept=checked.get("accept"),
         )
 
 

@@ -84,9 +84,12 @@ def sample_on_hemisphere(
     target: Mat,
     radius_m: tuple[float, float],
     elevation_deg: tuple[float, float],
+    roll_deg: tuple[float, float] = (0.0, 0.0),
 ) -> CameraPose:
     """A camera at a random radius, elevation and (uniform) azimuth around `target`, looking at it
-    with a small jitter. The draw order is fixed: radius, elevation, azimuth, jitter."""
+    with a small jitter, rolled about its optical axis by a uniform angle in `roll_deg`. The draw
+    order is fixed: radius, elevation, azimuth, jitter, roll — the roll comes last, so a spec
+    without one places its cameras exactly where it did before rolls existed."""
     radius = rng.uniform(*radius_m)
     elevation = math.radians(rng.uniform(*elevation_deg))
     azimuth = rng.uniform(0.0, 2.0 * math.pi)
@@ -98,4 +101,13 @@ def sample_on_hemisphere(
             math.sin(elevation),
         ]
     )
-    return look_at(target + radius * direction, target + jitter)
+    roll = math.radians(rng.uniform(*roll_deg))
+    return rolled(look_at(target + radius * direction, target + jitter), roll)
+
+
+def rolled(camera: CameraPose, angle: float) -> CameraPose:
+    """`camera` turned by `angle` (radians) about its optical axis, in place: its x axis turns
+    towards its y axis, so what it sees turns by `angle` counter-clockwise on screen."""
+    c, s = math.cos(angle), math.sin(angle)
+    turn = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+    return CameraPose(turn @ camera.R_w2c, turn @ camera.t_w2c)

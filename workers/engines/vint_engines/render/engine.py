@@ -51,11 +51,12 @@ class RenderSettings:
     environment: str
     radius_m: tuple[float, float]
     elevation_deg: tuple[float, float]
+    roll_deg: tuple[float, float]
 
     @staticmethod
     def parse(obj: Any, where: str = "params.render") -> RenderSettings:
         fields = contract.validated_part("RenderSettings", obj, where)
-        for key in ("radius_m", "elevation_deg"):
+        for key in ("radius_m", "elevation_deg", "roll_deg"):
             low, high = fields[key]
             if low > high:
                 raise BadInput(f"{where}.{key}: min {low} exceeds max {high}")
@@ -70,6 +71,7 @@ class RenderSettings:
             environment=fields["environment"],  # checked with the views
             radius_m=(float(fields["radius_m"][0]), float(fields["radius_m"][1])),
             elevation_deg=(float(fields["elevation_deg"][0]), float(fields["elevation_deg"][1])),
+            roll_deg=(float(fields["roll_deg"][0]), float(fields["roll_deg"][1])),
         )
 
 
@@ -259,7 +261,11 @@ class RenderEngine:
         for view in self._render_order(views):
             started = time.perf_counter()
             camera = view.camera or sample_on_hemisphere(
-                np.random.default_rng(view.seed), object_pose[0], settings.radius_m, settings.elevation_deg
+                np.random.default_rng(view.seed),
+                object_pose[0],
+                settings.radius_m,
+                settings.elevation_deg,
+                settings.roll_deg,
             )
             self.scene.place_camera(camera, settings.intrinsics)
             geometry = self.scene.render_geometry()
