@@ -243,8 +243,9 @@ fn a_spec_at_any_bound_yields_parameters_every_engine_accepts() {
     let mut specs = 0;
     for field in number_fields() {
         for which in ["min", "max", "default"] {
-            // Specs that break a rule across fields (min_range_m at its maximum leaves no room for
-            // max_range_m) do not validate, so no task is ever planned from them.
+            // Specs that break a rule across fields (render.radius_m at its minimum stands the camera
+            // inside the noise mode's minimum range) do not validate, so no task is ever planned
+            // from them.
             let Ok(spec) = DatasetSpec::parse(&with_value(&field, number(&field, which))) else {
                 continue;
             };
@@ -279,7 +280,7 @@ fn the_engines_refuse_what_the_contract_refuses() {
         let broken = match task.stage {
             vint_core::Stage::Grasp => ("/physics/hold_s", json!(45.0)),
             vint_core::Stage::Render => ("/render/fov_deg", json!(160.0)),
-            vint_core::Stage::Noise => ("/noise/dropout", json!(1.5)),
+            vint_core::Stage::Noise => ("/noise/flying_invalid_share", json!(1.5)),
             vint_core::Stage::Package => ("/modalities/0", json!("normals")),
         };
         *task.params.pointer_mut(broken.0).expect("the field exists") = broken.1;

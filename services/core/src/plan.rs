@@ -144,7 +144,7 @@ impl JobPlan {
             render_assets.clear();
         }
         let mut render_outputs: Vec<RenderOutput> =
-            spec.outputs.modalities.iter().filter_map(|m| m.render_output()).collect();
+            spec.outputs.modalities.iter().flat_map(|m| m.render_outputs().iter().copied()).collect();
         render_outputs.sort();
         render_outputs.dedup();
         Ok(JobPlan {
@@ -171,7 +171,7 @@ impl JobPlan {
             environments,
             render_assets,
             render_outputs,
-            noise: wants(Modality::DepthNoisy).then(|| spec.noise.clone()),
+            noise: wants(Modality::DepthNoisy).then(|| spec.noise.model.clone()),
             modalities: spec.outputs.modalities.clone(),
         })
     }
@@ -575,6 +575,24 @@ mod tests {
         let s = spec("[outputs]\nmodalities = [\"depth_noisy\", \"segmentation\", \"pose\"]\n");
         let c = GraspChunk { object: "tomato_soup_can".into(), hand: "trx3".into(), chunk: 0 };
         assert_eq!(after_grasp(&plan(&s), &c, &[0]).unwrap()[0].params["outputs"], json!(["depth", "segmentation"]));
+    }
+
+    #[test]
+    fn noisy_depth_renders_the_segmentation_its_materials_need_but_packages_only_what_was_asked() {
+        let c = GraspChunk { object: "tomato_soup_can".into(), hand: "trx3".into(), chunk: 0 };
+        let s = spec("[outputs]\nmodalities = [\"depth_noisy\", \"pose\"]\n");
+        let tasks = after_grasp(&plan(&s), &c, &[0]).unwrap();
+        let render = tasks.iter().find(|t| t.stage == Stage::Render).unwrap();
+        assert_eq!(render.params["outputs"], json!(["depth", "segmentation"]));
+        let noise = tasks.iter().find(|t| t.stage == Stage::Noise).unwrap();
+        assert_eq!(noise.params["noise"]["mode"], "nfov_unbinned");
+        let package = tasks.iter().find(|t| t.stage == Stage::Package).unwrap();
+        assert_eq!(package.params["modalities"], json!(["depth_noisy", "pose"]), "no segmentation.png in samples");
+        // Without noisy depth: no segmentation and no noise task.
+        let s = spec("[outputs]\nmodalities = [\"depth\", \"pose\"]\n");
+        let tasks = after_grasp(&plan(&s), &c, &[0]).unwrap();
+        assert_eq!(tasks.iter().find(|t| t.stage == Stage::Render).unwrap().params["outputs"], json!(["depth"]));
+        assert!(tasks.iter().all(|t| t.stage != Stage::Noise));
     }
 
     #[test]

@@ -23,7 +23,6 @@ use crate::contract::render::{self as render_contract, Bounces};
 use crate::contract::{Bound, grasp, noise, object};
 use crate::plan::PairBudget;
 
-pub use crate::contract::noise::NoiseModel as NoiseSettings;
 use crate::suggest;
 
 /// A validated dataset spec.
@@ -48,6 +47,16 @@ pub struct DatasetSection {
     pub name: String,
     /// Root of every random stream (see `seed`).
     pub seed: u64,
+}
+
+/// `[noise]`: the sensor model the noise tasks apply, and whether cameras may stand closer than
+/// the mode's minimum range.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct NoiseSettings {
+    #[serde(flatten)]
+    pub model: noise::NoiseModel,
+    /// Accept `render.radius_m` below the mode's minimum range (those readings come out invalid).
+    pub ignore_min_range: bool,
 }
 
 /// A user's hand: an MJCF model following `docs/hands.md` and its taxel layout (the format of
@@ -267,12 +276,12 @@ pub fn number_fields() -> Vec<NumberField> {
         pair(float("render.radius_m", render_contract::RADIUS_M)),
         pair(float("render.elevation_deg", render_contract::ELEVATION_DEG)),
         pair(float("render.roll_deg", render_contract::ROLL_DEG)),
-        float("noise.sigma_base_m", noise::SIGMA_BASE_M),
-        float("noise.sigma_per_m", noise::SIGMA_PER_M),
-        float("noise.min_range_m", noise::MIN_RANGE_M),
-        float("noise.max_range_m", noise::MAX_RANGE_M),
-        float("noise.edge_hole_jump_m", noise::EDGE_HOLE_JUMP_M),
-        float("noise.dropout", noise::DROPOUT),
+        float("noise.sigma_scale", noise::SIGMA_SCALE),
+        float("noise.lateral_sigma_px", noise::LATERAL_SIGMA_PX),
+        float("noise.flying_jump_m", noise::FLYING_JUMP_M),
+        float("noise.flying_invalid_share", noise::FLYING_INVALID_SHARE),
+        float("noise.multipath_gain", noise::MULTIPATH_GAIN),
+        float("noise.specular_cone_deg", noise::SPECULAR_CONE_DEG),
         float("object.*.mass_kg", object::MASS_KG),
     ]
 }
@@ -549,22 +558,52 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
     );
 
     let mut n = r.section(root, "noise");
-    let noise = NoiseSettings {
-        sigma_base_m: r.number(&mut n, "noise", "sigma_base_m", noise::SIGMA_BASE_M),
-        sigma_per_m: r.number(&mut n, "noise", "sigma_per_m", noise::SIGMA_PER_M),
-        min_range_m: r.number(&mut n, "noise", "min_range_m", noise::MIN_RANGE_M),
-        max_range_m: r.number(&mut n, "noise", "max_range_m", noise::MAX_RANGE_M),
-        edge_hole_jump_m: r.number(&mut n, "noise", "edge_hole_jump_m", noise::EDGE_HOLE_JUMP_M),
-        dropout: r.number(&mut n, "noise", "dropout", noise::DROPOUT),
+    let on = noise::NoiseModel::default();
+    let model = noise::NoiseModel {
+        mode: r.tag(&mut n, "noise", "mode", &noise::DepthMode::ALL, Some(on.mode)),
+        sigma_scale: r.number(&mut n, "noise", "sigma_scale", noise::SIGMA_SCALE),
+        lateral: r.boolean(&mut n, "noise.lateral", "lateral", on.lateral),
+        lateral_sigma_px: r.number(&mut n, "noise", "lateral_sigma_px", noise::LATERAL_SIGMA_PX),
+        flying_pixels: r.boolean(&mut n, "noise.flying_pixels", "flying_pixels", on.flying_pixels),
+        flying_jump_m: r.number(&mut n, "noise", "flying_jump_m", noise::FLYING_JUMP_M),
+        flying_invalid_share: r.number(&mut n, "noise", "flying_invalid_share", noise::FLYING_INVALID_SHARE),
+        multipath: r.boolean(&mut n, "noise.multipath", "multipath", on.multipath),
+        multipath_gain: r.number(&mut n, "noise", "multipath_gain", noise::MULTIPATH_GAIN),
+        materials: r.boolean(&mut n, "noise.materials", "materials", on.materials),
+        specular_cone_deg: r.number(&mut n, "noise", "specular_cone_deg", noise::SPECULAR_CONE_DEG),
     };
-    if noise.min_range_m >= noise.max_range_m {
-        r.error(
-            "noise.max_range_m",
-            Value::Float(noise.max_range_m),
-            format!("must be greater than noise.min_range_m ({})", noise.min_range_m),
-        );
+    let noise = NoiseSettings {
+        model,
+        ignore_min_range: r.boolean(&mut n, "noise.ignore_min_range", "ignore_min_range", false),
+    };
+    for old in ["sigma_base_m", "sigma_per_m", "min_range_m", "max_range_m", "edge_hole_jump_m", "dropout"] {
+        if let Some(v) = n.remove(old) {
+            r.error(
+                &join("noise", old),
+                v,
+                "was removed: the noise model is an Azure Kinect mode (noise.mode) with cited parameters, \
+                 see docs/depth_noise.md",
+            );
+        }
     }
-    r.finish(n, "noise", &["sigma_base_m", "sigma_per_m", "min_range_m", "max_range_m", "edge_hole_jump_m", "dropout"]);
+    r.finish(
+        n,
+        "noise",
+        &[
+            "mode",
+            "sigma_scale",
+            "lateral",
+            "lateral_sigma_px",
+            "flying_pixels",
+            "flying_jump_m",
+            "flying_invalid_share",
+            "multipath",
+            "multipath_gain",
+            "materials",
+            "specular_cone_deg",
+            "ignore_min_range",
+        ],
+    );
 
     let mut o = r.section(root, "outputs");
     let modality_names: Vec<&str> = Modality::ALL.iter().map(|m| m.as_str()).collect();
@@ -583,6 +622,7 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
             .collect(),
     };
     r.finish(o, "outputs", &["modalities"]);
+    check_min_range(r, &render, &noise, &outputs);
 
     r.finish(
         std::mem::take(root),
@@ -590,6 +630,31 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
         &["dataset", "hands", "objects", "hand", "object", "grasp", "touch", "render", "noise", "outputs"],
     );
     DatasetSpec { dataset, hands, objects, hand_defs, object_defs, grasp, touch, render, noise, outputs }
+}
+
+/// With noisy depth requested, the nearest camera must stand within the mode's range (a nearer one
+/// would see only invalid depth), unless the spec says `noise.ignore_min_range = true`.
+fn check_min_range(r: &mut Reader, render: &RenderSettings, noise: &NoiseSettings, outputs: &Outputs) {
+    let mode = noise.model.mode;
+    let min_range_m = mode.figures().min_range_m;
+    // A refused mode was reported; the default standing in for it says nothing about the range.
+    let mode_refused = r.errors.iter().any(|e| e.path == "noise.mode");
+    if !mode_refused
+        && outputs.wants(Modality::DepthNoisy)
+        && !noise.ignore_min_range
+        && render.radius_m[0] < min_range_m
+    {
+        r.error(
+            "render.radius_m[0]",
+            Value::Float(render.radius_m[0]),
+            format!(
+                "must be at least {min_range_m} m, the minimum range of noise.mode {:?} (depth_noisy is requested): \
+                 move the camera out, choose a mode with a shorter range (wfov_2x2binned, wfov_unbinned: 0.25 m), \
+                 or set noise.ignore_min_range = true",
+                mode.as_str()
+            ),
+        );
+    }
 }
 
 /// `[hand.NAME]` tables: `mjcf` and `taxels` file paths.

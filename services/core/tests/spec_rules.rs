@@ -46,13 +46,13 @@ fn resolution_out_of_range_names_field_value_and_rule() {
 fn every_problem_is_reported_at_once() {
     let text = tiny_with("resolution = [128, 128]", "resolution = [0, 0]")
         .replace("samples = 16", "samples = -3")
-        .replace("dropout = 0.01", "dropout = nan")
+        .replace("sigma_scale = 1.0", "sigma_scale = nan")
         .replace("seed = 7", "seed = \"seven\"");
     let errs = errors(&text);
     assert_eq!(errs.len(), 5, "{errs:#?}");
     assert!(errs.contains(&"dataset.seed: must be an integer, got \"seven\"".to_string()));
     assert!(errs.contains(&"render.samples: must be 1..=65536, got -3".to_string()));
-    assert!(errs.contains(&"noise.dropout: must be a finite number, got nan".to_string()));
+    assert!(errs.contains(&"noise.sigma_scale: must be a finite number, got nan".to_string()));
 }
 
 #[test]
@@ -121,10 +121,13 @@ fn negative_and_absurd_values_are_rejected() {
         &tiny_with("chunk_size = 2", "chunk_size = 5000"),
         "grasp.chunk_size: must be 1..=1024, got 5000",
     );
-    assert_single_error(&tiny_with("dropout = 0.01", "dropout = 1.5"), "noise.dropout: must be in [0, 1], got 1.5");
     assert_single_error(
-        &tiny_with("sigma_base_m = 0.0005", "sigma_base_m = -0.1"),
-        "noise.sigma_base_m: must be in [0, 0.1], got -0.1",
+        &tiny_with("sigma_scale = 1.0", "sigma_scale = 11"),
+        "noise.sigma_scale: must be in [0, 10], got 11.0",
+    );
+    assert_single_error(
+        &tiny_with("sigma_scale = 1.0", "sigma_scale = 1.0\nflying_invalid_share = -0.1"),
+        "noise.flying_invalid_share: must be in [0, 1], got -0.1",
     );
     assert_single_error(
         &tiny_with("fov_deg = 50.0", "fov_deg = 180.0"),
@@ -156,10 +159,49 @@ fn ranges_must_be_ordered_and_bounded() {
         &tiny_with("elevation_deg = [15.0, 75.0]", "elevation_deg = [15.0, 95.0]"),
         "render.elevation_deg[1]: must be in [-90, 90], got 95.0",
     );
+}
+
+#[test]
+fn noise_modes_are_named_and_the_old_gaussian_fields_are_refused_with_a_pointer() {
     assert_single_error(
-        &tiny_with("min_range_m = 0.25", "min_range_m = 4.0"),
-        "noise.max_range_m: must be greater than noise.min_range_m (4), got 3.86",
+        &tiny_with("mode = \"wfov_2x2binned\"", "mode = \"kinect\""),
+        "noise.mode: must be one of nfov_unbinned, nfov_2x2binned, wfov_2x2binned, wfov_unbinned, got \"kinect\"",
     );
+    assert_single_error(&tiny_with("lateral = true", "lateral = 1"), "noise.lateral: must be true or false, got 1");
+    let errs = errors(&tiny_with("sigma_scale = 1.0", "sigma_scale = 1.0\nsigma_base_m = 0.0005"));
+    assert_eq!(errs.len(), 1, "{errs:#?}");
+    assert!(
+        errs[0].starts_with("noise.sigma_base_m: was removed: the noise model is an Azure Kinect mode"),
+        "{errs:#?}"
+    );
+}
+
+#[test]
+fn cameras_nearer_than_the_modes_minimum_range_are_refused_when_noisy_depth_is_requested() {
+    // tiny.toml: radius 0.35-0.5 m, wfov_2x2binned (0.25 m minimum) is valid; the narrow modes
+    // start at 0.5 m.
+    let narrow = tiny_with("mode = \"wfov_2x2binned\"", "mode = \"nfov_unbinned\"");
+    let errs = errors(&narrow);
+    assert_eq!(errs.len(), 1, "{errs:#?}");
+    assert!(
+        errs[0].starts_with(
+            "render.radius_m[0]: must be at least 0.5 m, the minimum range of noise.mode \"nfov_unbinned\""
+        ) && errs[0].ends_with("got 0.35"),
+        "{errs:#?}"
+    );
+    // The user may accept the invalid readings, or stand the camera further out.
+    DatasetSpec::parse(&narrow.replace("materials = true", "materials = true\nignore_min_range = true"))
+        .expect("ignore_min_range accepts a near camera");
+    DatasetSpec::parse(&narrow.replace("radius_m = [0.35, 0.5]", "radius_m = [0.5, 0.6]")).expect("0.5 m is in range");
+    // Without depth_noisy no noise is made, so the range does not matter.
+    DatasetSpec::parse(&narrow.replace("\"depth_noisy\", ", "")).expect("no noisy depth, no range rule");
+    // The defaults are consistent: the default mode (nfov_unbinned) and the default radius.
+    let defaults = DatasetSpec::parse(
+        "hands = [\"trx3\"]\nobjects = [\"mug\"]\n[dataset]\nname = \"d\"\nseed = 1\n[outputs]\nmodalities = [\"depth_noisy\"]\n",
+    )
+    .expect("the default spec with noisy depth validates");
+    assert_eq!(defaults.noise.model.mode.figures().min_range_m, 0.5);
+    assert!(defaults.render.radius_m[0] >= 0.5);
 }
 
 #[test]

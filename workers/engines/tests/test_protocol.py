@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import errno
 import io
+import json
 import os
 import struct
 import subprocess
@@ -28,13 +29,16 @@ from vint_engines.protocol import (
     write_frame,
 )
 
-NOISE_PARAMS = {"noise": {"dropout": 0.0}, "views": [{"view_index": 0, "seed": 24680}]}
+NOISE_PARAMS = {"noise": {"materials": False}, "views": [{"view_index": 0, "seed": 24680}]}
 
 
-def write_depth(directory: Path) -> Path:
+def write_depth(directory: Path) -> list[Path]:
+    """A view's depth and camera record (materials off: no segmentation needed)."""
     path = directory / "v00_depth.npy"
     np.save(path, np.full((8, 8), 0.6, np.float32))
-    return path
+    camera = directory / "v00_camera.json"
+    camera.write_text(json.dumps({"K": [[8.0, 0, 3.5], [0, 8.0, 3.5], [0, 0, 1]], "width": 8, "height": 8}))
+    return [path, camera]
 
 
 def test_frames_round_trip_through_the_codec() -> None:
@@ -65,7 +69,7 @@ def test_engine_says_hello_runs_a_task_and_exits_zero_on_shutdown(spawn_engine, 
     assert {"python", "numpy", "opencv"} <= set(hello["engine"]["libs"])
 
     out_dir = new_dir(tmp_path, "out")
-    reply = engine.task("t-1", NOISE_PARAMS, out_dir, [write_depth(new_dir(tmp_path, "in"))])
+    reply = engine.task("t-1", NOISE_PARAMS, out_dir, write_depth(new_dir(tmp_path, "in")))
     assert reply["ok"] is True, reply
     assert [o["name"] for o in reply["outputs"]] == ["v00_depth_noisy.npy"]
     assert Path(reply["outputs"][0]["path"]).parent == out_dir
@@ -88,7 +92,7 @@ def test_impossible_task_fails_without_retry_and_engine_keeps_serving(spawn_engi
     missing = engine.task("t-missing", NOISE_PARAMS, new_dir(tmp_path, "missing"))
     assert missing["ok"] is False and missing["retryable"] is False and "v00_depth.npy" in missing["error"]
     good = engine.task(
-        "t-good", NOISE_PARAMS, new_dir(tmp_path, "good"), [write_depth(new_dir(tmp_path, "in"))]
+        "t-good", NOISE_PARAMS, new_dir(tmp_path, "good"), write_depth(new_dir(tmp_path, "in"))
     )
     assert good["ok"] is True
     assert engine.shutdown() == 0
@@ -190,6 +194,8 @@ def test_a_result_that_breaks_the_stage_contract_is_never_reported_as_success(tm
 def test_parameters_outside_the_contract_are_bad_input_naming_field_value_and_bounds() -> None:
     from vint_engines.noise.engine import parse_params
 
-    params = {"noise": {"dropout": 1.5}, "views": [{"view_index": 0, "seed": 1}]}
-    with pytest.raises(BadInput, match=r"^params\.noise\.dropout: 1\.5 is outside \[0\.0, 1\.0\]$"):
+    params = {"noise": {"flying_invalid_share": 1.5}, "views": [{"view_index": 0, "seed": 1}]}
+    with pytest.raises(
+        BadInput, match=r"^params\.noise\.flying_invalid_share: 1\.5 is outside \[0\.0, 1\.0\]$"
+    ):
         parse_params(params)

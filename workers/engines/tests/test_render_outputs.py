@@ -17,10 +17,11 @@ from conftest import EngineProcess, new_dir
 from geometry import rasterise_depth, signed_distance_to_primitive
 
 from vint_engines.grasp.engine import GraspEngine
+from vint_engines.noise.engine import NoiseEngine
 from vint_engines.objects import load_catalog
 from vint_engines.objects.meshio import read_ply_m
 from vint_engines.poses import quat_to_matrix
-from vint_engines.protocol import TaskRequest
+from vint_engines.protocol import BadInput, InputRef, TaskRequest
 from vint_engines.render.camera import CameraPose, look_at
 
 RENDER = {
@@ -381,3 +382,41 @@ def test_environment_rotation_and_strength_change_only_the_light(
     assert np.array_equal(np.load(out / "v00_depth.npy"), np.load(plain / "v00_depth.npy"))
     turned = cv2.imread(str(out / "v00_rgb.png")).astype(float)
     assert turned.mean() > cv2.imread(str(plain / "v00_rgb.png")).astype(float).mean() + 10
+
+
+def test_a_noise_task_reads_the_rendered_segmentation_and_camera_record(
+    engine: EngineProcess, grasp: dict[str, Any], workdir: Path
+) -> None:
+    """Render depth and segmentation (what the planner asks for with noisy depth alone), then run
+    the noise engine on them: camera.json carries each segment's material, the noise depends on
+    it (the can as glass reads differently from the can as metal), and a task without the
+    segmentation or the camera record is refused, naming the file."""
+    out = new_dir(workdir, "for_noise")
+    render(
+        engine, grasp, out, ["depth", "segmentation"], [{"view_index": 0, "seed": 21}], radius_m=[0.3, 0.35]
+    )
+    record = json.loads((out / "v00_camera.json").read_text())
+    links = grasp["doc"]["hand"]["links"]
+    assert record["materials"] == {"1": "metal", **{str(2 + k): "rubber" for k in range(len(links))}}
+
+    params = {"noise": {"mode": "wfov_unbinned"}, "views": [{"view_index": 0, "seed": 9}]}
+    names = ("v00_depth.npy", "v00_segmentation.png", "v00_camera.json")
+
+    def noisy(files: dict[str, Path], name: str) -> np.ndarray:
+        inputs = tuple(InputRef(n, "render/x", p) for n, p in files.items())
+        NoiseEngine().run(TaskRequest(name, params, inputs, new_dir(workdir, name)))
+        return np.load(workdir / name / "v00_depth_noisy.npy")
+
+    files = {n: out / n for n in names}
+    as_metal = noisy(files, "noise_metal")
+    depth = np.load(out / "v00_depth.npy")
+    assert np.isfinite(as_metal).all() and (as_metal > 0).sum() > 0.5 * (depth > 0).sum()
+    glass = new_dir(workdir, "glass_camera") / "v00_camera.json"
+    glass.write_text(json.dumps({**record, "materials": {**record["materials"], "1": "glass"}}))
+    as_glass = noisy({**files, "v00_camera.json": glass}, "noise_glass")
+    can = cv2.imread(str(out / "v00_segmentation.png"), cv2.IMREAD_UNCHANGED) == 1
+    assert can.sum() > 50
+    assert np.abs(as_glass[can] - depth[can]).mean() > 5 * np.abs(as_metal[can] - depth[can]).mean()
+    for missing in ("v00_segmentation.png", "v00_camera.json"):
+        with pytest.raises(BadInput, match=missing):
+            noisy({n: p for n, p in files.items() if n != missing}, f"noise_without_{missing[4:9]}")

@@ -40,12 +40,16 @@ fn noise_task(dir: &Path) -> (serde_json::Value, Vec<EngineInput>, PathBuf) {
     write_depth(&depth, 32, 24, 0.6);
     let out = dir.join("out");
     std::fs::create_dir_all(&out).unwrap();
-    let params = json!({
-        "noise": {"sigma_base_m": 0.0005, "sigma_per_m": 0.001, "min_range_m": 0.25, "max_range_m": 3.86,
-                  "edge_hole_jump_m": 0.05, "dropout": 0.01},
-        "views": [{"view_index": 0, "seed": 42}],
-    });
-    let inputs = vec![EngineInput { name: "v00_depth.npy".into(), task_key: "render/x".into(), path: depth }];
+    let camera = dir.join("v00_camera.json");
+    let record = json!({"K": [[30.0, 0.0, 15.5], [0.0, 30.0, 11.5], [0.0, 0.0, 1.0]], "width": 32, "height": 24});
+    std::fs::write(&camera, record.to_string()).unwrap();
+    // Materials off: the engine then needs no segmentation.
+    let params =
+        json!({"noise": {"mode": "wfov_2x2binned", "materials": false}, "views": [{"view_index": 0, "seed": 42}]});
+    let inputs = vec![
+        EngineInput { name: "v00_depth.npy".into(), task_key: "render/x".into(), path: depth },
+        EngineInput { name: "v00_camera.json".into(), task_key: "render/x".into(), path: camera },
+    ];
     (params, inputs, out)
 }
 
@@ -73,7 +77,7 @@ async fn impossible_parameters_are_a_permanent_task_failure_not_a_crash() {
     let dir = tempfile::tempdir().unwrap();
     let mut engine = Engine::start(Stage::Noise, &command()).await.unwrap();
     let (_, inputs, out) = noise_task(dir.path());
-    let r = engine.run("bad", &json!({"noise": {"dropout": "lots"}, "views": []}), &inputs, &out).await.unwrap();
+    let r = engine.run("bad", &json!({"noise": {"sigma_scale": "lots"}, "views": []}), &inputs, &out).await.unwrap();
     assert!(!r.ok);
     assert!(!r.retryable, "bad parameters will fail again: {}", r.error);
     // The engine survives a bad task.

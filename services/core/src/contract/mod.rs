@@ -104,6 +104,7 @@ pub fn schema() -> Value {
                         (services/core/src/contract): do not edit; regenerate with \
                         `VINT_BLESS=1 cargo test -p vint-core committed_schema`.",
         "stages": stages,
+        "depth_modes": noise::modes_table(),
         "$defs": defs,
     })
 }
@@ -139,11 +140,13 @@ mod tests {
     }
 
     #[test]
-    fn render_tasks_read_poses_and_the_mesh_but_not_touch_and_noise_tasks_read_depth_alone() {
+    fn render_tasks_read_poses_and_the_mesh_but_not_touch_and_noise_tasks_read_depth_segmentation_camera() {
         assert!(reads(Stage::Render, grasp::GRASPS_FILE) && reads(Stage::Render, grasp::MODEL_FILE));
         assert!(!reads(Stage::Render, grasp::TOUCH_FILE), "touch.json is the bulk of a chunk's output");
-        assert!(reads(Stage::Noise, &render::ViewFile::Depth.name(7)));
-        for file in [render::ViewFile::Rgb, render::ViewFile::Camera, render::ViewFile::Mask] {
+        for file in [render::ViewFile::Depth, render::ViewFile::Segmentation, render::ViewFile::Camera] {
+            assert!(reads(Stage::Noise, &file.name(7)) && reads(Stage::Noise, &file.name(42)), "{}", file.name(7));
+        }
+        for file in [render::ViewFile::Rgb, render::ViewFile::Mask, render::ViewFile::MaskFull] {
             assert!(!reads(Stage::Noise, &file.name(7)), "{}", file.name(7));
         }
         assert!(!reads(Stage::Noise, &noise::noisy_depth_file(7)) && !reads(Stage::Noise, grasp::TOUCH_FILE));

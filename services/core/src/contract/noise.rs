@@ -1,19 +1,102 @@
-//! The noise stage: a depth-sensor model applied to every depth image of one grasp's render task
-//! (`vint_engines.noise`).
+//! The noise stage: an Azure-Kinect-like time-of-flight depth model applied to every depth image
+//! of one grasp's render task (`vint_engines.noise`; the model and its sources:
+//! `docs/depth_noise.md`).
 
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
+use serde_json::{Value, json};
 
 use super::render::{VIEW_INDEX, ViewFile};
 use super::{Bound, SEED_MAX};
 
-pub const SIGMA_BASE_M: Bound<f64> = Bound::new(0.0, 0.1, 0.0005);
-pub const SIGMA_PER_M: Bound<f64> = Bound::new(0.0, 0.1, 0.001);
-/// The valid range of readings; `min_range_m` < `max_range_m`.
-pub const MIN_RANGE_M: Bound<f64> = Bound::new(0.0, 20.0, 0.25);
-pub const MAX_RANGE_M: Bound<f64> = Bound::new(0.0, 20.0, 3.86);
-pub const EDGE_HOLE_JUMP_M: Bound<f64> = Bound::new(0.001, 10.0, 0.05);
-pub const DROPOUT: Bound<f64> = Bound::new(0.0, 1.0, 0.01);
+/// Multiplies the axial σ of the mode (1 = the calibration in `docs/depth_noise.md`).
+pub const SIGMA_SCALE: Bound<f64> = Bound::new(0.0, 10.0, 1.0);
+/// σ of the lateral jitter, in the mode's native pixels (BlenderProc's Kinect model uses 0.25 px;
+/// FACTS.md, "Depth sensor").
+pub const LATERAL_SIGMA_PX: Bound<f64> = Bound::new(0.0, 5.0, 0.25);
+/// A depth step larger than this across a pixel's footprint makes it a mixed (flying) pixel (m).
+pub const FLYING_JUMP_M: Bound<f64> = Bound::new(0.001, 10.0, 0.02);
+/// The share of mixed pixels the sensor's depth engine invalidates (the rest fly).
+pub const FLYING_INVALID_SHARE: Bound<f64> = Bound::new(0.0, 1.0, 0.5);
+/// Multipath bias per metre of concavity depth (see `docs/depth_noise.md`, multipath).
+pub const MULTIPATH_GAIN: Bound<f64> = Bound::new(0.0, 2.0, 0.3);
+/// Half-angle of the cone around the mirror direction in which a metal surface saturates (deg).
+pub const SPECULAR_CONE_DEG: Bound<f64> = Bound::new(0.0, 45.0, 10.0);
+
+/// An Azure Kinect depth mode: its native resolution, field of view and operating range
+/// (Microsoft, Azure Kinect DK hardware specification, "Depth camera supported operating modes").
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+pub enum DepthMode {
+    /// 640×576, 75°×65°, 0.5–3.86 m.
+    #[default]
+    #[serde(rename = "nfov_unbinned")]
+    NfovUnbinned,
+    /// 320×288, 75°×65°, 0.5–5.46 m.
+    #[serde(rename = "nfov_2x2binned")]
+    Nfov2x2Binned,
+    /// 512×512, 120°×120°, 0.25–2.88 m.
+    #[serde(rename = "wfov_2x2binned")]
+    Wfov2x2Binned,
+    /// 1024×1024, 120°×120°, 0.25–2.21 m.
+    #[serde(rename = "wfov_unbinned")]
+    WfovUnbinned,
+}
+
+/// A depth mode's figures (Microsoft's hardware specification).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ModeFigures {
+    pub width_px: u32,
+    pub height_px: u32,
+    pub fov_h_deg: f64,
+    pub fov_v_deg: f64,
+    pub min_range_m: f64,
+    pub max_range_m: f64,
+}
+
+impl DepthMode {
+    pub const ALL: [DepthMode; 4] =
+        [DepthMode::NfovUnbinned, DepthMode::Nfov2x2Binned, DepthMode::Wfov2x2Binned, DepthMode::WfovUnbinned];
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            DepthMode::NfovUnbinned => "nfov_unbinned",
+            DepthMode::Nfov2x2Binned => "nfov_2x2binned",
+            DepthMode::Wfov2x2Binned => "wfov_2x2binned",
+            DepthMode::WfovUnbinned => "wfov_unbinned",
+        }
+    }
+
+    pub fn figures(self) -> ModeFigures {
+        let (width_px, height_px, fov_h_deg, fov_v_deg, min_range_m, max_range_m) = match self {
+            DepthMode::NfovUnbinned => (640, 576, 75.0, 65.0, 0.5, 3.86),
+            DepthMode::Nfov2x2Binned => (320, 288, 75.0, 65.0, 0.5, 5.46),
+            DepthMode::Wfov2x2Binned => (512, 512, 120.0, 120.0, 0.25, 2.88),
+            DepthMode::WfovUnbinned => (1024, 1024, 120.0, 120.0, 0.25, 2.21),
+        };
+        ModeFigures { width_px, height_px, fov_h_deg, fov_v_deg, min_range_m, max_range_m }
+    }
+}
+
+/// The modes' figures as the committed schema carries them (`depth_modes`), so the engine reads
+/// the one table this module defines.
+pub fn modes_table() -> Value {
+    let mut table = serde_json::Map::new();
+    for mode in DepthMode::ALL {
+        let f = mode.figures();
+        table.insert(
+            mode.as_str().to_string(),
+            json!({
+                "width_px": f.width_px,
+                "height_px": f.height_px,
+                "fov_h_deg": f.fov_h_deg,
+                "fov_v_deg": f.fov_v_deg,
+                "min_range_m": f.min_range_m,
+                "max_range_m": f.max_range_m,
+            }),
+        );
+    }
+    Value::Object(table)
+}
 
 /// A noise task's parameters.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
@@ -26,37 +109,55 @@ pub struct Params {
     pub views: Vec<View>,
 }
 
-/// The depth-noise model (`vint_engines/noise/model.py` documents each term).
+/// The depth-sensor model (`vint_engines/noise/model.py` and `docs/depth_noise.md` document each
+/// term). Axial noise and the mode's range always apply; the other pieces can be switched off.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct NoiseModel {
-    /// σ at 0.5 m and closer (m).
-    #[schemars(range(min = SIGMA_BASE_M.min, max = SIGMA_BASE_M.max))]
-    pub sigma_base_m: f64,
-    /// σ growth per metre beyond 0.5 m.
-    #[schemars(range(min = SIGMA_PER_M.min, max = SIGMA_PER_M.max))]
-    pub sigma_per_m: f64,
-    #[schemars(range(min = MIN_RANGE_M.min, max = MIN_RANGE_M.max))]
-    pub min_range_m: f64,
-    #[schemars(range(min = MAX_RANGE_M.min, max = MAX_RANGE_M.max))]
-    pub max_range_m: f64,
-    /// A pixel whose 3×3 neighbourhood spans more than this becomes a hole (m).
-    #[schemars(range(min = EDGE_HOLE_JUMP_M.min, max = EDGE_HOLE_JUMP_M.max))]
-    pub edge_hole_jump_m: f64,
-    /// Probability that a pixel drops out.
-    #[schemars(range(min = DROPOUT.min, max = DROPOUT.max))]
-    pub dropout: f64,
+    /// The Azure Kinect depth mode: range, native resolution and field of view.
+    pub mode: DepthMode,
+    /// Multiplies the mode's axial σ.
+    #[schemars(range(min = SIGMA_SCALE.min, max = SIGMA_SCALE.max))]
+    pub sigma_scale: f64,
+    /// Lateral jitter of where each pixel samples the scene.
+    pub lateral: bool,
+    /// σ of the lateral jitter, in native pixels of the mode.
+    #[schemars(range(min = LATERAL_SIGMA_PX.min, max = LATERAL_SIGMA_PX.max))]
+    pub lateral_sigma_px: f64,
+    /// Mixed foreground/background depths at depth edges.
+    pub flying_pixels: bool,
+    /// A step larger than this within a pixel's footprint mixes depths (m).
+    #[schemars(range(min = FLYING_JUMP_M.min, max = FLYING_JUMP_M.max))]
+    pub flying_jump_m: f64,
+    /// The share of mixed pixels that read invalid instead of flying.
+    #[schemars(range(min = FLYING_INVALID_SHARE.min, max = FLYING_INVALID_SHARE.max))]
+    pub flying_invalid_share: f64,
+    /// Positive bias in concave corners (light that reaches the pixel by two bounces).
+    pub multipath: bool,
+    /// Bias per metre of concavity depth.
+    #[schemars(range(min = MULTIPATH_GAIN.min, max = MULTIPATH_GAIN.max))]
+    pub multipath_gain: f64,
+    /// Per-segment materials from `camera.json`: IR reflectivity, glass, specular metal.
+    pub materials: bool,
+    /// Half-angle of the saturating cone around a metal surface's mirror direction (deg).
+    #[schemars(range(min = SPECULAR_CONE_DEG.min, max = SPECULAR_CONE_DEG.max))]
+    pub specular_cone_deg: f64,
 }
 
 impl Default for NoiseModel {
     fn default() -> NoiseModel {
         NoiseModel {
-            sigma_base_m: SIGMA_BASE_M.default,
-            sigma_per_m: SIGMA_PER_M.default,
-            min_range_m: MIN_RANGE_M.default,
-            max_range_m: MAX_RANGE_M.default,
-            edge_hole_jump_m: EDGE_HOLE_JUMP_M.default,
-            dropout: DROPOUT.default,
+            mode: DepthMode::default(),
+            sigma_scale: SIGMA_SCALE.default,
+            lateral: true,
+            lateral_sigma_px: LATERAL_SIGMA_PX.default,
+            flying_pixels: true,
+            flying_jump_m: FLYING_JUMP_M.default,
+            flying_invalid_share: FLYING_INVALID_SHARE.default,
+            multipath: true,
+            multipath_gain: MULTIPATH_GAIN.default,
+            materials: true,
+            specular_cone_deg: SPECULAR_CONE_DEG.default,
         }
     }
 }
@@ -77,9 +178,12 @@ pub fn noisy_depth_file(view: u32) -> String {
     format!("v{view:02}_depth_noisy.npy")
 }
 
-/// A noise task reads its render task's depth images.
+/// A noise task reads its render task's depth images, their segmentation (which surface, so which
+/// material, each pixel sees) and camera records (intrinsics, segment materials).
 pub fn reads(file: &str) -> bool {
-    file.starts_with('v') && file.ends_with(&ViewFile::Depth.name(0)[3..])
+    [ViewFile::Depth, ViewFile::Segmentation, ViewFile::Camera]
+        .iter()
+        .any(|f| file.starts_with('v') && file.len() == f.name(0).len() && file.ends_with(&f.name(0)[3..]))
 }
 
 /// What a noise engine answers.

@@ -49,14 +49,17 @@ impl Modality {
         Modality::ALL.into_iter().find(|m| m.as_str() == name)
     }
 
-    /// The render outputs this modality needs (noisy depth needs the clean depth it perturbs).
-    pub fn render_output(self) -> Option<RenderOutput> {
+    /// The render outputs this modality needs: noisy depth needs the clean depth it perturbs and
+    /// the segmentation that tells the noise model which material each pixel sees (rendered for
+    /// the noise stage even when the segmentation modality is not requested, and then not packaged).
+    pub fn render_outputs(self) -> &'static [RenderOutput] {
         match self {
-            Modality::Rgb => Some(RenderOutput::Rgb),
-            Modality::Depth | Modality::DepthNoisy => Some(RenderOutput::Depth),
-            Modality::Mask => Some(RenderOutput::Mask),
-            Modality::Segmentation => Some(RenderOutput::Segmentation),
-            Modality::Pose => None,
+            Modality::Rgb => &[RenderOutput::Rgb],
+            Modality::Depth => &[RenderOutput::Depth],
+            Modality::DepthNoisy => &[RenderOutput::Depth, RenderOutput::Segmentation],
+            Modality::Mask => &[RenderOutput::Mask],
+            Modality::Segmentation => &[RenderOutput::Segmentation],
+            Modality::Pose => &[],
         }
     }
 

@@ -16,8 +16,8 @@ pub const SAMPLES: Bound<u32> = Bound::new(1, 65_536, 32);
 /// Horizontal field of view (degrees).
 pub const FOV_DEG: Bound<f64> = Bound::new(5.0, 150.0, 60.0);
 /// Each end of the camera's distance range from the object (m).
-pub const RADIUS_M: Bound<f64> = Bound::new(0.05, 10.0, 0.35);
-pub const RADIUS_M_DEFAULT: [f64; 2] = [0.35, 0.5];
+pub const RADIUS_M: Bound<f64> = Bound::new(0.05, 10.0, 0.5);
+pub const RADIUS_M_DEFAULT: [f64; 2] = [0.5, 0.65];
 /// Each end of the camera's elevation range above the horizontal plane (degrees).
 pub const ELEVATION_DEG: Bound<f64> = Bound::new(-90.0, 90.0, 15.0);
 pub const ELEVATION_DEG_DEFAULT: [f64; 2] = [15.0, 75.0];

@@ -1,7 +1,9 @@
-"""The noise engine: for each view, read `vNN_depth.npy`, write `vNN_depth_noisy.npy`."""
+"""The noise engine: for each view, read `vNN_depth.npy`, `vNN_segmentation.png` and
+`vNN_camera.json` (intrinsics; the material of each segment), write `vNN_depth_noisy.npy`."""
 
 from __future__ import annotations
 
+import json
 import platform
 from collections.abc import Mapping
 from pathlib import Path
@@ -11,7 +13,8 @@ import cv2
 import numpy as np
 
 from vint_engines import __version__, contract
-from vint_engines.noise.model import NoiseModel
+from vint_engines.noise.geometry import Intrinsics
+from vint_engines.noise.model import NoiseModel, Surfaces
 from vint_engines.protocol import BadInput, Json, TaskRequest, TaskResult
 
 
@@ -30,9 +33,17 @@ class NoiseEngine:
         model, views = parse_params(task.params)
         result = TaskResult()
         for index, seed in views:
-            depth = load_depth(task.input_path(f"v{index:02d}_depth.npy"))
-            noisy = model.apply(depth, np.random.default_rng(seed))
-            out = task.out_dir / f"v{index:02d}_depth_noisy.npy"
+            prefix = f"v{index:02d}"
+            depth = load_depth(task.input_path(f"{prefix}_depth.npy"))
+            camera = load_camera(task.input_path(f"{prefix}_camera.json"))
+            surfaces = None
+            if model.materials:
+                segmentation = load_segmentation(task.input_path(f"{prefix}_segmentation.png"))
+                surfaces = Surfaces.from_segmentation(segmentation, segment_materials(camera, prefix))
+            noisy = model.apply(
+                depth, intrinsics(camera, depth.shape, prefix), surfaces, np.random.default_rng(seed)
+            )
+            out = task.out_dir / f"{prefix}_depth_noisy.npy"
             np.save(out, noisy)
             result.add(out, "application/x-npy")
         result.result = {"views": len(views)}
@@ -59,3 +70,51 @@ def load_depth(path: Path) -> np.ndarray:
     if not np.issubdtype(depth.dtype, np.floating):
         raise BadInput(f"depth map {path} has dtype {depth.dtype}, expected float")
     return depth
+
+
+def load_camera(path: Path) -> Json:
+    """The view's camera record (docs/rendering.md)."""
+    try:
+        record = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise BadInput(f"cannot read camera record {path}: {exc}") from exc
+    if not isinstance(record, dict):
+        raise BadInput(f"camera record {path} is not a JSON object")
+    return record
+
+
+def load_segmentation(path: Path) -> np.ndarray:
+    """The view's segment ids (uint8 or uint16 PNG)."""
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None or image.ndim != 2 or image.dtype not in (np.uint8, np.uint16):
+        raise BadInput(f"segmentation {path} is not a single-channel 8- or 16-bit PNG")
+    return image
+
+
+def intrinsics(camera: Json, shape: tuple[int, ...], prefix: str) -> Intrinsics:
+    """The pinhole intrinsics of `camera`'s `K`, checked against the depth map's size."""
+    try:
+        K = np.asarray(camera["K"], dtype=np.float64)
+        width, height = int(camera["width"]), int(camera["height"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise BadInput(f"{prefix}_camera.json: needs K (3×3), width and height: {exc}") from exc
+    if K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise BadInput(f"{prefix}_camera.json: K must be a finite 3×3 matrix with positive focal lengths")
+    if (height, width) != tuple(shape):
+        raise BadInput(
+            f"{prefix}_camera.json: {width}×{height} does not match the depth map's {shape[1]}×{shape[0]}"
+        )
+    return Intrinsics(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]))
+
+
+def segment_materials(camera: Json, prefix: str) -> dict[int, str]:
+    """Segment id → material tag, from the camera record's `materials`."""
+    materials = camera.get("materials")
+    if not isinstance(materials, dict) or not all(isinstance(t, str) for t in materials.values()):
+        raise BadInput(
+            f"{prefix}_camera.json: `materials` (segment id → material tag) is missing or malformed"
+        )
+    try:
+        return {int(segment): tag for segment, tag in materials.items()}
+    except ValueError as exc:
+        raise BadInput(f"{prefix}_camera.json: a `materials` key is not a segment id: {exc}") from exc

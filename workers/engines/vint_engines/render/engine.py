@@ -348,6 +348,7 @@ class RenderEngine:
             "full_px": full_px,
             "occlusion": occlusion(visible_px, full_px),
             "segmentation": {"0": "background", **{str(k): name for k, name in labels.items()}},
+            "materials": {str(k): tag for k, tag in self.scene.segment_materials().items()},
             "environment": view.environment.to_json(),
         }
         path = out_dir / f"{prefix}_camera.json"

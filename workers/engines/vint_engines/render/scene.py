@@ -46,6 +46,10 @@ from vint_engines.render.passes import add_pass_outputs, read_depth, read_index,
 
 OBJECT_PASS_INDEX = 1
 FIRST_LINK_PASS_INDEX = 2  # link k of the hand (in grasps.json order) has pass index 2 + k
+# The hand's material tag for the depth-noise model. Every hand link is drawn with one dark
+# (base colour 0.08), rough, non-metallic material (`materials.HAND`): a robot hand's black
+# rubberised covering, not skin. Of the catalog's tags, "rubber" is the dark diffuse one.
+HAND_MATERIAL_TAG = "rubber"
 RGB_FILE = "rgb.png"
 GEOMETRY_PREFIX = "geometry_"
 OBJECT_PREFIX = "object_"
@@ -313,6 +317,14 @@ class BlenderScene:
         for k, name in enumerate(self._links):
             labels[FIRST_LINK_PASS_INDEX + k] = f"hand/{name}"
         return labels
+
+    def segment_materials(self) -> dict[int, str]:
+        """Pass index → material tag, for the depth-noise model: the object's catalog tag, and
+        `HAND_MATERIAL_TAG` for every hand link."""
+        tags = {OBJECT_PASS_INDEX: self._object_tag}
+        for k in range(len(self._links)):
+            tags[FIRST_LINK_PASS_INDEX + k] = HAND_MATERIAL_TAG
+        return tags
 
     def lobes(self) -> frozenset[str]:
         """The scattering lobes of every material in the RGB scene (see `cycles.Bounces.pruned`)."""
