@@ -109,10 +109,10 @@ def response(force: Array, gains: Array, params: TouchParams) -> Array:
 
 
 def footprint_weights(offsets: Array, interference: Array, radius: float) -> Array:
-    """Unnormalised shares of one contact's force among taxels at `offsets` (m) from the contact
-    point with `interference` (m, >= 0) with the object: a Hertz-like profile sqrt(1 - (r/a)^2)
-    inside the footprint radius a, times the interference."""
-    r2 = (offsets**2).sum(axis=1) / radius**2
+    """Unnormalised shares of a contact's force among taxels at `offsets` (m, last axis xyz) from
+    the contact point with `interference` (m, >= 0) with the object: a Hertz-like profile
+    sqrt(1 - (r/a)^2) inside the footprint radius a, times the interference."""
+    r2 = (offsets**2).sum(axis=-1) / radius**2
     return interference * np.sqrt(np.maximum(1.0 - r2, 0.0))
 
 
@@ -122,16 +122,11 @@ def link_forces(
     """One link's contact forces shared among its eligible taxels (`positions` and contact
     `points` in the link's frame): each contact's force split by `footprint_weights`. Returns
     each taxel's force and the force of the contacts no taxel's footprint weight reached (N)."""
-    force = np.zeros(len(positions))
-    unsensed = 0.0
-    for point, contact_force in zip(points, forces, strict=True):
-        weights = footprint_weights(positions - point, interference, radius)
-        shared = weights.sum()
-        if shared > 0.0:
-            force += contact_force * (weights / shared)
-        else:
-            unsensed += float(contact_force)
-    return force, unsensed
+    weights = footprint_weights(positions[:, None, :] - points[None, :, :], interference[:, None], radius)
+    shared = weights.sum(axis=0)
+    felt = shared > 0.0
+    force = weights[:, felt] @ (forces[felt] / shared[felt])
+    return force, float(forces[~felt].sum())
 
 
 def link_frame_contacts(
@@ -228,23 +223,21 @@ class Skin:
         """Each eligible taxel's force averaged over the samples, and the mean total contact force
         on the skin's links and the part of it no eligible taxel felt (N)."""
         force = np.zeros(len(indices))
-        rows = {link: np.flatnonzero(np.isin(indices, members)) for link, members in self.by_link.items()}
         total = unsensed = 0.0
-        for contacts in samples:
-            for link, row in rows.items():
-                on_link = [c for c in contacts if c.link == link]
-                if not on_link:
-                    continue
-                shares, missed = link_forces(
-                    self.layout.positions[indices[row]],
-                    interference[row],
-                    np.array([c.point for c in on_link]),
-                    np.array([c.force_n for c in on_link]),
-                    self.params.footprint_radius_m,
-                )
-                force[row] += shares
-                total += sum(c.force_n for c in on_link)
-                unsensed += missed
+        pooled = [c for contacts in samples for c in contacts]
+        for link in sorted({c.link for c in pooled} & set(self.by_link)):  # a fixed order of sums
+            on_link = [c for c in pooled if c.link == link]
+            row = np.flatnonzero(np.isin(indices, self.by_link[link]))
+            shares, missed = link_forces(
+                self.layout.positions[indices[row]],
+                interference[row],
+                np.array([c.point for c in on_link]),
+                np.array([c.force_n for c in on_link]),
+                self.params.footprint_radius_m,
+            )
+            force[row] += shares
+            total += sum(c.force_n for c in on_link)
+            unsensed += missed
         count = len(samples)
         return force / count, total / count, unsensed / count
 
