@@ -364,8 +364,12 @@ fn grasp_params(
             ..grasp::Physics::default()
         },
         touch: grasp::Touch {
-            sensing_depth_m: spec.touch.sensing_depth_m,
-            response_depth_m: spec.touch.response_depth_m,
+            contact_margin_m: spec.touch.contact_margin_m,
+            footprint_radius_m: spec.touch.footprint_radius_m,
+            contact_steps: spec.touch.contact_steps,
+            activation_force_n: spec.touch.activation_force_n,
+            half_force_n: spec.touch.half_force_n,
+            response_exponent: spec.touch.response_exponent,
             gain_sigma: spec.touch.gain_sigma,
             aging: spec.touch.aging,
             gain_seed: seed::taxel_gains(plan.seed, &c.hand),

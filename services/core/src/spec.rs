@@ -114,10 +114,18 @@ pub struct GraspSettings {
 /// The tactile sensor model (see `vint_engines/grasp/touch.py`).
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct TouchSettings {
-    /// A taxel is active when the object surface is within this distance of it.
-    pub sensing_depth_m: f64,
-    /// Indentation scale of the saturating response.
-    pub response_depth_m: f64,
+    /// A taxel shares its link's contact force only within this distance of the object.
+    pub contact_margin_m: f64,
+    /// Radius of the pressure patch around each MuJoCo contact point.
+    pub footprint_radius_m: f64,
+    /// Simulation steps whose contact forces are averaged.
+    pub contact_steps: u32,
+    /// Local force below which a taxel reads nothing (N).
+    pub activation_force_n: f64,
+    /// Local force at which a new taxel reads half its gain (N).
+    pub half_force_n: f64,
+    /// Power law of the response in force.
+    pub response_exponent: f64,
     /// Log-normal spread of per-taxel gains (a property of the sensor, fixed per hand).
     pub gain_sigma: f64,
     /// Sensitivity left after aging: 1 is a new sensor.
@@ -257,8 +265,12 @@ pub fn number_fields() -> Vec<NumberField> {
         float("grasp.shake_accel_mps2", SHAKE_ACCEL_MPS2),
         count("grasp.shake_directions", grasp::SHAKE_DIRECTIONS),
         float("grasp.shake_duration_s", grasp::SHAKE_DURATION_S),
-        float("touch.sensing_depth_m", grasp::SENSING_DEPTH_M),
-        float("touch.response_depth_m", grasp::RESPONSE_DEPTH_M),
+        float("touch.contact_margin_m", grasp::CONTACT_MARGIN_M),
+        float("touch.footprint_radius_m", grasp::FOOTPRINT_RADIUS_M),
+        count("touch.contact_steps", grasp::CONTACT_STEPS),
+        float("touch.activation_force_n", grasp::ACTIVATION_FORCE_N),
+        float("touch.half_force_n", grasp::HALF_FORCE_N),
+        float("touch.response_exponent", grasp::RESPONSE_EXPONENT),
         float("touch.gain_sigma", grasp::GAIN_SIGMA),
         float("touch.aging", grasp::AGING),
         count("touch.min_active_taxels", grasp::MIN_ACTIVE_TAXELS),
@@ -481,13 +493,31 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
 
     let mut t = r.section(root, "touch");
     let touch = TouchSettings {
-        sensing_depth_m: r.number(&mut t, "touch", "sensing_depth_m", grasp::SENSING_DEPTH_M),
-        response_depth_m: r.number(&mut t, "touch", "response_depth_m", grasp::RESPONSE_DEPTH_M),
+        contact_margin_m: r.number(&mut t, "touch", "contact_margin_m", grasp::CONTACT_MARGIN_M),
+        footprint_radius_m: r.number(&mut t, "touch", "footprint_radius_m", grasp::FOOTPRINT_RADIUS_M),
+        contact_steps: r.count(&mut t, "touch", "contact_steps", grasp::CONTACT_STEPS),
+        activation_force_n: r.number(&mut t, "touch", "activation_force_n", grasp::ACTIVATION_FORCE_N),
+        half_force_n: r.number(&mut t, "touch", "half_force_n", grasp::HALF_FORCE_N),
+        response_exponent: r.number(&mut t, "touch", "response_exponent", grasp::RESPONSE_EXPONENT),
         gain_sigma: r.number(&mut t, "touch", "gain_sigma", grasp::GAIN_SIGMA),
         aging: r.number(&mut t, "touch", "aging", grasp::AGING),
         min_active_taxels: r.count(&mut t, "touch", "min_active_taxels", grasp::MIN_ACTIVE_TAXELS),
     };
-    r.finish(t, "touch", &["sensing_depth_m", "response_depth_m", "gain_sigma", "aging", "min_active_taxels"]);
+    r.finish(
+        t,
+        "touch",
+        &[
+            "contact_margin_m",
+            "footprint_radius_m",
+            "contact_steps",
+            "activation_force_n",
+            "half_force_n",
+            "response_exponent",
+            "gain_sigma",
+            "aging",
+            "min_active_taxels",
+        ],
+    );
 
     let mut rd = r.section(root, "render");
     let resolution =

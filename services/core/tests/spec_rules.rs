@@ -269,15 +269,18 @@ fn oversized_specs_are_refused() {
 #[test]
 fn touch_settings_have_defaults_and_ranges() {
     let spec = DatasetSpec::parse("objects = [\"mug\"]\n[dataset]\nname = \"t\"\nseed = 1\n").unwrap();
-    assert_eq!(spec.touch.sensing_depth_m, 0.003, "default");
-    let text = tiny_with("sensing_depth_m = 0.003", "sensing_depth_m = 0.0")
+    assert_eq!(spec.touch.contact_margin_m, 0.0005, "default");
+    assert_eq!(spec.touch.contact_steps, 4, "default");
+    let text = tiny_with("contact_margin_m = 0.0005", "contact_margin_m = 0.003")
+        .replace("contact_steps = 4", "contact_steps = 0")
         .replace("aging = 1.0", "aging = 1.5")
         .replace("min_active_taxels = 3", "min_active_taxels = -1");
     let errs = errors(&text);
     assert_eq!(
         errs,
         vec![
-            "touch.sensing_depth_m: must be in [0.0001, 0.02], got 0.0",
+            "touch.contact_margin_m: must be in [0, 0.002], got 0.003",
+            "touch.contact_steps: must be 1..=64, got 0",
             "touch.aging: must be in [0.01, 1], got 1.5",
             "touch.min_active_taxels: must be 0..=10000, got -1",
         ]

@@ -42,6 +42,22 @@ def distance_to_mesh(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray
     return best
 
 
+def signed_distance_to_mesh(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """`distance_to_mesh`, negative inside a closed outward-wound mesh: a point is inside when the
+    mesh's winding number about it (its triangles' solid angles over 4π; Van Oosterom & Strackee's
+    formula) is above one half."""
+    distance = distance_to_mesh(points, vertices, faces)
+    winding = np.zeros(len(points))
+    for start in range(0, len(points), 256):
+        a, b, c = (vertices[faces[:, k]][None] - points[start : start + 256, None, :] for k in range(3))
+        la, lb, lc = (np.linalg.norm(v, axis=2) for v in (a, b, c))
+        triple = np.einsum("nmk,nmk->nm", a, np.cross(b, c))
+        dots = la * lb * lc + np.einsum("nmk,nmk->nm", a, b) * lc
+        dots += np.einsum("nmk,nmk->nm", b, c) * la + np.einsum("nmk,nmk->nm", c, a) * lb
+        winding[start : start + 256] = 2.0 * np.arctan2(triple, dots).sum(axis=1) / (4.0 * np.pi)
+    return np.where(winding > 0.5, -distance, distance)
+
+
 def _segment_distance(p: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     edge = v - u
     t = np.clip(np.einsum("nmk,mk->nm", p - u, edge) / np.einsum("mk,mk->m", edge, edge), 0.0, 1.0)

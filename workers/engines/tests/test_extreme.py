@@ -45,12 +45,14 @@ def run(
     hand: str,
     physics: dict[str, Any],
     seeds: list[int] = SEEDS,
+    touch: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     params = {
         "object": CATALOG[obj],
         "hand": {"name": hand},
         "trials": [{"grasp_index": i, "seed": seed} for i, seed in enumerate(seeds)],
         "physics": physics,
+        "touch": touch or {},
     }
     result = engine.run(TaskRequest("t", params, (), new_dir(tmp_path, f"{obj}-{hand}")))
     doc = read_grasps_with_touch(result.outputs[0].path.parent)
@@ -79,16 +81,27 @@ def assert_valid_or_rejected(doc: dict[str, Any], physics: Physics) -> None:
             assert math.isclose(math.hypot(*pose["q"]), 1.0, rel_tol=1e-6)
         assert all(math.isfinite(v) for v in trial["joints"].values())
         touch = trial["touch"]
-        depth = touch["sensing_depth_m"]
-        assert touch["active_count"] == len(touch["active"]) > 0
+        margin = touch["contact_margin_m"]
+        assert touch["active_count"] == len(touch["active"]) >= doc["touch"]["min_active_taxels"]
+        assert (
+            math.isfinite(touch["contact_force_n"])
+            and 0 <= touch["unsensed_force_n"] <= touch["contact_force_n"]
+        )
         world = taxel_points(layout, trial, [t["taxel"] for t in touch["active"]])
         pose = trial["object_pose"]
         local = (world - np.array(pose["p"])) @ quat_to_matrix(pose["q"])
         gap = distance_to_mesh(local, mesh.mesh.vertices, mesh.mesh.faces)
+        gains = np.random.default_rng(doc["touch"]["gain_seed"]).lognormal(
+            0.0, doc["touch"]["gain_sigma"], len(layout)
+        )
+        readings = np.array(touch["readings"])
+        assert np.isfinite(readings).all() and (readings >= 0).all() and (readings <= gains).all()
+        deepest = max(margin, stability["max_penetration_m"])
         for taxel, distance in zip(touch["active"], gap, strict=True):
-            assert taxel["distance_m"] < depth
+            assert taxel["distance_m"] < margin and math.isfinite(taxel["force_n"]) and taxel["force_n"] > 0
+            assert 0 < taxel["reading"] <= gains[taxel["taxel"]]
             # The mesh is the union of the collision pieces' surfaces only up to tessellation.
-            assert distance < depth + 1e-3, (taxel, distance)
+            assert distance < deepest + 1e-3, (taxel, distance)
 
 
 def hand_layout(hand: str) -> TaxelLayout:
@@ -185,6 +198,46 @@ def test_a_10_s_hold_keeps_the_can(engine: GraspEngine, tmp_path: Path) -> None:
 @pytest.mark.parametrize("hand", HANDS)
 def test_a_tenfold_squeeze_is_held_or_rejected(engine: GraspEngine, tmp_path: Path, hand: str) -> None:
     run(engine, tmp_path, "tomato_soup_can", hand, {**SHORT, "force_scale": 10.0})
+
+
+@pytest.mark.parametrize("hand", HANDS)
+@pytest.mark.parametrize("force_scale", [0.01, 100.0])
+def test_the_extreme_squeezes_read_finite_touch_within_the_gains(
+    engine: GraspEngine, tmp_path: Path, hand: str, force_scale: float
+) -> None:
+    """The contract's force_scale bounds: a 100-fold squeeze saturates taxels without overflow, a
+    1/100 one barely reaches the activation force (or the grasp is rejected)."""
+    run(
+        engine,
+        tmp_path,
+        "tomato_soup_can",
+        hand,
+        {**SHORT, "force_scale": force_scale},
+        touch={"min_active_taxels": 1},
+    )
+
+
+@pytest.mark.parametrize("hand", HANDS)
+def test_a_sensor_at_its_most_aged_feels_only_hard_contacts(
+    engine: GraspEngine, tmp_path: Path, hand: str
+) -> None:
+    """Aging 0.01: a taxel needs 100 times the activation force to fire, and reads less than new."""
+    new = run(engine, tmp_path / "new", "tomato_soup_can", hand, SHORT, touch={"min_active_taxels": 0})
+    aged = run(
+        engine,
+        tmp_path / "aged",
+        "tomato_soup_can",
+        hand,
+        SHORT,
+        touch={"aging": 0.01, "min_active_taxels": 0},
+    )
+    assert [t["accepted"] for t in new["trials"]] == [t["accepted"] for t in aged["trials"]] == [True, True]
+    for fresh, old in zip(new["trials"], aged["trials"], strict=True):
+        readings = {a["taxel"]: a["reading"] for a in fresh["touch"]["active"]}
+        assert readings and len(old["touch"]["active"]) < len(readings)
+        for taxel in old["touch"]["active"]:
+            assert taxel["force_n"] >= 100 * aged["touch"]["activation_force_n"]
+            assert taxel["reading"] < readings[taxel["taxel"]]
 
 
 @pytest.mark.parametrize("hand", HANDS)

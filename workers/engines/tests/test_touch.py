@@ -1,10 +1,11 @@
-"""Whole-hand touch: both hands grasp the soup can through the grasp engine, and every taxel's
-state is checked against distances computed here, analytically, from the recorded poses."""
+"""Whole-hand touch from contact mechanics: both hands grasp three objects through the grasp engine,
+and every active taxel is checked against what is computed here, independently, from the recorded
+contacts, link poses and object pose and the object's model mesh; plus the response's behaviour."""
 
 from __future__ import annotations
 
 import hashlib
-import time
+import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -12,52 +13,58 @@ from typing import Any
 import mujoco
 import numpy as np
 import pytest
-from conftest import read_grasps_with_touch
+from conftest import ENGINES_DIR, read_grasps_with_touch
+from geometry import signed_distance_to_mesh
 
 from vint_engines.grasp.engine import GraspEngine
 from vint_engines.grasp.hand import TOUCH_PROBE, add_touch_probe
 from vint_engines.grasp.hands import HANDS, hand_dims
 from vint_engines.grasp.hands.catalog import read_hand_catalog
 from vint_engines.grasp.taxels import TaxelLayout, read_layout
-from vint_engines.grasp.touch import TouchParams, object_distances, response
+from vint_engines.grasp.touch import (
+    TouchParams,
+    footprint_weights,
+    link_forces,
+    object_distances,
+    response,
+    taxel_gains,
+)
+from vint_engines.objects import ObjectSpec, build_model
 from vint_engines.poses import quat_to_matrix
 from vint_engines.protocol import BadInput, TaskRequest
 
-CAN = {
-    "name": "tomato_soup_can",
-    "ycb_id": "005",
-    "mass_kg": 0.349,
-    "material": "plastic",
-    "symmetry": "continuous_z",
-    "description": "",
-    "shape": {"type": "cylinder", "radius_m": 0.0331, "height_m": 0.1018},
+CATALOG = {
+    entry["name"]: entry
+    for entry in tomllib.loads((ENGINES_DIR.parents[1] / "catalog" / "objects.toml").read_text())["object"]
 }
-SEEDS = [1234567890123 + 7919 * i for i in range(16)]
-TOUCH = {
-    "sensing_depth_m": 0.003,
-    "gain_sigma": 0.1,
-    "aging": 1.0,
-    "response_depth_m": 0.002,
-    "gain_seed": 123,
-}
-MIN_MEDIAN_ACTIVE = 15
+OBJECTS = ("tomato_soup_can", "mustard_bottle", "mug")
+SEEDS = [1234567890123 + 7919 * i for i in range(5)]
+TOUCH: dict[str, Any] = {"gain_seed": 123}
+DEFAULTS = TouchParams.parse({})
+# The model mesh's triangles are chords of the collision shapes' curved surfaces (and CoACD's pieces
+# approximate non-convex meshes): the independent distance may exceed MuJoCo's by this much.
+TESSELLATION_M = 3e-4
+MIN_SPEARMAN = 0.8
 
 
-def grasp_params(hand: str, seeds: list[int], **touch: Any) -> dict[str, Any]:
+def grasp_params(obj: str, hand: str, seeds: list[int], **touch: Any) -> dict[str, Any]:
     return {
-        "object": {**CAN, "material": "metal"},
+        "object": CATALOG[obj],
         "hand": {"name": hand},
         "trials": [{"grasp_index": i, "seed": seed} for i, seed in enumerate(seeds)],
+        "physics": {"hold_s": 0.5},
         "touch": {**TOUCH, **touch},
     }
 
 
 @dataclass(frozen=True)
-class HandRun:
+class Run:
+    """One (object, hand) task's output."""
+
+    obj: str
+    hand: str
     doc: dict[str, Any]
     metrics: dict[str, float]
-    cpu_s_per_trial: float
-    layout: TaxelLayout
 
     @property
     def accepted(self) -> list[dict[str, Any]]:
@@ -72,33 +79,25 @@ def run(
     return read_grasps_with_touch(out_dir), result.metrics
 
 
+def layout_of(hand: str) -> TaxelLayout:
+    return read_layout(read_hand_catalog()[hand].taxels_path(), hand_dims(hand).link_names())
+
+
 @pytest.fixture(scope="module")
 def engine() -> GraspEngine:
     return GraspEngine()
 
 
 @pytest.fixture(scope="module")
-def runs(engine: GraspEngine, tmp_path_factory: pytest.TempPathFactory) -> dict[str, HandRun]:
-    """16 trials of each hand on the can (each hand's scene is built before the clock starts)."""
+def runs(engine: GraspEngine, tmp_path_factory: pytest.TempPathFactory) -> list[Run]:
+    """Five trials of each hand on each of three objects, with the default touch model."""
     out = tmp_path_factory.mktemp("touch")
-    runs = {}
+    runs = []
     for hand in HANDS:
-        run(engine, grasp_params(hand, SEEDS[:1]), out / f"{hand}-warm")
-        started = time.process_time()
-        doc, metrics = run(engine, grasp_params(hand, SEEDS), out / hand)
-        cpu = (time.process_time() - started) / len(SEEDS)
-        layout = read_layout(read_hand_catalog()[hand].taxels_path(), hand_dims(hand).link_names())
-        runs[hand] = HandRun(doc, metrics, cpu, layout)
+        for obj in OBJECTS:
+            doc, metrics = run(engine, grasp_params(obj, hand, SEEDS), out / f"{obj}-{hand}")
+            runs.append(Run(obj, hand, doc, metrics))
     return runs
-
-
-def can_distance(world: np.ndarray, object_pose: dict[str, list[float]]) -> np.ndarray:
-    """Signed distance of world points to the can (a finite cylinder about the object's +z)."""
-    local = (world - np.array(object_pose["p"])) @ quat_to_matrix(object_pose["q"])
-    radial = np.hypot(local[:, 0], local[:, 1]) - CAN["shape"]["radius_m"]
-    axial = np.abs(local[:, 2]) - CAN["shape"]["height_m"] / 2
-    outside = np.hypot(np.maximum(radial, 0.0), np.maximum(axial, 0.0))
-    return outside + np.minimum(np.maximum(radial, axial), 0.0)
 
 
 def taxels_in_world(layout: TaxelLayout, trial: dict[str, Any]) -> np.ndarray:
@@ -110,135 +109,305 @@ def taxels_in_world(layout: TaxelLayout, trial: dict[str, Any]) -> np.ndarray:
     return world
 
 
-@pytest.mark.parametrize("hand", HANDS)
-def test_each_hand_grasps_the_can_often_and_quickly(runs: dict[str, HandRun], hand: str) -> None:
-    hand_run = runs[hand]
-    reasons = [t["reason"] for t in hand_run.doc["trials"]]
-    assert len(hand_run.accepted) >= 0.6 * len(SEEDS), reasons
-    assert hand_run.cpu_s_per_trial < 0.3
-    dims = hand_dims(hand)
-    assert hand_run.doc["hand"] | {"links": None} == {
-        "name": hand,
-        "dof": dims.dof,
-        "fingers": len(dims.fingers),
-        "links": None,
-        "taxels": {
-            "layout": f"hands/{hand}/taxels.csv",
-            "count": len(hand_run.layout),
-            "sha256": hashlib.sha256(read_hand_catalog()[hand].taxels_path().read_bytes()).hexdigest(),
-        },
-    }
+def mesh_distance(obj: str, world: np.ndarray, trial: dict[str, Any]) -> np.ndarray:
+    """Signed distance (m, negative inside) of world points to the object's model mesh at its
+    recorded pose."""
+    mesh = build_model(ObjectSpec.parse(CATALOG[obj])).mesh
+    pose = trial["object_pose"]
+    local = (world - np.array(pose["p"])) @ quat_to_matrix(pose["q"])
+    return signed_distance_to_mesh(local, mesh.vertices, mesh.faces)
 
 
-@pytest.mark.parametrize("hand", HANDS)
-def test_active_taxels_lie_within_the_sensing_depth_of_the_can(runs: dict[str, HandRun], hand: str) -> None:
-    hand_run = runs[hand]
-    depth = TOUCH["sensing_depth_m"]
-    for trial in hand_run.accepted:
-        touch = trial["touch"]
-        assert touch["sensing_depth_m"] == depth and touch["active_count"] == len(touch["active"])
-        world = taxels_in_world(hand_run.layout, trial)
-        truth = can_distance(world, trial["object_pose"])
-        palm = trial["hand_pose"]
-        to_palm = quat_to_matrix(palm["q"])
-        for taxel in touch["active"]:
-            i = taxel["taxel"]
-            assert truth[i] < depth
-            assert taxel["distance_m"] == pytest.approx(truth[i], abs=2e-6)
-            assert (taxel["link"], taxel["region"]) == (hand_run.layout.links[i], hand_run.layout.regions[i])
-            assert taxel["p_palm"] == pytest.approx((world[i] - palm["p"]) @ to_palm, abs=1e-9)
-            assert np.linalg.norm(taxel["n_palm"]) == pytest.approx(1.0)
+def link_contact_force(trial: dict[str, Any]) -> dict[str, float]:
+    total: dict[str, float] = {}
+    for contact in trial["contacts"]:
+        total[contact["link"]] = total.get(contact["link"], 0.0) + contact["force"]
+    return total
 
 
-@pytest.mark.parametrize("hand", HANDS)
-def test_no_taxel_within_the_sensing_depth_is_left_inactive(runs: dict[str, HandRun], hand: str) -> None:
-    hand_run = runs[hand]
-    for trial in hand_run.accepted:
-        truth = can_distance(taxels_in_world(hand_run.layout, trial), trial["object_pose"])
-        active = {taxel["taxel"] for taxel in trial["touch"]["active"]}
-        assert set(np.flatnonzero(truth < TOUCH["sensing_depth_m"] - 1e-6)) <= active
+def spearman(x: np.ndarray, y: np.ndarray) -> float:
+    """Spearman's rank correlation (average ranks for ties)."""
+
+    def ranks(v: np.ndarray) -> np.ndarray:
+        order = np.argsort(v, kind="stable")
+        r = np.empty(len(v))
+        r[order] = np.arange(len(v), dtype=float)
+        for value in np.unique(v):
+            tied = v == value
+            r[tied] = r[tied].mean()
+        return r
+
+    return float(np.corrcoef(ranks(x), ranks(y))[0, 1])
 
 
-@pytest.mark.parametrize("hand", HANDS)
-def test_readings_follow_the_response_and_inactive_taxels_read_zero(
-    runs: dict[str, HandRun], hand: str
+def sampled_forces(layout: TaxelLayout, obj: str, trial: dict[str, Any]) -> dict[int, float]:
+    """Each taxel's force recomputed from the trial's recorded contact samples as docs/touch.md
+    defines it, written per taxel here, with the mesh's distance standing for MuJoCo's."""
+    touch = trial["touch"]
+    world = taxels_in_world(layout, trial)
+    margin, radius = DEFAULTS.contact_margin_m, DEFAULTS.footprint_radius_m
+    force: dict[int, float] = {}
+    for link, members in layout.indices_by_link().items():
+        if not any(c["link"] == link for c in touch["contact_samples"][0]):
+            continue
+        gap = dict(zip(members.tolist(), mesh_distance(obj, world[members], trial).tolist(), strict=True))
+        for contacts in touch["contact_samples"]:
+            for contact in (c for c in contacts if c["link"] == link):
+                weight = {}
+                for i in members.tolist():
+                    r = float(np.linalg.norm(layout.positions[i] - contact["p_link"]))
+                    if gap[i] < margin and r < radius:
+                        weight[i] = (margin - gap[i]) * (1.0 - (r / radius) ** 2) ** 0.5
+                total = sum(weight.values())
+                for i, w in weight.items():
+                    force[i] = force.get(i, 0.0) + contact["force_n"] * w / total / touch["contact_steps"]
+    return force
+
+
+def test_every_hand_and_object_is_grasped_with_touch(runs: list[Run]) -> None:
+    for r in runs:
+        reasons = [t["reason"] for t in r.doc["trials"]]
+        assert len(r.accepted) >= 3, (r.obj, r.hand, reasons)
+        layout = layout_of(r.hand)
+        info = read_hand_catalog()[r.hand]
+        assert r.doc["hand"]["taxels"] == {
+            "layout": f"hands/{r.hand}/taxels.csv",
+            "count": len(layout),
+            "sha256": hashlib.sha256(info.taxels_path().read_bytes()).hexdigest(),
+        }
+        assert r.doc["touch"] == {**DEFAULTS.to_json(), **TOUCH}
+
+
+def test_active_taxels_touch_the_object_on_links_in_contact(runs: list[Run]) -> None:
+    """Independently of the touch code: the link carries MuJoCo contact force, and the taxel lies
+    within the contact margin of the object's mesh, and no deeper inside than the deepest
+    penetration the trial saw."""
+    margin = DEFAULTS.contact_margin_m
+    for r in runs:
+        layout = layout_of(r.hand)
+        for trial in r.accepted:
+            touch = trial["touch"]
+            assert touch["active_count"] == len(touch["active"]) > 0
+            assert touch["contact_margin_m"] == margin and touch["contact_steps"] == DEFAULTS.contact_steps
+            forces = link_contact_force(trial)
+            indices = [a["taxel"] for a in touch["active"]]
+            world = taxels_in_world(layout, trial)
+            gap = mesh_distance(r.obj, world[indices], trial)
+            deepest = trial["stability"]["max_penetration_m"]
+            palm = trial["hand_pose"]
+            for taxel, g in zip(touch["active"], gap, strict=True):
+                i = taxel["taxel"]
+                assert forces.get(taxel["link"], 0.0) > 0.0, taxel
+                assert -deepest - TESSELLATION_M <= g <= margin + TESSELLATION_M, (r.obj, r.hand, taxel, g)
+                assert taxel["distance_m"] < margin and taxel["force_n"] > 0.0
+                assert (taxel["link"], taxel["region"]) == (layout.links[i], layout.regions[i])
+                p_palm = (world[i] - palm["p"]) @ quat_to_matrix(palm["q"])
+                assert taxel["p_palm"] == pytest.approx(p_palm, abs=1e-9)
+                assert np.linalg.norm(taxel["n_palm"]) == pytest.approx(1.0)
+
+
+def test_a_link_without_contact_has_no_active_taxel(runs: list[Run]) -> None:
+    for r in runs:
+        for trial in r.accepted:
+            touching = {link for link, force in link_contact_force(trial).items() if force > 0.0}
+            assert {a["link"] for a in trial["touch"]["active"]} <= touching
+
+
+def test_readings_rise_with_the_force_recomputed_from_the_recorded_contact_samples(
+    runs: list[Run], record_property: pytest.RecordProperty
 ) -> None:
-    hand_run = runs[hand]
-    gains = np.random.default_rng(TOUCH["gain_seed"]).lognormal(
-        0.0, TOUCH["gain_sigma"], len(hand_run.layout)
-    )
-    for trial in hand_run.accepted:
-        readings = np.array(trial["touch"]["readings"])
-        assert readings.shape == (len(hand_run.layout),)
-        active = [taxel["taxel"] for taxel in trial["touch"]["active"]]
-        assert not np.delete(readings, active).any()
-        for taxel in trial["touch"]["active"]:
-            indentation = TOUCH["sensing_depth_m"] - taxel["distance_m"]
-            expected = gains[taxel["taxel"]] * (1.0 - np.exp(-indentation / TOUCH["response_depth_m"]))
-            assert taxel["reading"] == readings[taxel["taxel"]] == pytest.approx(expected, rel=1e-9)
-            assert taxel["reading"] > 0
+    for hand in HANDS:
+        readings, forces = [], []
+        for r in (r for r in runs if r.hand == hand):
+            layout = layout_of(hand)
+            for trial in r.accepted:
+                recomputed = sampled_forces(layout, r.obj, trial)
+                for taxel in trial["touch"]["active"]:
+                    readings.append(taxel["reading"])
+                    forces.append(recomputed.get(taxel["taxel"], 0.0))
+        rho = spearman(np.array(readings), np.array(forces))
+        record_property(f"{hand}_spearman_reading_force", rho)
+        assert rho >= MIN_SPEARMAN, (hand, rho, len(readings))
+
+
+def test_readings_follow_the_response_of_the_recorded_force_and_inactive_taxels_read_zero(
+    runs: list[Run],
+) -> None:
+    for r in runs:
+        gains = np.random.default_rng(TOUCH["gain_seed"]).lognormal(
+            0.0, DEFAULTS.gain_sigma, len(layout_of(r.hand))
+        )
+        for trial in r.accepted:
+            readings = np.array(trial["touch"]["readings"])
+            active = [a["taxel"] for a in trial["touch"]["active"]]
+            assert not np.delete(readings, active).any()
+            for taxel in trial["touch"]["active"]:
+                x = taxel["force_n"] / DEFAULTS.half_force_n
+                expected = gains[taxel["taxel"]] * x / (1.0 + x)  # exponent 1, aging 1
+                assert taxel["reading"] == readings[taxel["taxel"]] == pytest.approx(expected, rel=1e-9)
+                assert taxel["force_n"] >= DEFAULTS.activation_force_n
+
+
+def test_with_one_step_the_taxels_share_exactly_the_recorded_contact_force(
+    engine: GraspEngine, tmp_path: Path
+) -> None:
+    """Force is conserved: what the taxels carry plus what fell between them is what MuJoCo
+    reported on the skin's links."""
+    for hand in HANDS:
+        params = grasp_params("tomato_soup_can", hand, SEEDS[:3], contact_steps=1, activation_force_n=0.0)
+        doc, _ = run(engine, params, tmp_path / hand)
+        links = set(layout_of(hand).links)
+        for trial in (t for t in doc["trials"] if t["accepted"]):
+            touch = trial["touch"]
+            recorded = sum(c["force"] for c in trial["contacts"] if c["link"] in links)
+            [sample] = touch["contact_samples"]
+            assert sorted(c["force_n"] for c in sample) == sorted(c["force"] for c in trial["contacts"])
+            assert touch["contact_force_n"] == pytest.approx(recorded, rel=1e-9)
+            carried = sum(a["force_n"] for a in touch["active"])
+            assert carried + touch["unsensed_force_n"] == pytest.approx(recorded, rel=1e-9)
+            assert touch["unsensed_force_n"] < 0.5 * recorded
 
 
 def test_the_response_is_monotone_saturating_and_weakens_with_age() -> None:
-    params = TouchParams.parse(TOUCH)
-    aged = TouchParams.parse({**TOUCH, "aging": 0.5})
-    indentation = np.linspace(0.0, 0.02, 201)
-    gains = np.full(len(indentation), 1.3)
-    new, old = response(indentation, gains, params), response(indentation, gains, aged)
-    assert new[0] == 0.0 and (np.diff(new) > 0).all() and (new < 1.3).all() and new[-1] > 0.99 * 1.3
-    assert (np.diff(old) > 0).all() and (old[1:] < new[1:]).all()  # an aged taxel needs more pressure
-    assert (response(-indentation, gains, params) == 0.0).all()
+    force = np.geomspace(1e-3, 1e4, 400)
+    gains = np.full(len(force), 1.3)
+    new = response(force, gains, DEFAULTS)
+    aged = response(force, gains, TouchParams.parse({"aging": 0.5}))
+    fires = force >= DEFAULTS.activation_force_n
+    assert not new[~fires].any() and (new[fires] > 0).all()
+    assert (np.diff(new[fires]) > 0).all() and (new < 1.3).all() and new[-1] > 0.99 * 1.3
+    # The curve is a divider's output: half the gain at the half force, a quarter at a third of it.
+    half = DEFAULTS.half_force_n
+    assert response(np.array([half, half / 3]), gains[:2], DEFAULTS) == pytest.approx([0.65, 0.325])
+    # An aged taxel needs more force for the same reading, and to fire at all.
+    assert (aged <= new).all() and (aged[fires & (aged > 0)] < new[fires & (aged > 0)]).all()
+    assert (
+        aged[(force >= DEFAULTS.activation_force_n) & (force < 2 * DEFAULTS.activation_force_n)] == 0
+    ).all()
+    steeper = response(force, gains, TouchParams.parse({"response_exponent": 2.0}))
+    assert steeper[force < half].max() < new[force < half].max()
+
+
+def test_no_force_no_reading() -> None:
+    gains = np.ones(4)
+    free = TouchParams.parse({"activation_force_n": 0.0})
+    assert not response(np.array([0.0, -1.0, 0.0, -1e9]), gains, free).any()
+
+
+def test_gains_are_fixed_by_the_seed() -> None:
+    a, b, c = taxel_gains(600, 0.1, 123), taxel_gains(600, 0.1, 123), taxel_gains(600, 0.1, 124)
+    assert (a == b).all() and (a != c).any()
+    assert np.median(a) == pytest.approx(1.0, abs=0.02) and np.std(np.log(a)) == pytest.approx(0.1, rel=0.1)
+    assert (taxel_gains(600, 0.0, 5) == 1.0).all()
+
+
+@pytest.mark.parametrize("aging", [0.01, 1.0])
+@pytest.mark.parametrize("exponent", [0.2, 1.0, 3.0])
+def test_extreme_forces_read_within_zero_and_the_gain(aging: float, exponent: float) -> None:
+    params = TouchParams.parse({"aging": aging, "response_exponent": exponent, "half_force_n": 0.01})
+    force = np.array([0.0, 1e-300, 1e-12, 0.2, 1.0, 1e3, 1e9, 1e300, np.finfo(float).max])
+    gains = np.array([0.5, 1.0, 2.0, 0.7, 1.1, 1.9, 0.9, 1.5, 3.0])
+    readings = response(force, gains, params)
+    assert np.isfinite(readings).all() and (readings >= 0).all() and (readings <= gains).all()
+    assert readings[-1] == pytest.approx(gains[-1])
+
+
+def test_a_contact_on_a_taxel_loads_it_most_and_between_two_shares_them_equally() -> None:
+    grid = np.array([[x, y, 0.0] for x in np.arange(5) * 0.005 for y in np.arange(5) * 0.005])
+    interference = np.full(len(grid), 1e-4)
+    on_taxel, _ = link_forces(grid, interference, grid[12:13], np.array([3.0]), 0.006)
+    assert on_taxel.argmax() == 12 and on_taxel.sum() == pytest.approx(3.0)
+    between = (grid[12] + grid[13]) / 2
+    halves, _ = link_forces(grid, interference, between[None], np.array([3.0]), 0.006)
+    assert halves[12] == pytest.approx(halves[13]) == pytest.approx(halves.max())
+    assert halves.sum() == pytest.approx(3.0)
+    # Outside every footprint (or touching only taxels clear of the object) nothing is felt.
+    far, missed = link_forces(grid, interference, np.array([[0.1, 0.1, 0.0]]), np.array([3.0]), 0.006)
+    assert not far.any() and missed == 3.0
+    clear, missed = link_forces(grid, np.zeros(len(grid)), grid[12:13], np.array([3.0]), 0.006)
+    assert not clear.any() and missed == 3.0
+
+
+def test_many_contacts_on_one_link_conserve_force_and_stay_finite() -> None:
+    rng = np.random.default_rng(3)
+    grid = np.array([[x, y, 0.0] for x in np.arange(8) * 0.0045 for y in np.arange(8) * 0.0045])
+    points = rng.uniform(-0.005, 0.04, size=(2000, 3)) * [1, 1, 0]
+    forces = rng.lognormal(0.0, 3.0, size=2000)  # from ~1e-4 N to ~1e4 N
+    share, missed = link_forces(grid, rng.uniform(0.0, 5e-4, len(grid)), points, forces, 0.006)
+    assert np.isfinite(share).all() and (share >= 0).all()
+    assert share.sum() + missed == pytest.approx(forces.sum(), rel=1e-9)
+    weights = footprint_weights(grid - grid[0], np.full(len(grid), 1e-4), 0.001)
+    assert weights[0] == pytest.approx(1e-4) and not weights[1:].any()
 
 
 def test_readings_depend_on_the_gain_seed_alone(engine: GraspEngine, tmp_path: Path) -> None:
-    first, _ = run(engine, grasp_params("trx3", SEEDS[:2]), tmp_path / "a")
-    again, _ = run(GraspEngine(), grasp_params("trx3", SEEDS[:2]), tmp_path / "b")
-    reseeded, _ = run(engine, grasp_params("trx3", SEEDS[:2], gain_seed=124), tmp_path / "c")
+    first, _ = run(engine, grasp_params("tomato_soup_can", "trx3", SEEDS[:2]), tmp_path / "a")
+    again, _ = run(GraspEngine(), grasp_params("tomato_soup_can", "trx3", SEEDS[:2]), tmp_path / "b")
+    reseeded, _ = run(
+        engine, grasp_params("tomato_soup_can", "trx3", SEEDS[:2], gain_seed=124), tmp_path / "c"
+    )
     for t1, t2, t3 in zip(first["trials"], again["trials"], reseeded["trials"], strict=True):
         assert t1["accepted"] and t1["touch"] == t2["touch"]  # same seed: identical readings
         assert [a["taxel"] for a in t1["touch"]["active"]] == [a["taxel"] for a in t3["touch"]["active"]]
         assert t1["touch"]["readings"] != t3["touch"]["readings"]  # other gains, same contact
-    assert first["touch"] == {**TOUCH, "min_active_taxels": 3}
 
 
-@pytest.mark.parametrize("hand", HANDS)
-def test_grasps_activate_dozens_of_taxels(
-    runs: dict[str, HandRun], hand: str, record_property: pytest.RecordProperty
+def test_averaging_more_steps_changes_only_the_touch(engine: GraspEngine, tmp_path: Path) -> None:
+    """The averaged steps run on a copy of the state: poses and contacts stay those of the capture."""
+    one, _ = run(engine, grasp_params("mug", "allegro", SEEDS[:2], contact_steps=1), tmp_path / "one")
+    many, _ = run(engine, grasp_params("mug", "allegro", SEEDS[:2], contact_steps=16), tmp_path / "many")
+    for t1, t16 in zip(one["trials"], many["trials"], strict=True):
+        assert {k: v for k, v in t1.items() if k != "touch"} == {k: v for k, v in t16.items() if k != "touch"}
+        if t1["accepted"]:
+            assert t1["touch"]["contact_steps"] == 1 and t16["touch"]["contact_steps"] == 16
+
+
+def test_grasps_activate_several_taxels_in_every_region(
+    runs: list[Run], record_property: pytest.RecordProperty
 ) -> None:
-    counts = [t["touch"]["active_count"] for t in runs[hand].accepted]
-    median = float(np.median(counts))
-    record_property(f"{hand}_median_active_taxels", median)
-    assert median == runs[hand].metrics["active_taxels_median"]
-    assert median >= MIN_MEDIAN_ACTIVE, counts
-    regions = {a["region"] for t in runs[hand].accepted for a in t["touch"]["active"]}
-    assert regions == {"tip", "pulp", "palm"}
+    for hand in HANDS:
+        accepted = [t for r in runs if r.hand == hand for t in r.accepted]
+        median = float(np.median([t["touch"]["active_count"] for t in accepted]))
+        record_property(f"{hand}_median_active_taxels", median)
+        assert median >= 6
+        assert {a["region"] for t in accepted for a in t["touch"]["active"]} == {"tip", "pulp", "palm"}
+    for r in runs:
+        counts = [t["touch"]["active_count"] for t in r.accepted]
+        assert float(np.median(counts or [0])) == r.metrics["active_taxels_median"]
 
 
-@pytest.mark.parametrize("hand", HANDS)
-def test_touch_timing_is_reported(runs: dict[str, HandRun], hand: str) -> None:
-    # The < 5 % goal is measured by benches/grasp_throughput.py, not asserted in a timed test.
-    metrics = runs[hand].metrics
-    assert 0 < metrics["touch_ms"] < metrics["trials_ms"]
+def test_touch_timing_is_reported(runs: list[Run]) -> None:
+    # The read-out's cost is measured by `python -m vint_engines.study.touch`, not asserted here.
+    for r in runs:
+        assert 0 < r.metrics["touch_ms"] < r.metrics["trials_ms"]
 
 
 def test_too_few_active_taxels_reject_the_grasp(engine: GraspEngine, tmp_path: Path) -> None:
-    doc, _ = run(engine, grasp_params("allegro", SEEDS[:2], min_active_taxels=10_000), tmp_path)
+    doc, _ = run(
+        engine, grasp_params("tomato_soup_can", "allegro", SEEDS[:2], min_active_taxels=10_000), tmp_path
+    )
     assert [t["reason"] for t in doc["trials"]] == ["no_touch", "no_touch"]
 
 
 @pytest.mark.parametrize(
     "bad",
     [
-        {"sensing_depth_m": 0.0},
+        {"contact_margin_m": -0.001},
+        {"footprint_radius_m": 0.0},
+        {"contact_steps": 0},
+        {"activation_force_n": -0.1},
+        {"half_force_n": 0.0},
+        {"response_exponent": 5.0},
         {"aging": 1.5},
         {"gain_sigma": -0.1},
         {"min_active_taxels": -1},
         {"gain_seed": "x"},
+        {"sensing_depth_m": 0.003},
     ],
 )
 def test_impossible_touch_parameters_are_bad_input(engine: GraspEngine, tmp_path: Path, bad: dict) -> None:
-    with pytest.raises(BadInput, match=f"params.touch.{next(iter(bad))}"):
-        engine.run(TaskRequest("t", grasp_params("trx3", SEEDS[:1], **bad), (), tmp_path))
+    with pytest.raises(BadInput, match=r"params\.touch"):
+        engine.run(TaskRequest("t", grasp_params("mug", "trx3", SEEDS[:1], **bad), (), tmp_path))
 
 
 def test_distances_work_for_every_object_geom_type() -> None:

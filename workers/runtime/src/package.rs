@@ -215,7 +215,8 @@ fn grasp_record(grasp: &GraspId, grasps: &Value, touch: &Value) -> Result<Value,
             "units": "metres, kilograms, seconds, radians",
             "pose": "p = position, q = quaternion [w, x, y, z], world frame",
             "touch": "touch.active: the active taxels (position and outward normal in the palm frame, reading, \
-                      signed distance); touch.readings: one per taxel of hand.taxels' layout",
+                      local contact force in N, signed distance to the object); touch.readings: one per taxel \
+                      of hand.taxels' layout; touch.contact_samples: the contacts whose forces were averaged",
         },
     }))
 }
@@ -277,16 +278,16 @@ mod tests {
             "trials": [{"grasp_index": 3, "seed": 7, "accepted": true, "reason": null,
                         "object_pose": {"p": [0, 0, 0.1], "q": [1, 0, 0, 0]}, "hand_pose": {"p": [0, 0, 0.2], "q": [1, 0, 0, 0]},
                         "link_poses": {"palm": {"p": [0, 0, 0.2], "q": [1, 0, 0, 0]}}, "joints": {"f0_j0": 0.5},
-                        "touch": {"sensing_depth_m": 0.003, "active_count": 1}}],
+                        "touch": {"contact_margin_m": 0.0005, "active_count": 1}}],
             "physics": {"timestep": 0.002},
-            "touch": {"sensing_depth_m": 0.003},
+            "touch": {"contact_margin_m": 0.0005},
         })
     }
 
     fn touch() -> Value {
         json!({"hand": "trx3", "trials": [
-            {"grasp_index": 1, "sensing_depth_m": 0.003, "active_count": 0, "active": [], "readings": [0.0, 0.0, 0.0]},
-            {"grasp_index": 3, "sensing_depth_m": 0.003, "active_count": 1, "active": [{"taxel": 2}], "readings": [0.0, 0.0, 0.5]},
+            {"grasp_index": 1, "contact_margin_m": 0.0005, "active_count": 0, "active": [], "readings": [0.0, 0.0, 0.0]},
+            {"grasp_index": 3, "contact_margin_m": 0.0005, "active_count": 1, "active": [{"taxel": 2}], "readings": [0.0, 0.0, 0.5]},
         ]})
     }
 
@@ -299,7 +300,7 @@ mod tests {
         let record = grasp_record(&grasp(), &grasps(), &touch()).expect("record");
         assert_eq!(
             record["touch"],
-            json!({"sensing_depth_m": 0.003, "active_count": 1, "active": [{"taxel": 2}], "readings": [0.0, 0.0, 0.5]})
+            json!({"contact_margin_m": 0.0005, "active_count": 1, "active": [{"taxel": 2}], "readings": [0.0, 0.0, 0.5]})
         );
         assert_eq!(record["trial"]["link_poses"]["palm"]["p"][2], 0.2);
         assert_eq!(record["trial"]["joints"]["f0_j0"], 0.5);

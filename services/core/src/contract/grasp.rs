@@ -40,8 +40,24 @@ pub const SHAKE_ACCEL_MPS2: Bound<f64> = Bound::new(0.0, 100.0, 5.0);
 pub const SHAKE_DIRECTIONS: Bound<u32> = Bound::new(1, 32, 4);
 pub const SHAKE_DURATION_S: Bound<f64> = Bound::new(0.01, 30.0, 1.0);
 
-pub const SENSING_DEPTH_M: Bound<f64> = Bound::new(1e-4, 0.02, 0.003);
-pub const RESPONSE_DEPTH_M: Bound<f64> = Bound::new(1e-4, 0.02, 0.002);
+// The touch model and the sources of its defaults: docs/touch.md.
+/// How close (m) to the object's surface a taxel on a link in contact must lie to share the
+/// link's contact force: the skin's compliance; MuJoCo's soft contacts let surfaces interpenetrate
+/// by tenths of a millimetre under grasp forces.
+pub const CONTACT_MARGIN_M: Bound<f64> = Bound::new(0.0, 0.002, 0.0005);
+/// Radius (m) of the pressure patch one MuJoCo contact point spreads over: the Hertz contact radius
+/// of a fingertip on an elastomer cover at grasp forces (a few millimetres, about one taxel pitch).
+pub const FOOTPRINT_RADIUS_M: Bound<f64> = Bound::new(0.001, 0.03, 0.006);
+/// Simulation steps whose contact forces are averaged: the capture and the steps after it.
+pub const CONTACT_STEPS: Bound<u32> = Bound::new(1, 64, 4);
+/// Local force (N) below which a taxel reads nothing: an FSR's actuation force (Interlink FSR 400).
+pub const ACTIVATION_FORCE_N: Bound<f64> = Bound::new(0.0, 10.0, 0.2);
+/// Local force (N) at which a new taxel reads half its gain, where it is most sensitive: the
+/// divider resistor matched to the median taxel force of the hands' power grasps (7–12 N, within
+/// the FSR 400's 0.2–20 N range).
+pub const HALF_FORCE_N: Bound<f64> = Bound::new(0.01, 100.0, 10.0);
+/// Power of the FSR's conductance in force (conductance roughly proportional to force).
+pub const RESPONSE_EXPONENT: Bound<f64> = Bound::new(0.2, 3.0, 1.0);
 pub const GAIN_SIGMA: Bound<f64> = Bound::new(0.0, 1.0, 0.1);
 pub const AGING: Bound<f64> = Bound::new(0.01, 1.0, 1.0);
 pub const MIN_ACTIVE_TAXELS: Bound<u32> = Bound::new(0, 10_000, 3);
@@ -204,16 +220,28 @@ impl Default for Shake {
 #[serde(deny_unknown_fields, default)]
 #[schemars(rename = "GraspTouch")]
 pub struct Touch {
-    /// A taxel is active when the object surface is within this distance of it (m).
-    #[schemars(range(min = SENSING_DEPTH_M.min, max = SENSING_DEPTH_M.max))]
-    pub sensing_depth_m: f64,
-    /// Indentation scale of the saturating response (m).
-    #[schemars(range(min = RESPONSE_DEPTH_M.min, max = RESPONSE_DEPTH_M.max))]
-    pub response_depth_m: f64,
+    /// A taxel shares its link's contact force only within this distance of the object (m).
+    #[schemars(range(min = CONTACT_MARGIN_M.min, max = CONTACT_MARGIN_M.max))]
+    pub contact_margin_m: f64,
+    /// Radius of the pressure patch around each MuJoCo contact point (m).
+    #[schemars(range(min = FOOTPRINT_RADIUS_M.min, max = FOOTPRINT_RADIUS_M.max))]
+    pub footprint_radius_m: f64,
+    /// Steps whose contact forces are averaged (the capture and the steps after it).
+    #[schemars(range(min = CONTACT_STEPS.min, max = CONTACT_STEPS.max))]
+    pub contact_steps: u32,
+    /// Local force below which a taxel reads nothing (N).
+    #[schemars(range(min = ACTIVATION_FORCE_N.min, max = ACTIVATION_FORCE_N.max))]
+    pub activation_force_n: f64,
+    /// Local force at which a new taxel reads half its gain (N).
+    #[schemars(range(min = HALF_FORCE_N.min, max = HALF_FORCE_N.max))]
+    pub half_force_n: f64,
+    /// Power law of the response in force.
+    #[schemars(range(min = RESPONSE_EXPONENT.min, max = RESPONSE_EXPONENT.max))]
+    pub response_exponent: f64,
     /// Log-normal spread of the per-taxel gains.
     #[schemars(range(min = GAIN_SIGMA.min, max = GAIN_SIGMA.max))]
     pub gain_sigma: f64,
-    /// Sensitivity left after aging: 1 is a new sensor.
+    /// Sensitivity left after aging (a taxel feels `aging` times the force): 1 is a new sensor.
     #[schemars(range(min = AGING.min, max = AGING.max))]
     pub aging: f64,
     /// Seed of the per-taxel gains: the hand's, not the trial's (a property of the sensor).
@@ -227,8 +255,12 @@ pub struct Touch {
 impl Default for Touch {
     fn default() -> Touch {
         Touch {
-            sensing_depth_m: SENSING_DEPTH_M.default,
-            response_depth_m: RESPONSE_DEPTH_M.default,
+            contact_margin_m: CONTACT_MARGIN_M.default,
+            footprint_radius_m: FOOTPRINT_RADIUS_M.default,
+            contact_steps: CONTACT_STEPS.default,
+            activation_force_n: ACTIVATION_FORCE_N.default,
+            half_force_n: HALF_FORCE_N.default,
+            response_exponent: RESPONSE_EXPONENT.default,
             gain_sigma: GAIN_SIGMA.default,
             aging: AGING.default,
             gain_seed: GAIN_SEED_DEFAULT,

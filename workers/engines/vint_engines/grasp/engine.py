@@ -197,7 +197,7 @@ def without_readings(record: dict[str, Any]) -> dict[str, Any]:
     if "touch" not in record:
         return record
     touch = record["touch"]
-    summary = {"sensing_depth_m": touch["sensing_depth_m"], "active_count": touch["active_count"]}
+    summary = {"contact_margin_m": touch["contact_margin_m"], "active_count": touch["active_count"]}
     return {**record, "touch": summary}
 
 

@@ -1,39 +1,44 @@
 """Whole-hand touch at capture time: which taxels feel the object, and what each one reads.
 
-The model follows VinT-6D ("Simulating Touch"): what a dataset needs from touch is *where* the
-hand feels the object (active taxels as a point cloud in the palm frame), plus readings with the
-real sensor's character — a non-linear, monotone response to pressure, taxel-to-taxel gain
-differences from manufacturing, and aging ("over time, a greater force is required for the same
-level of activation").
+The model follows VinT-6D ("Simulating Touch", App. A.1.2): each taxel is a piezoresistive force
+sensor that fires on contact, with a non-linear, monotone response to the normal force on it,
+taxel-to-taxel gain differences from manufacturing, and aging ("over time, a greater force is
+required for the same level of activation"). The force comes from the contacts MuJoCo resolves;
+docs/touch.md gives the equations, the sources of the constants and the measured behaviour.
 
-- Active: a taxel is active when the object's surface is closer than the sensing depth d_s
-  (`sensing_depth_m`): its signed distance d to the object (negative inside) is < d_s. The link's
-  collision surface stands for the skin fully compressed; the skin's free surface — the compliant
-  cover and the taxel domes (the paper's taxels are small cylinders topped by hemispheres) — lies
-  d_s outside it, and a taxel fires when the object indents it. The default, 3 mm, is the order of
-  a curved piezoresistive skin's thickness; it makes a power grasp of a can press 100-170 taxels
-  (a flat palm against a 66 mm can is within 3 mm over a ~28 mm wide band) rather than the few
-  that MuJoCo's contact points alone would mark.
-- Reading: with indentation δ = d_s - d > 0,
-      r = gain_i · (1 - exp(-aging · δ / δ0)),   δ0 = `response_depth_m`,
-  monotone and saturating at gain_i; `aging` in (0, 1] is the sensitivity left (1: new sensor),
-  so an aged sensor needs a deeper indentation — more force — for the same reading. Inactive
-  taxels read 0.
-- Gains: gain_i = exp(σ·z_i), z_i ~ N(0, 1) drawn by `numpy.random.default_rng(gain_seed)`, one
-  per taxel of the layout, σ = `gain_sigma`; a physical sensor's gains do not change between
-  grasps, so the seed is the hand's (the Rust side derives it from the job seed and the hand).
+1. Contacts. The hand–object contacts of the captured state, and of the `contact_steps - 1`
+   steps after it (simulated on a copy of the state, so the capture is untouched: MuJoCo's contact
+   forces jitter from step to step, and a single contact point per geom pair wanders over the
+   contact patch), each as (link, point in the link's frame, normal force F_c); the record keeps
+   them as `contact_samples`.
+2. Eligible taxels: on a link in contact at the capture, and within `contact_margin_m` (m) of the
+   object's surface (signed distance d_i, negative inside): the skin's compliance.
+3. Local force. Each contact's force is shared by the eligible taxels of its link within the
+   footprint radius a (`footprint_radius_m`) of the contact point, in proportion to
+       w_ic = (m - d_i) · sqrt(1 - (r_ic / a)^2),
+   the interference with the object (an elastic foundation: pressure grows with compression) times
+   a Hertz-like pressure profile around the contact point; f_i = Σ_c F_c w_ic / Σ_j w_jc, averaged
+   over the steps. A contact with no eligible taxel in its footprint is not felt (its force is
+   recorded as `unsensed_force_n`).
+4. Reading (a force-sensing resistor in a voltage divider, Interlink's FSR 400 integration):
+       r_i = g_i · x^n / (1 + x^n),   x = aging · f_i / f_half,   n = `response_exponent`,
+   when aging · f_i >= f_on (`activation_force_n`), else 0: monotone, saturating at g_i, and an
+   aged taxel (`aging` < 1) needs more force for the same reading and to fire at all.
+   Gains g_i = exp(σ·z_i), z_i ~ N(0, 1) from `numpy.random.default_rng(gain_seed)`, one per taxel
+   of the layout; a physical sensor's gains do not change between grasps, so the seed is the
+   hand's (the Rust side derives it from the job seed and the hand).
 
-Distances come from MuJoCo (`mj_geomDistance` between a tiny probe sphere placed on the taxel and
-each of the object's geoms), so every geom type the object may be built from — primitives,
-compounds, convex mesh pieces — works. Only links that touch the object (a MuJoCo contact) or come
-within d_s of it are evaluated, and only once, on the captured state: nothing runs during the
-rollout.
+A taxel is active when its reading is positive. Distances come from MuJoCo (`mj_geomDistance`
+between a tiny probe sphere placed on the taxel and each of the object's geoms), so every geom type
+an object may be built from works. Only the taxels of links in contact are evaluated, only at the
+capture: nothing runs during the rollout.
 """
 
 from __future__ import annotations
 
+import copy
 import time
-from collections.abc import Set
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -49,11 +54,18 @@ from vint_engines.protocol import BadInput
 
 Array = npt.NDArray[np.float64]
 
+# Distances are measured exactly up to the margin plus this much (a taxel further is not eligible).
+DISTANCE_SLACK_M = 1e-3
+
 
 @dataclass(frozen=True)
 class TouchParams:
-    sensing_depth_m: float
-    response_depth_m: float
+    contact_margin_m: float
+    footprint_radius_m: float
+    contact_steps: int
+    activation_force_n: float
+    half_force_n: float
+    response_exponent: float
     gain_sigma: float
     aging: float
     gain_seed: int
@@ -69,15 +81,86 @@ class TouchParams:
         return asdict(self)
 
 
+@dataclass(frozen=True)
+class LinkContact:
+    """One hand–object contact as the skin needs it: the link, the point in the link's frame (m)
+    and the normal force (N)."""
+
+    link: str
+    point: Array
+    force_n: float
+
+
 def taxel_gains(count: int, sigma: float, seed: int) -> Array:
     """Per-taxel gains: log-normal with median 1 and log-spread `sigma`."""
     return np.random.default_rng(seed).lognormal(mean=0.0, sigma=sigma, size=count)
 
 
-def response(indentation: Array, gains: Array, params: TouchParams) -> Array:
-    """Taxel readings for indentations (m, > 0 when active); 0 where the indentation is <= 0."""
-    pressed = np.maximum(indentation, 0.0)
-    return gains * -np.expm1(-params.aging * pressed / params.response_depth_m)
+def response(force: Array, gains: Array, params: TouchParams) -> Array:
+    """Taxel readings for local normal forces (N): `gain · x^n / (1 + x^n)` with
+    `x = aging · force / half_force_n`, and 0 where `aging · force` is below the activation force
+    or not positive. Finite for every finite force (written as a logistic in log-force)."""
+    felt = params.aging * np.asarray(force, dtype=np.float64)
+    fires = (felt > 0.0) & (felt >= params.activation_force_n)
+    log_ratio = np.log(np.where(fires, felt, 1.0)) - np.log(params.half_force_n)
+    # x^n / (1 + x^n) = 1 / (1 + exp(-n ln x)); the clip keeps exp finite for forces near zero.
+    share = 1.0 / (1.0 + np.exp(np.minimum(-params.response_exponent * log_ratio, 700.0)))
+    return np.where(fires, gains * share, 0.0)
+
+
+def footprint_weights(offsets: Array, interference: Array, radius: float) -> Array:
+    """Unnormalised shares of a contact's force among taxels at `offsets` (m, last axis xyz) from
+    the contact point with `interference` (m, >= 0) with the object: a Hertz-like profile
+    sqrt(1 - (r/a)^2) inside the footprint radius a, times the interference."""
+    r2 = (offsets**2).sum(axis=-1) / radius**2
+    return interference * np.sqrt(np.maximum(1.0 - r2, 0.0))
+
+
+def link_forces(
+    positions: Array, interference: Array, points: Array, forces: Array, radius: float
+) -> tuple[Array, float]:
+    """One link's contact forces shared among its eligible taxels (`positions` and contact
+    `points` in the link's frame): each contact's force split by `footprint_weights`. Returns
+    each taxel's force and the force of the contacts no taxel's footprint weight reached (N)."""
+    weights = footprint_weights(positions[:, None, :] - points[None, :, :], interference[:, None], radius)
+    shared = weights.sum(axis=0)
+    felt = shared > 0.0
+    force = weights[:, felt] @ (forces[felt] / shared[felt])
+    return force, float(forces[~felt].sum())
+
+
+def link_frame_contacts(
+    scene: GraspScene, data: mujoco.MjData, contacts: list[dict[str, Any]]
+) -> list[LinkContact]:
+    """`finger_contacts` records (world frame) moved into their links' frames."""
+    moved = []
+    for contact in contacts:
+        body = scene.link_bodies[contact["link"]]
+        local = data.xmat[body].reshape(3, 3).T @ (np.asarray(contact["p"]) - data.xpos[body])
+        moved.append(LinkContact(contact["link"], local, float(contact["force"])))
+    return moved
+
+
+def held_contacts(
+    scene: GraspScene,
+    data: mujoco.MjData,
+    steps: int,
+    contacts_of: Callable[[GraspScene, mujoco.MjData], list[dict[str, Any]]],
+) -> list[list[LinkContact]]:
+    """The hand–object contacts of the captured state and of the `steps - 1` simulation steps after
+    it, with the controls held. The steps run on a copy of `data`, so the capture is untouched;
+    sampling stops early if the copy reports a MuJoCo warning or a non-finite state."""
+    samples = [link_frame_contacts(scene, data, contacts_of(scene, data))]
+    if steps <= 1:
+        return samples
+    scratch = copy.copy(data)
+    warnings = scratch.warning.number.copy()
+    for _ in range(steps - 1):
+        mujoco.mj_step(scene.model, scratch)
+        if (scratch.warning.number != warnings).any() or not np.isfinite(scratch.qacc).all():
+            break
+        samples.append(link_frame_contacts(scene, scratch, contacts_of(scene, scratch)))
+    return samples
 
 
 class Skin:
@@ -94,44 +177,69 @@ class Skin:
         self.by_link = layout.indices_by_link()
         self.taxel_body = np.array([scene.link_bodies[link] for link in layout.links], dtype=np.intp)
         self.object_geoms = list(scene.object_geoms)
-        self.link_geoms = {
-            link: [int(g) for g in np.flatnonzero((model.geom_bodyid == body) & (model.geom_contype != 0))]
-            for link, body in scene.link_bodies.items()
-        }
         self.probe = model.geom(TOUCH_PROBE).id
         self.elapsed_s = 0.0
 
-    def read(self, data: mujoco.MjData, contact_links: Set[str]) -> dict[str, Any]:
-        """The `touch` record of the current state; `contact_links` are the links MuJoCo reports in
-        contact with the object."""
+    def read(self, data: mujoco.MjData, samples: list[list[LinkContact]]) -> dict[str, Any]:
+        """The `touch` record of the captured state `data`; `samples` are the contacts of the
+        capture (first) and of the steps averaged with it (`held_contacts`)."""
         started = time.perf_counter()
-        depth = self.params.sensing_depth_m
-        links = [link for link in self.by_link if link in contact_links or self._near(data, link)]
-        indices = np.sort(np.concatenate([self.by_link[link] for link in links] or [np.zeros(0, np.intp)]))
+        params = self.params
+        in_contact = {c.link for c in samples[0] if c.force_n > 0.0} & set(self.by_link)
+        links = [link for link in self.by_link if link in in_contact]
+        indices = np.concatenate([self.by_link[link] for link in links] or [np.zeros(0, np.intp)])
+        indices = np.sort(indices)
         world = self._to_world(data, indices, self.layout.positions, points=True)
-        distance = object_distances(self.scene.model, data, self.probe, self.object_geoms, world, depth)
-        active = distance < depth
-        indices, distance = indices[active], distance[active]
+        cap = params.contact_margin_m + DISTANCE_SLACK_M
+        distance = object_distances(self.scene.model, data, self.probe, self.object_geoms, world, cap)
+        eligible = distance < params.contact_margin_m
+        indices, distance = indices[eligible], distance[eligible]
+        force, contact_force, unsensed = self._local_forces(
+            indices, params.contact_margin_m - distance, samples
+        )
         readings = np.zeros(len(self.layout))
-        readings[indices] = response(depth - distance, self.gains[indices], self.params)
+        readings[indices] = response(force, self.gains[indices], params)
+        active = readings[indices] > 0.0
+        indices, distance, force = indices[active], distance[active], force[active]
         record = {
-            "sensing_depth_m": depth,
-            "active": self._active_json(data, indices, distance, readings),
+            "contact_margin_m": params.contact_margin_m,
+            "contact_steps": len(samples),
+            "contact_force_n": contact_force,
+            "unsensed_force_n": unsensed,
+            "contact_samples": [
+                [{"link": c.link, "p_link": c.point.tolist(), "force_n": c.force_n} for c in contacts]
+                for contacts in samples
+            ],
+            "active": self._active_json(data, indices, distance, force, readings),
             "readings": readings.tolist(),
             "active_count": len(indices),
         }
         self.elapsed_s += time.perf_counter() - started
         return record
 
-    def _near(self, data: mujoco.MjData, link: str) -> bool:
-        """Whether a link without contacts still comes within the sensing depth of the object."""
-        depth = self.params.sensing_depth_m
-        model = self.scene.model
-        return any(
-            mujoco.mj_geomDistance(model, data, g, o, depth, None) < depth
-            for g in self.link_geoms[link]
-            for o in self.object_geoms
-        )
+    def _local_forces(
+        self, indices: npt.NDArray[np.intp], interference: Array, samples: list[list[LinkContact]]
+    ) -> tuple[Array, float, float]:
+        """Each eligible taxel's force averaged over the samples, and the mean total contact force
+        on the skin's links and the part of it no eligible taxel felt (N)."""
+        force = np.zeros(len(indices))
+        total = unsensed = 0.0
+        pooled = [c for contacts in samples for c in contacts]
+        for link in sorted({c.link for c in pooled} & set(self.by_link)):  # a fixed order of sums
+            on_link = [c for c in pooled if c.link == link]
+            row = np.flatnonzero(np.isin(indices, self.by_link[link]))
+            shares, missed = link_forces(
+                self.layout.positions[indices[row]],
+                interference[row],
+                np.array([c.point for c in on_link]),
+                np.array([c.force_n for c in on_link]),
+                self.params.footprint_radius_m,
+            )
+            force[row] += shares
+            total += sum(c.force_n for c in on_link)
+            unsensed += missed
+        count = len(samples)
+        return force / count, total / count, unsensed / count
 
     def _to_world(
         self, data: mujoco.MjData, indices: npt.NDArray[np.intp], vectors: Array, *, points: bool
@@ -142,7 +250,12 @@ class Skin:
         return world + data.xpos[body] if points else world
 
     def _active_json(
-        self, data: mujoco.MjData, indices: npt.NDArray[np.intp], distance: Array, readings: Array
+        self,
+        data: mujoco.MjData,
+        indices: npt.NDArray[np.intp],
+        distance: Array,
+        force: Array,
+        readings: Array,
     ) -> list[dict[str, Any]]:
         palm = self.scene.palm_body
         to_palm = data.xmat[palm].reshape(3, 3)  # rows @ to_palm == R_palm^T @ row
@@ -158,11 +271,13 @@ class Skin:
                 "p_palm": p,
                 "n_palm": n,
                 "reading": r,
+                "force_n": f,
                 "distance_m": d,
             }
-            for i, d, p, n, r in zip(
+            for i, d, f, p, n, r in zip(
                 indices.tolist(),
                 distance.tolist(),
+                force.tolist(),
                 p_palm.tolist(),
                 n_palm.tolist(),
                 readings[indices].tolist(),
