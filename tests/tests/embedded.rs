@@ -43,6 +43,22 @@ fn tiny_spec_produces_verified_samples_identical_for_any_worker_count_and_engine
             assert_eq!(record["trial"]["object_pose"], meta["poses"]["object"], "{sample}: one pose, two places");
             assert!(!record["trial"]["link_poses"].as_object().unwrap().is_empty());
             assert!(!record["trial"]["joints"].as_object().unwrap().is_empty());
+            // Touch only at contact: every active taxel sits on a link MuJoCo reports in contact
+            // with the object (the trial's contacts, recorded apart from the touch read-out),
+            // within the skin's 0.5 mm contact margin.
+            let touching: std::collections::BTreeSet<&str> = record["trial"]["contacts"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .filter(|c| c["force"].as_f64().unwrap() > 0.0)
+                .map(|c| c["link"].as_str().unwrap())
+                .collect();
+            for taxel in record["touch"]["active"].as_array().unwrap() {
+                let link = taxel["link"].as_str().unwrap();
+                assert!(touching.contains(link), "{sample}: taxel {} on {link}, not in contact", taxel["taxel"]);
+                assert!(taxel["distance_m"].as_f64().unwrap() <= 5e-4 + 1e-9, "{sample}: {taxel}");
+                assert!(taxel["reading"].as_f64().unwrap() > 0.0, "{sample}: {taxel}");
+            }
             let readings = record["touch"]["readings"].as_array().unwrap();
             let active = readings.iter().filter(|r| r.as_f64().unwrap() > 0.0).count() as u64;
             assert_eq!(record["touch"]["active_count"].as_u64(), Some(active), "{sample}");

@@ -32,9 +32,9 @@ const RENDER_S_PER_VIEW: f64 = 0.1;
 /// Render: OpenImageDenoise per pixel. /work/shared/FACTS.md (Cycles on CPU): 640×480 renders in
 /// 5–6.5 s, 8.4 s with denoise: ~2.5 s / 307 200 px.
 const DENOISE_S_PER_PIXEL: f64 = 8e-6;
-/// Noise: per pixel of a noisy depth image. docs/benchmarks.md, "tiny.toml": the noise stage's
-/// 266 ms less 90 ms of engine start-up, for 72 views of 128×128.
-const NOISE_S_PER_PIXEL: f64 = 0.15e-6;
+/// Noise: per pixel of a noisy depth image with every piece of the ToF model on. docs/depth_noise.md
+/// (benches/noise_cost.py): 8.5 ms per 128×128 view, 146 ms per 512×512, 602 ms per 1024×1024.
+const NOISE_S_PER_PIXEL: f64 = 0.56e-6;
 /// Package: per sample. docs/benchmarks.md, "tiny.toml": 244 ms for 72 samples.
 const PACKAGE_S_PER_SAMPLE: f64 = 0.0034;
 
