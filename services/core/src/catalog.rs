@@ -1,7 +1,7 @@
 //! The built-in objects and hands a spec can name.
 //!
 //! Both are data, defined once under `catalog/` at the repository root and compiled in here:
-//! `catalog/objects.toml` (dimensions, masses, material and symmetry tags, procedural shapes) and
+//! `catalog/objects.toml` (dimensions, masses, materials, textures, symmetries, procedural shapes) and
 //! `catalog/hands.toml` with each hand's taxel layout (`catalog/hands/<hand>/taxels.csv`). The
 //! engines build geometry from the same entries; this module only validates names and hands the
 //! entries on in task parameters.
@@ -111,11 +111,85 @@ pub const ENVIRONMENTS: &[&str] = &["city", "courtyard", "forest", "interior", "
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::contract::object::{Axis, Material, Symmetry, Texture, rotation_about, rotation_of};
 
     #[test]
-    fn catalog_parses() {
-        assert!(objects().len() >= 12, "the issue asks for at least 12 objects");
+    fn catalog_has_the_papers_21_ycb_and_5_everyday_objects() {
+        let ycb = objects().iter().filter(|o| !o.ycb_id.is_empty()).count();
+        assert!(objects().len() >= 26, "VinT-Sim has 26 objects, the catalog {}", objects().len());
+        assert_eq!(ycb, 21, "VinT-6D's YCB-Video objects");
+        assert!(objects().len() - ycb >= 5, "VinT-6D's everyday objects");
+        assert!(objects().iter().any(|o| o.material == Material::Glass && o.ycb_id.is_empty()), "a transparent one");
+        assert!(objects().iter().any(|o| o.material == Material::Metal && o.ycb_id.is_empty()), "a reflective one");
         assert!(!hands().is_empty());
+    }
+
+    #[test]
+    fn every_object_but_glass_carries_a_texture() {
+        for o in objects() {
+            assert_eq!(o.texture == Texture::Plain, o.material == Material::Glass, "{}: {:?}", o.name, o.texture);
+        }
+    }
+
+    #[test]
+    fn declared_symmetries_are_rigid_and_kept_by_the_texture() {
+        for o in objects() {
+            for c in &o.symmetries_continuous {
+                let norm = c.axis.iter().map(|v| v * v).sum::<f64>().sqrt();
+                assert!((norm - 1.0).abs() < 1e-9, "{}: axis {:?}", o.name, c.axis);
+                assert!(
+                    o.texture.keeps_turns_about(c.axis),
+                    "{}: {:?} breaks turns about {:?}",
+                    o.name,
+                    o.texture,
+                    c.axis
+                );
+            }
+            for m in &o.symmetries_discrete {
+                let r = rotation_of(m);
+                for i in 0..3 {
+                    for j in 0..3 {
+                        let dot: f64 = (0..3).map(|k| r[k][i] * r[k][j]).sum();
+                        assert!(
+                            (dot - if i == j { 1.0 } else { 0.0 }).abs() < 1e-9,
+                            "{}: {m:?} is not a rotation",
+                            o.name
+                        );
+                    }
+                }
+                assert_eq!(m[12..], [0.0, 0.0, 0.0, 1.0], "{}", o.name);
+                assert!(o.texture.keeps_rotation(r), "{}: {:?} breaks {m:?}", o.name, o.texture);
+            }
+        }
+    }
+
+    #[test]
+    fn a_print_breaks_every_symmetry_and_a_plain_label_keeps_turns_about_z() {
+        let printed = Texture::Label { band: [0.1, 0.9], print: true };
+        assert!(!printed.keeps_turns_about([0.0, 0.0, 1.0]));
+        assert!(!printed.keeps_rotation(rotation_of(&rotation_about(Axis::Z, 2))));
+        let ruled = Texture::Label { band: [0.1, 0.9], print: false };
+        assert!(ruled.keeps_turns_about([0.0, 0.0, 1.0]) && !ruled.keeps_turns_about([1.0, 0.0, 0.0]));
+        assert!(ruled.keeps_rotation(rotation_of(&rotation_about(Axis::X, 2))), "a centred band survives the flip");
+        let low = Texture::Label { band: [0.1, 0.6], print: false };
+        assert!(!low.keeps_rotation(rotation_of(&rotation_about(Axis::X, 2))), "an off-centre band does not");
+        for o in objects() {
+            if matches!(o.texture, Texture::Label { print: true, .. } | Texture::Panels { print: true }) {
+                assert!(o.symmetries_continuous.is_empty() && o.symmetries_discrete.is_empty(), "{}", o.name);
+            }
+        }
+    }
+
+    #[test]
+    fn the_user_tag_expands_to_full_sets() {
+        let (c, d) = Symmetry::ContinuousZFlip.expand();
+        assert_eq!((c.len(), d), (1, vec![rotation_about(Axis::X, 2)]));
+        assert_eq!(Symmetry::DiscreteZ4.expand().1.len(), 3);
+        assert_eq!(Symmetry::DiscreteBox.expand().1.len(), 3);
+        assert_eq!(Symmetry::None.expand(), (vec![], vec![]));
+        // A quarter turn about z takes x to y.
+        let q = rotation_about(Axis::Z, 1);
+        assert_eq!([q[0], q[4], q[8]], [0.0, 1.0, 0.0]);
     }
 
     #[test]

@@ -14,7 +14,7 @@ use serde_json::Value;
 
 use crate::asset::Asset;
 use crate::catalog;
-use crate::contract::object::{ObjectEntry, Shape};
+use crate::contract::object::{ObjectEntry, Shape, Texture};
 use crate::contract::package::{self, Modality, SampleRef};
 use crate::contract::render::{self, RenderOutput};
 use crate::contract::{grasp, noise};
@@ -322,19 +322,24 @@ fn grasp_params(
         None => grasp::HandRef { name: c.hand.clone(), mjcf: None, taxels: None },
     };
     let object = match spec.object_defs.get(&c.object) {
-        Some(o) => ObjectEntry {
-            name: c.object.clone(),
-            ycb_id: String::new(),
-            mass_kg: o.mass_kg,
-            material: o.material,
-            symmetry: o.symmetry,
-            description: format!("user mesh {}", o.mesh),
-            shape: Shape::Mesh {
-                path: None,
-                asset: Some(sha(format!("object.{}.mesh", c.object), &o.mesh)?),
-                scale: o.scale(),
-            },
-        },
+        Some(o) => {
+            let (symmetries_continuous, symmetries_discrete) = o.symmetry.expand();
+            ObjectEntry {
+                name: c.object.clone(),
+                ycb_id: String::new(),
+                mass_kg: o.mass_kg,
+                material: o.material,
+                texture: Texture::Plain,
+                symmetries_continuous,
+                symmetries_discrete,
+                description: format!("user mesh {}", o.mesh),
+                shape: Shape::Mesh {
+                    path: None,
+                    asset: Some(sha(format!("object.{}.mesh", c.object), &o.mesh)?),
+                    scale: o.scale(),
+                },
+            }
+        }
         None => {
             catalog::object(&c.object).cloned().ok_or_else(|| PlanError::UnknownObject { object: c.object.clone() })?
         }
@@ -617,21 +622,22 @@ mod tests {
     #[test]
     fn user_hands_and_objects_name_their_files_by_hash() {
         let s = DatasetSpec::parse(
-            "hands = [\"grip\"]\nobjects = [\"bowl\"]\n[dataset]\nname = \"t\"\nseed = 1\n\
+            "hands = [\"grip\"]\nobjects = [\"vase\"]\n[dataset]\nname = \"t\"\nseed = 1\n\
              [hand.grip]\nmjcf = \"a/grip.xml\"\ntaxels = \"a/grip.csv\"\n\
-             [object.bowl]\nmesh = \"a/bowl.obj\"\nunit = \"mm\"\nmass_kg = 0.2\nmaterial = \"ceramic\"\n",
+             [object.vase]\nmesh = \"a/vase.obj\"\nunit = \"mm\"\nmass_kg = 0.2\nmaterial = \"ceramic\"\n",
         )
         .unwrap();
         let asset = |p: &str, h: &str| Asset { path: p.into(), sha256: h.repeat(64), size: 10 };
-        let assets = [asset("a/grip.xml", "a"), asset("a/grip.csv", "b"), asset("a/bowl.obj", "c")];
+        let assets = [asset("a/grip.xml", "a"), asset("a/grip.csv", "b"), asset("a/vase.obj", "c")];
         let t = &initial_tasks(&s, &assets).unwrap()[0];
         assert_eq!(t.params["hand"], json!({"name": "grip", "mjcf": "a".repeat(64), "taxels": "b".repeat(64)}));
         assert_eq!(t.params["object"]["shape"], json!({"type": "mesh", "asset": "c".repeat(64), "scale": 0.001}));
-        assert_eq!(t.params["object"]["symmetry"], "none");
+        assert_eq!(t.params["object"]["symmetries_continuous"], serde_json::json!([]));
+        assert_eq!(t.params["object"]["texture"]["kind"], "plain");
         assert_eq!(t.params["assets"].as_array().unwrap().len(), 3);
         assert_eq!(
             initial_tasks(&s, &assets[..2]),
-            Err(PlanError::MissingAsset { field: "object.bowl.mesh".into(), path: "a/bowl.obj".into() })
+            Err(PlanError::MissingAsset { field: "object.vase.mesh".into(), path: "a/vase.obj".into() })
         );
         // Built-in hands and objects keep their parameters: no `assets` at all.
         assert!(initial_tasks(&spec(""), &[]).unwrap()[0].params.get("assets").is_none());

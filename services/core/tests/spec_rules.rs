@@ -304,9 +304,9 @@ fn grasp_procedure_settings_are_checked() {
 /// A spec with a user hand and a user object, plus `extra` lines at the end.
 fn custom(extra: &str) -> String {
     format!(
-        "hands = [\"grip\", \"trx3\"]\nobjects = [\"bowl\", \"mug\"]\n[dataset]\nname = \"c\"\nseed = 1\n\
+        "hands = [\"grip\", \"trx3\"]\nobjects = [\"vase\", \"mug\"]\n[dataset]\nname = \"c\"\nseed = 1\n\
          [hand.grip]\nmjcf = \"assets/grip.xml\"\ntaxels = \"assets/grip_taxels.csv\"\n\
-         [object.bowl]\nmesh = \"assets/bowl.obj\"\nunit = \"mm\"\nmass_kg = 0.25\nmaterial = \"ceramic\"\n\
+         [object.vase]\nmesh = \"assets/vase.obj\"\nunit = \"mm\"\nmass_kg = 0.25\nmaterial = \"ceramic\"\n\
          symmetry = \"continuous_z\"\n{extra}"
     )
 }
@@ -315,14 +315,14 @@ fn custom(extra: &str) -> String {
 fn user_hands_and_objects_are_defined_by_tables_and_name_their_files() {
     let spec = DatasetSpec::parse(&custom("")).unwrap();
     assert_eq!(spec.hand_defs["grip"].mjcf, "assets/grip.xml");
-    assert_eq!(spec.object_defs["bowl"].scale(), 0.001);
+    assert_eq!(spec.object_defs["vase"].scale(), 0.001);
     let uses: Vec<String> = spec.asset_uses().iter().map(|u| format!("{}={}", u.field, u.path)).collect();
     assert_eq!(
         uses,
         [
             "hand.grip.mjcf=assets/grip.xml",
             "hand.grip.taxels=assets/grip_taxels.csv",
-            "object.bowl.mesh=assets/bowl.obj"
+            "object.vase.mesh=assets/vase.obj"
         ]
     );
     // Built-in names alone need no files.
@@ -366,17 +366,17 @@ fn user_definitions_check_paths_units_and_tags() {
         vec![
             "hand.grip.mjcf: must be a path relative to the spec file, with / separators, got \"/abs/grip.xml\"",
             "hand.grip.taxels: must name a .csv file, got \"assets/grip_taxels.txt\"",
-            "object.bowl.unit: must be one of m, cm, mm, got \"inch\"",
-            "object.bowl.material: must be one of plastic, metal, glass, paper, cardboard, wood, ceramic, rubber, got \"cheese\"",
-            "object.bowl.colour: unknown key (known keys: mesh, unit, mass_kg, material, symmetry), got \"red\"",
+            "object.vase.unit: must be one of m, cm, mm, got \"inch\"",
+            "object.vase.material: must be one of plastic, metal, glass, paper, cardboard, wood, ceramic, rubber, got \"cheese\"",
+            "object.vase.colour: unknown key (known keys: mesh, unit, mass_kg, material, symmetry), got \"red\"",
         ]
     );
-    let missing = custom("").replace("mesh = \"assets/bowl.obj\"\n", "").replace("[hand.grip]", "[hand.Grip]");
+    let missing = custom("").replace("mesh = \"assets/vase.obj\"\n", "").replace("[hand.grip]", "[hand.Grip]");
     assert_eq!(
         errors(&missing),
         vec![
             "hand.Grip: must be 1 to 64 characters of a-z, 0-9 and _, got \"Grip\"",
-            "object.bowl.mesh: is required, got nothing",
+            "object.vase.mesh: is required, got nothing",
             "hands[0]: must be a hand in `vintctl hands` or one a [hand.NAME] table defines, got \"grip\"",
         ]
     );

@@ -148,7 +148,7 @@ enum Command {
     Diff(diff::DiffArgs),
     /// List the built-in hands with their DoF and taxel counts per region.
     Hands,
-    /// List the built-in objects with their mass, material and symmetry tags.
+    /// List the built-in objects: mass, material, texture and symmetries (`--json`: in BOP's form).
     Objects,
 }
 

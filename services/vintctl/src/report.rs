@@ -378,7 +378,8 @@ pub fn hands(json: bool) {
     }
 }
 
-/// `vintctl objects`: the built-in object catalog.
+/// `vintctl objects`: the built-in object catalog. `--json` prints the full entries (texture,
+/// `symmetries_continuous`, `symmetries_discrete` in BOP's form); the text lists them in short.
 pub fn objects(json: bool) {
     let objects = vint_core::catalog::objects();
     if json {
@@ -386,15 +387,52 @@ pub fn objects(json: bool) {
         return;
     }
     println!(
-        "{:<22} {:>5} {:>8} {:<10} {:<13} {:<9}  description",
-        "object", "ycb", "mass kg", "material", "symmetry", "shape"
+        "{:<19} {:>4} {:>7} {:<9} {:<18} {:<18} {:<9}  description",
+        "object", "ycb", "mass kg", "material", "texture", "symmetries", "shape"
     );
     for o in objects {
-        let shape = o.shape.kind();
         println!(
-            "{:<22} {:>5} {:>8.3} {:<10} {:<13} {:<9}  {}",
-            o.name, o.ycb_id, o.mass_kg, o.material, o.symmetry, shape, o.description
+            "{:<19} {:>4} {:>7.3} {:<9} {:<18} {:<18} {:<9}  {}",
+            o.name,
+            o.ycb_id,
+            o.mass_kg,
+            o.material,
+            texture_summary(&o.texture),
+            symmetry_summary(o),
+            o.shape.kind(),
+            o.description
         );
+    }
+}
+
+/// `label+print`, `wood_grain z`, `panels`, …
+fn texture_summary(t: &vint_core::contract::object::Texture) -> String {
+    use vint_core::contract::object::{Texture, name_of};
+    match t {
+        Texture::Label { print: true, .. } | Texture::Panels { print: true } => format!("{}+print", t.kind()),
+        Texture::WoodGrain { axis } => format!("{} {}", t.kind(), name_of(axis)),
+        _ => t.kind().to_string(),
+    }
+}
+
+/// `turns about z + 1`, `7 discrete`, `none`: the continuous axes, then how many discrete ones.
+fn symmetry_summary(o: &vint_core::catalog::ObjectEntry) -> String {
+    let axes: Vec<String> = o
+        .symmetries_continuous
+        .iter()
+        .map(|c| match c.axis {
+            [x, y, _] if x == 0.0 && y == 0.0 => "z".to_string(),
+            [_, y, z] if y == 0.0 && z == 0.0 => "x".to_string(),
+            [x, _, z] if x == 0.0 && z == 0.0 => "y".to_string(),
+            a => format!("{a:?}"),
+        })
+        .collect();
+    let discrete = o.symmetries_discrete.len();
+    match (axes.is_empty(), discrete) {
+        (true, 0) => "none".into(),
+        (true, n) => format!("{n} discrete"),
+        (false, 0) => format!("turns about {}", axes.join(",")),
+        (false, n) => format!("turns about {} + {n}", axes.join(",")),
     }
 }
 

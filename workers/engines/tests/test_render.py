@@ -25,7 +25,7 @@ CAN = {
     "ycb_id": "005",
     "mass_kg": 0.349,
     "material": "metal",
-    "symmetry": "continuous_z",
+    "symmetries_continuous": [{"axis": [0.0, 0.0, 1.0], "offset": [0.0, 0.0, 0.0]}],
     "description": "",
     "shape": {"type": "cylinder", "radius_m": 0.0338, "height_m": 0.1019},
 }

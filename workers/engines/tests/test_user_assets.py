@@ -112,7 +112,9 @@ def cup_entry(sha: str) -> dict[str, Any]:
         "ycb_id": "",
         "mass_kg": 0.15,
         "material": "ceramic",
-        "symmetry": "continuous_z",
+        "texture": {"kind": "plain"},
+        "symmetries_continuous": [{"axis": [0.0, 0.0, 1.0], "offset": [0.0, 0.0, 0.0]}],
+        "symmetries_discrete": [],
         "description": "user mesh assets/cup.obj",
         "shape": {"type": "mesh", "asset": sha, "scale": 0.001},
     }

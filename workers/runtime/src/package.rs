@@ -234,7 +234,9 @@ fn sample_meta(id: &SampleId, grasps: &Value, camera: &Value, record_sha256: &st
             "name": object["name"],
             "ycb_id": object["ycb_id"],
             "material": object["material"],
-            "symmetry": object["symmetry"],
+            "texture": object["texture"],
+            "symmetries_continuous": object["symmetries_continuous"],
+            "symmetries_discrete": object["symmetries_discrete"],
             "model": object["model"],
         },
         "hand": grasps["hand"]["name"],
@@ -272,7 +274,8 @@ mod tests {
 
     fn grasps() -> Value {
         json!({
-            "object": {"name": "mug", "ycb_id": "025", "material": "ceramic", "symmetry": "none",
+            "object": {"name": "mug", "ycb_id": "025", "material": "ceramic", "texture": {"kind": "glaze"},
+                        "symmetries_continuous": [], "symmetries_discrete": [],
                        "shape": {"type": "mesh", "path": "m.obj", "scale": 0.001}, "model": {"extent_m": [0.1, 0.1, 0.1]}},
             "hand": {"name": "trx3", "links": [{"name": "palm"}]},
             "trials": [{"grasp_index": 3, "seed": 7, "accepted": true, "reason": null,

@@ -35,12 +35,73 @@ pub struct ObjectEntry {
     pub ycb_id: String,
     #[schemars(range(min = MASS_KG.min, max = MASS_KG.max))]
     pub mass_kg: f64,
-    /// Surface class the renderer maps to a material.
+    /// Surface class the renderer maps to a material (the depth-noise model reads it too).
     pub material: Material,
-    /// Symmetry about the object's z axis (BOP-style; pose metrics use it: ADD-S when symmetric).
-    pub symmetry: Symmetry,
+    /// The printed or natural pattern on the surface (`docs/objects.md`); with the shape it decides
+    /// which symmetries the object's appearance has.
+    #[serde(default)]
+    pub texture: Texture,
+    /// Rotations about an axis by any angle that leave the textured object looking the same, as
+    /// BOP's `models_info.json` lists them (metres, object frame).
+    #[serde(default)]
+    pub symmetries_continuous: Vec<ContinuousSymmetry>,
+    /// Rigid transforms other than the identity that leave the textured object looking the same:
+    /// 4×4 row-major, translation in metres in the object frame (BOP's `models_info.json` form,
+    /// whose translations are millimetres).
+    #[serde(default)]
+    pub symmetries_discrete: Vec<DiscreteSymmetry>,
     pub description: String,
     pub shape: Shape,
+}
+
+/// A continuous symmetry: rotation by any angle about `axis` (a unit vector) through `offset`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ContinuousSymmetry {
+    #[schemars(inner(range(min = -1.0, max = 1.0)))]
+    pub axis: [f64; 3],
+    #[schemars(inner(range(min = POSITION_M.min, max = POSITION_M.max)))]
+    pub offset: [f64; 3],
+}
+
+/// A discrete symmetry: a 4×4 rigid transform, row-major, the last row `0 0 0 1`.
+pub type DiscreteSymmetry = [f64; 16];
+
+/// An object's surface pattern, built by the render engine as a procedural shader in object
+/// coordinates (`vint_engines/render/textures.py`); colours are picked from the object's name.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum Texture {
+    /// One colour (glass stays clear).
+    #[default]
+    Plain,
+    /// A label wrapped about the z axis between heights `band` (fractions of the object's height,
+    /// bottom to top), ruled with lines mirrored about the band's middle. `print`: a logo and lines
+    /// of text at one azimuth in the band's upper half.
+    Label {
+        #[schemars(inner(range(min = 0.0, max = 1.0)))]
+        band: [f64; 2],
+        print: bool,
+    },
+    /// A printed panel framed on every face, laid out the same way on each. `print`: text and a
+    /// logo in the upper half of the object.
+    Panels { print: bool },
+    /// Growth rings about `axis` (through the object's centre), wavy along it.
+    WoodGrain { axis: Axis },
+    /// A glaze whose colour and gloss vary over the surface.
+    Glaze,
+    /// Brushed metal: fine streaks around the z axis, varying with height.
+    Brushed,
+    /// Small spots scattered over the surface (foam pores, fruit speckles).
+    Speckle,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum Axis {
+    X,
+    Y,
+    Z,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
@@ -56,14 +117,23 @@ pub enum Material {
     Rubber,
 }
 
+/// A spec's shorthand for a user object's symmetries (`[object.NAME] symmetry = …`), expanded by
+/// `Symmetry::expand` into the BOP-style sets an `ObjectEntry` carries.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum Symmetry {
     #[default]
     None,
+    /// Any turn about z.
     ContinuousZ,
+    /// Any turn about z, and the half-turn about x (a plain cylinder).
+    ContinuousZFlip,
+    /// The half-turn about z.
     DiscreteZ2,
+    /// Quarter turns about z.
     DiscreteZ4,
+    /// The half-turns about x, y and z (a plain box with three different edges).
+    DiscreteBox,
 }
 
 /// An object's shape, in metres, in the object's frame (see `catalog/objects.toml`).
@@ -162,7 +232,120 @@ impl Material {
 }
 
 impl Symmetry {
-    pub const ALL: [Symmetry; 4] = [Symmetry::None, Symmetry::ContinuousZ, Symmetry::DiscreteZ2, Symmetry::DiscreteZ4];
+    pub const ALL: [Symmetry; 6] = [
+        Symmetry::None,
+        Symmetry::ContinuousZ,
+        Symmetry::ContinuousZFlip,
+        Symmetry::DiscreteZ2,
+        Symmetry::DiscreteZ4,
+        Symmetry::DiscreteBox,
+    ];
+
+    /// The continuous and discrete symmetries the tag stands for, about the object frame's origin.
+    pub fn expand(self) -> (Vec<ContinuousSymmetry>, Vec<DiscreteSymmetry>) {
+        let z = ContinuousSymmetry { axis: [0.0, 0.0, 1.0], offset: [0.0; 3] };
+        let quarter = rotation_about(Axis::Z, 1);
+        let half = |axis| rotation_about(axis, 2);
+        match self {
+            Symmetry::None => (vec![], vec![]),
+            Symmetry::ContinuousZ => (vec![z], vec![]),
+            Symmetry::ContinuousZFlip => (vec![z], vec![half(Axis::X)]),
+            Symmetry::DiscreteZ2 => (vec![], vec![half(Axis::Z)]),
+            Symmetry::DiscreteZ4 => (vec![], vec![quarter, half(Axis::Z), rotation_about(Axis::Z, 3)]),
+            Symmetry::DiscreteBox => (vec![], vec![half(Axis::X), half(Axis::Y), half(Axis::Z)]),
+        }
+    }
+}
+
+/// `quarters` quarter turns about a coordinate axis, as a 4×4 row-major transform; exact (the
+/// entries are 0 and ±1).
+pub fn rotation_about(axis: Axis, quarters: u32) -> DiscreteSymmetry {
+    let (c, s) = [(1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0)][(quarters % 4) as usize];
+    let r = match axis {
+        Axis::X => [[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]],
+        Axis::Y => [[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]],
+        Axis::Z => [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]],
+    };
+    let mut m = [0.0; 16];
+    for (i, row) in r.iter().enumerate() {
+        m[4 * i..4 * i + 3].copy_from_slice(row);
+    }
+    m[15] = 1.0;
+    m
+}
+
+impl Axis {
+    pub fn unit(self) -> [f64; 3] {
+        match self {
+            Axis::X => [1.0, 0.0, 0.0],
+            Axis::Y => [0.0, 1.0, 0.0],
+            Axis::Z => [0.0, 0.0, 1.0],
+        }
+    }
+}
+
+impl Texture {
+    /// Whether the pattern looks the same after rotating the object by `r` (3×3, about the
+    /// object frame's origin, the centre of its bounding box): the rule each kind's shader is
+    /// built to obey (`vint_engines/render/textures.py`). A symmetry the pattern breaks must not
+    /// be declared, whatever the shape allows.
+    pub fn keeps_rotation(&self, r: [[f64; 3]; 3]) -> bool {
+        let keeps_axis = |a: Axis, sign_too: bool| {
+            let u = a.unit();
+            let image = [0, 1, 2].map(|i| r[i][0] * u[0] + r[i][1] * u[1] + r[i][2] * u[2]);
+            let along = image[0] * u[0] + image[1] * u[1] + image[2] * u[2];
+            if sign_too { along > 1.0 - 1e-9 } else { along.abs() > 1.0 - 1e-9 }
+        };
+        let identity = (0..3).all(|i| (0..3).all(|j| (r[i][j] - if i == j { 1.0 } else { 0.0 }).abs() < 1e-9));
+        match self {
+            Texture::Plain | Texture::Panels { print: false } => true,
+            // Mirrored ruling: a flip of z keeps it only when the band is centred in height.
+            Texture::Label { print: false, band } => {
+                keeps_axis(Axis::Z, true) || (keeps_axis(Axis::Z, false) && (band[0] + band[1] - 1.0).abs() < 1e-9)
+            }
+            Texture::WoodGrain { axis } => keeps_axis(*axis, false),
+            Texture::Brushed => keeps_axis(Axis::Z, true),
+            Texture::Label { print: true, .. }
+            | Texture::Panels { print: true }
+            | Texture::Glaze
+            | Texture::Speckle => identity,
+        }
+    }
+
+    /// Whether the pattern looks the same after any rotation about `axis` through the origin.
+    pub fn keeps_turns_about(&self, axis: [f64; 3]) -> bool {
+        let along_z = axis[0].abs() < 1e-9 && axis[1].abs() < 1e-9;
+        match self {
+            Texture::Plain | Texture::Panels { print: false } => true,
+            Texture::Label { print: false, .. } | Texture::Brushed => along_z,
+            Texture::WoodGrain { axis: a } => {
+                let u = a.unit();
+                (axis[0] * u[0] + axis[1] * u[1] + axis[2] * u[2]).abs() > 1.0 - 1e-9
+            }
+            Texture::Label { print: true, .. }
+            | Texture::Panels { print: true }
+            | Texture::Glaze
+            | Texture::Speckle => false,
+        }
+    }
+
+    /// The `kind` tag (`label`, `wood_grain`, …).
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Texture::Plain => "plain",
+            Texture::Label { .. } => "label",
+            Texture::Panels { .. } => "panels",
+            Texture::WoodGrain { .. } => "wood_grain",
+            Texture::Glaze => "glaze",
+            Texture::Brushed => "brushed",
+            Texture::Speckle => "speckle",
+        }
+    }
+}
+
+/// The 3×3 rotation of a row-major 4×4 transform.
+pub fn rotation_of(m: &DiscreteSymmetry) -> [[f64; 3]; 3] {
+    [[m[0], m[1], m[2]], [m[4], m[5], m[6]], [m[8], m[9], m[10]]]
 }
 
 impl Shape {

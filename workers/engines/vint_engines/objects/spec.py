@@ -1,5 +1,5 @@
-"""What an object is, as plain validated data: its catalog entry (name, mass, material, symmetry)
-and its shape, parsed from a `[[object]]` table of `catalog/objects.toml` or from task parameters
+"""What an object is, as plain validated data: its catalog entry (name, mass, material, texture,
+symmetries) and its shape, parsed from a `[[object]]` table of `catalog/objects.toml` or from task parameters
 (which carry that table as JSON).
 
 The schema is shared with the Rust side (`catalog/objects.toml` is parsed there too); see the comment
@@ -23,7 +23,17 @@ from vint_engines import params as P
 from vint_engines.protocol import BadInput
 
 MATERIALS = ("plastic", "metal", "glass", "paper", "cardboard", "wood", "ceramic", "rubber")
-SYMMETRIES = ("none", "continuous_z", "discrete_z2", "discrete_z4")
+TEXTURE_KEYS = {
+    "plain": ("kind",),
+    "label": ("kind", "band", "print"),
+    "panels": ("kind", "print"),
+    "wood_grain": ("kind", "axis"),
+    "glaze": ("kind",),
+    "brushed": ("kind",),
+    "speckle": ("kind",),
+}
+AXES = ("x", "y", "z")
+ORTHONORMAL_TOLERANCE = 1e-6  # a discrete symmetry's rotation: |RᵀR - I| and |det R - 1| below this
 MESH_SUFFIXES = (".obj", ".stl", ".ply")
 NAME = re.compile(r"[a-z0-9_]+")
 SHA256 = re.compile(r"[0-9a-f]{64}")
@@ -98,14 +108,47 @@ Shape = Cylinder | Box | Revolved | Compound | MeshFile
 
 
 @dataclass(frozen=True)
+class Texture:
+    """An object's surface pattern (`vint_core::contract::object::Texture`): `kind`, and for a
+    label its `band` (bottom and top, fractions of the height) and `print`, for panels `print`,
+    for wood grain the ring `axis`. The render engine builds it (`render/textures.py`)."""
+
+    kind: str = "plain"
+    band: tuple[float, float] = (0.0, 1.0)
+    print: bool = False
+    axis: str = "z"
+
+    def to_json(self) -> dict[str, Any]:
+        keys = TEXTURE_KEYS[self.kind]
+        full = {"kind": self.kind, "band": list(self.band), "print": self.print, "axis": self.axis}
+        return {key: full[key] for key in keys}
+
+
+@dataclass(frozen=True)
+class Symmetries:
+    """The textured object's symmetries in BOP's `models_info.json` form, in metres: continuous
+    ones as (axis, offset), discrete ones as row-major 4×4 transforms (identity left out)."""
+
+    continuous: tuple[tuple[Vec3, Vec3], ...] = ()
+    discrete: tuple[tuple[float, ...], ...] = ()
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "symmetries_continuous": [{"axis": list(a), "offset": list(o)} for a, o in self.continuous],
+            "symmetries_discrete": [list(m) for m in self.discrete],
+        }
+
+
+@dataclass(frozen=True)
 class ObjectSpec:
     """One object: a catalog entry. Hashable, so engines can cache what they build per object."""
 
     name: str
     mass: float
     material: str
-    symmetry: str
     shape: Shape
+    texture: Texture = Texture()
+    symmetries: Symmetries = Symmetries()
     ycb_id: str = ""
     description: str = ""
 
@@ -121,7 +164,8 @@ class ObjectSpec:
             name=name,
             mass=P.number(obj, "mass_kg", where, low=MASS_KG[0], high=MASS_KG[1]),
             material=_choice(obj, "material", where, MATERIALS),
-            symmetry=_choice(obj, "symmetry", where, SYMMETRIES),
+            texture=_texture(obj.get("texture", {"kind": "plain"}), f"{where}.texture"),
+            symmetries=_symmetries(obj, where),
             shape=parse_shape(P.section(obj, "shape", where), f"{where}.shape"),
             ycb_id=_text(obj, "ycb_id", where),
             description=_text(obj, "description", where),
@@ -134,14 +178,26 @@ class ObjectSpec:
             "ycb_id": self.ycb_id,
             "mass_kg": self.mass,
             "material": self.material,
-            "symmetry": self.symmetry,
+            "texture": self.texture.to_json(),
+            **self.symmetries.to_json(),
             "description": self.description,
             "shape": shape_json(self.shape),
         }
 
 
 # `model` is what the grasp engine adds when it echoes the entry into grasps.json.
-ENTRY_KEYS = ("name", "ycb_id", "mass_kg", "material", "symmetry", "description", "shape", "model")
+ENTRY_KEYS = (
+    "name",
+    "ycb_id",
+    "mass_kg",
+    "material",
+    "texture",
+    "symmetries_continuous",
+    "symmetries_discrete",
+    "description",
+    "shape",
+    "model",
+)
 SHAPE_KEYS = {
     "cylinder": ("type", "radius_m", "height_m"),
     "box": ("type", "size_m"),
@@ -193,6 +249,60 @@ def shape_json(shape: Shape) -> dict[str, Any]:
     if shape.asset:
         return {"type": "mesh", "asset": shape.asset, "scale": shape.scale}
     return {"type": "mesh", "path": shape.path, "scale": shape.scale}
+
+
+def _texture(obj: Any, where: str) -> Texture:
+    if not isinstance(obj, Mapping):
+        raise BadInput(f"{where}: expected a table with a kind")
+    kind = _choice(obj, "kind", where, tuple(TEXTURE_KEYS))
+    _only(obj, TEXTURE_KEYS[kind], where)
+    if kind == "label":
+        raw = obj.get("band")
+        if not isinstance(raw, list) or len(raw) != 2:
+            raise BadInput(f"{where}.band: expected [bottom, top], got {raw!r}")
+        bottom, top = (_number_at(v, f"{where}.band[{i}]", 0.0, 1.0) for i, v in enumerate(raw))
+        if bottom >= top:
+            raise BadInput(f"{where}.band: the bottom {bottom} must lie below the top {top}")
+        return Texture(kind, band=(bottom, top), print=P.boolean(obj, "print", where))
+    if kind == "panels":
+        return Texture(kind, print=P.boolean(obj, "print", where))
+    if kind == "wood_grain":
+        return Texture(kind, axis=_choice(obj, "axis", where, AXES))
+    return Texture(kind)
+
+
+def _symmetries(obj: Mapping[str, Any], where: str) -> Symmetries:
+    """BOP-style symmetry lists: unit axes, and rigid transforms (orthonormal rotation, det +1,
+    last row 0 0 0 1)."""
+    continuous = obj.get("symmetries_continuous", [])
+    discrete = obj.get("symmetries_discrete", [])
+    if not isinstance(continuous, list) or not isinstance(discrete, list):
+        raise BadInput(f"{where}: symmetries_continuous and symmetries_discrete must be lists")
+    axes = []
+    for i, entry in enumerate(continuous):
+        at = f"{where}.symmetries_continuous[{i}]"
+        if not isinstance(entry, Mapping):
+            raise BadInput(f"{at}: expected {{axis, offset}}")
+        _only(entry, ("axis", "offset"), at)
+        axis = _vector(entry, "axis", at, low=-1.0, high=1.0)
+        if abs(math.hypot(*axis) - 1.0) > ORTHONORMAL_TOLERANCE:
+            raise BadInput(f"{at}.axis: {list(axis)} is not a unit vector")
+        axes.append((axis, _vector(entry, "offset", at, low=POSITION_M[0], high=POSITION_M[1])))
+    transforms = []
+    for i, raw in enumerate(discrete):
+        at = f"{where}.symmetries_discrete[{i}]"
+        if not isinstance(raw, list) or len(raw) != 16:
+            raise BadInput(f"{at}: expected 16 numbers (a row-major 4×4 transform)")
+        m = np.array([_number_at(v, f"{at}[{k}]", -1e3, 1e3) for k, v in enumerate(raw)]).reshape(4, 4)
+        r = m[:3, :3]
+        if (
+            np.abs(r.T @ r - np.eye(3)).max() > ORTHONORMAL_TOLERANCE
+            or abs(np.linalg.det(r) - 1.0) > ORTHONORMAL_TOLERANCE
+            or np.abs(m[3] - (0.0, 0.0, 0.0, 1.0)).max() > 0.0
+        ):
+            raise BadInput(f"{at}: not a rigid transform (rotation with det +1, last row 0 0 0 1)")
+        transforms.append(tuple(float(v) for v in raw))
+    return Symmetries(tuple(axes), tuple(transforms))
 
 
 def _part(obj: Any, where: str) -> Part:

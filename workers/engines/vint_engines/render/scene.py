@@ -13,8 +13,9 @@ session, so a re-render after a move costs only the render:
 
 Objects: the hand's link objects (rebuilt only when the hand geometry changes; link k has pass
 index 2 + k, the object 1) and the object: one Blender object whose mesh is swapped between object
-meshes, each made once per object name (with its material) from the grasp engine's model PLY or,
-without one, from the shape in the catalog entry. Knows nothing about tasks or files beyond the
+meshes, each made once per object name from the grasp engine's model PLY or, without one, from the
+shape in the catalog entry. An object mesh gets its material (and texture nodes) only when an RGB
+view first needs it: the geometry scenes never read it. Knows nothing about tasks or files beyond the
 pass scratch directory and the model PLY and HDRI files it is handed.
 """
 
@@ -128,7 +129,7 @@ class BlenderScene:
         self._links: dict[str, bpy.types.Object] = {}
         self._object: bpy.types.Object | None = None
         self._object_meshes: dict[str, tuple[str, bpy.types.Mesh]] = {}  # name → (content key, mesh)
-        self._object_tag = "plastic"
+        self._object_spec: ObjectSpec | None = None
         self._hand_material = materials.principled("vint_hand", materials.HAND)
 
     def _configure_geometry(self) -> None:
@@ -273,16 +274,16 @@ class BlenderScene:
         mesh bytes or the entry's shape or material change."""
         spec = ObjectSpec.parse(obj, "grasps.json object")
         source = hashlib.sha256(model_ply.read_bytes()).hexdigest() if model_ply else spec.to_json()
-        key = json.dumps({"mesh": source, "material": spec.material}, sort_keys=True)
+        look = {"material": spec.material, "texture": spec.texture.to_json()}
+        key = json.dumps({"mesh": source, **look}, sort_keys=True)
         cached = self._object_meshes.pop(spec.name, None)  # re-inserted last: least recently used first
         if cached is not None and cached[0] == key:
             mesh = cached[1]
         else:
             vertices, faces = read_ply_m(model_ply) if model_ply else _rebuilt_mesh(spec)
             mesh = meshes.triangle_mesh(f"object_{spec.name}", vertices, faces, SHARP_EDGE_DEG)
-            mesh.materials.append(materials.object_material(spec.name, spec.material))
         self._object_meshes[spec.name] = (key, mesh)
-        self._object_tag = spec.material
+        self._object_spec = spec
         if self._object is None:
             self._object = bpy.data.objects.new("object", mesh)
             self._object.pass_index = OBJECT_PASS_INDEX
@@ -328,7 +329,7 @@ class BlenderScene:
 
     def lobes(self) -> frozenset[str]:
         """The scattering lobes of every material in the RGB scene (see `cycles.Bounces.pruned`)."""
-        lobes = materials.object_lobes(self._object_tag)
+        lobes = materials.object_lobes(self._object_spec.material if self._object_spec else "plastic")
         return lobes | materials.HAND_LOBES if self._links else lobes
 
     def place_camera(self, camera: CameraPose, intrinsics: Intrinsics) -> None:
@@ -350,12 +351,22 @@ class BlenderScene:
     def render_rgb(self, tracing: PathTracing, seed: int) -> npt.NDArray[np.uint8]:
         """The placed camera's path-traced 8-bit sRGB image (BGR order) under the environment."""
         scene = self.rgb_scene
+        self._dress_object()
         tracing.apply(scene, seed)
         scene.render.filepath = str(self.scratch / RGB_FILE)
         bpy.ops.render.render(write_still=True, scene=scene.name)
         return read_rgb(self.scratch / RGB_FILE)
 
     # -- helpers ---------------------------------------------------------------------------------
+
+    def _dress_object(self) -> None:
+        """Give the shown object mesh its material, made the first time an RGB view shows it."""
+        if self._object is None or self._object_spec is None:
+            return  # nothing shown yet (the engine's warm-up render)
+        mesh = self._object.data
+        if not mesh.materials:
+            spec = self._object_spec
+            mesh.materials.append(materials.object_material(spec.name, spec.material, spec.texture))
 
     def _add_object(
         self, name: str, geoms: Sequence[tuple[str, Sequence[float], Matrix]], material: Any, pass_index: int

@@ -35,7 +35,7 @@ from vint_engines.grasp.scene import GraspScene, build_scene
 from vint_engines.grasp.taxels import TaxelLayout, parse_layout
 from vint_engines.grasp.touch import Skin, TouchParams
 from vint_engines.grasp.trial import Physics, run_trial
-from vint_engines.objects import load_catalog
+from vint_engines.objects import Symmetries, load_catalog
 from vint_engines.poses import quat_to_matrix
 from vint_engines.study import report
 
@@ -180,26 +180,31 @@ def run_one(scene: GraspScene, data: mujoco.MjData, physics: Physics, skin: Skin
     )
 
 
-def rotation_error_deg(r: np.ndarray, r0: np.ndarray, symmetry: str) -> float:
-    """Angle between two object orientations, up to the object's symmetry about its z axis (as
-    BOP's ADD-S treats it): for `continuous_z` only the tilt of the z axis counts. Computed from
-    differences (not `acos` of a dot product), so equal orientations give exactly 0."""
-    if symmetry == "continuous_z":
-        a, b = r[:, 2], r0[:, 2]
-        return math.degrees(math.atan2(float(np.linalg.norm(np.cross(a, b))), float(a @ b)))
-    order = {"discrete_z2": 2, "discrete_z4": 4}.get(symmetry, 1)
-    best = math.inf
-    for k in range(order):
-        c, s = math.cos(2 * math.pi * k / order), math.sin(2 * math.pi * k / order)
-        turned = r @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) if k else r
-        # ||R - R0||_F = 2·sqrt(2)·sin(θ/2) for rotations R, R0 at angle θ.
-        chord = float(np.linalg.norm(turned - r0)) / (2.0 * math.sqrt(2.0))
-        best = min(best, math.degrees(2.0 * math.asin(min(1.0, chord))))
-    return best
+NO_SYMMETRY = Symmetries()
+
+
+def rotation_error_deg(r: np.ndarray, r0: np.ndarray, symmetries: Symmetries = NO_SYMMETRY) -> float:
+    """Angle between two object orientations up to the textured object's symmetries (as BOP's
+    ADD-S treats them): with a continuous axis only where that axis points counts (after any of the
+    discrete flips); otherwise the smallest angle over the discrete symmetries and the identity.
+    Computed from differences (not `acos` of a dot product), so equal orientations give exactly 0."""
+    flips = [np.eye(3)] + [np.array(m).reshape(4, 4)[:3, :3] for m in symmetries.discrete]
+    if symmetries.continuous:
+        axis = np.array(symmetries.continuous[0][0])
+        b = r0 @ axis
+        return min(
+            math.degrees(
+                math.atan2(float(np.linalg.norm(np.cross(r @ g @ axis, b))), float(r @ g @ axis @ b))
+            )
+            for g in flips
+        )
+    # ||R - R0||_F = 2·sqrt(2)·sin(θ/2) for rotations R, R0 at angle θ.
+    chords = (float(np.linalg.norm(r @ g - r0)) / (2.0 * math.sqrt(2.0)) for g in flips)
+    return min(math.degrees(2.0 * math.asin(min(1.0, chord))) for chord in chords)
 
 
 def compare(
-    outcome: TrialOutcome, reference: TrialOutcome, symmetry: str = "none"
+    outcome: TrialOutcome, reference: TrialOutcome, symmetries: Symmetries = NO_SYMMETRY
 ) -> dict[str, float | None]:
     """Errors of a trial against the reference run of the same seed; pose and taxel errors only
     where both grasps were accepted."""
@@ -214,7 +219,7 @@ def compare(
         union = outcome.active | reference.active
         errors.update(
             pos_err_mm=1e3 * float(np.linalg.norm(p - p0)),
-            rot_err_deg=rotation_error_deg(r, r0, symmetry),
+            rot_err_deg=rotation_error_deg(r, r0, symmetries),
             taxel_iou=len(outcome.active & reference.active) / len(union) if union else 1.0,
         )
     return errors
@@ -242,7 +247,7 @@ def run_study(
                 for seed in seeds:
                     outcome = run_one(scene, data, physics, skin, seed)
                     references.setdefault(seed, outcome)
-                    errors = compare(outcome, references[seed], spec.symmetry)
+                    errors = compare(outcome, references[seed], spec.symmetries)
                     yield row(config, hand_name, object_name, seed, outcome, errors)
 
 
