@@ -45,7 +45,6 @@ def test_the_quota_is_part_of_the_contract() -> None:
             "ycb_id": "025",
             "mass_kg": 0.118,
             "material": "ceramic",
-            "symmetry": "none",
             "description": "mug",
             "shape": {"type": "cylinder", "radius_m": 0.04, "height_m": 0.08},
         },

@@ -319,17 +319,21 @@ class BlenderScene:
             labels[FIRST_LINK_PASS_INDEX + k] = f"hand/{name}"
         return labels
 
+    def _object_material(self) -> str:
+        """The shown object's material tag (plastic before any object is set)."""
+        return self._object_spec.material if self._object_spec else "plastic"
+
     def segment_materials(self) -> dict[int, str]:
         """Pass index → material tag, for the depth-noise model: the object's catalog tag, and
         `HAND_MATERIAL_TAG` for every hand link."""
-        tags = {OBJECT_PASS_INDEX: self._object_tag}
+        tags = {OBJECT_PASS_INDEX: self._object_material()}
         for k in range(len(self._links)):
             tags[FIRST_LINK_PASS_INDEX + k] = HAND_MATERIAL_TAG
         return tags
 
     def lobes(self) -> frozenset[str]:
         """The scattering lobes of every material in the RGB scene (see `cycles.Bounces.pruned`)."""
-        lobes = materials.object_lobes(self._object_spec.material if self._object_spec else "plastic")
+        lobes = materials.object_lobes(self._object_material())
         return lobes | materials.HAND_LOBES if self._links else lobes
 
     def place_camera(self, camera: CameraPose, intrinsics: Intrinsics) -> None:
