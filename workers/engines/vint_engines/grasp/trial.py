@@ -187,7 +187,8 @@ class Approach:
     The open hand (its finger spread `spread` in [0, 1] set, `GraspHand.spread_ranges`) then slides
     along its normal until its nearest geom is `standoff` m from the object. `width` is the
     object's extent across the fingers' closing direction (palm +x) over the band the palm covers;
-    `redraws` counts the surface draws rejected for a width beyond the finger length."""
+    `redraws` counts the surface draws rejected for a width beyond the finger length (all
+    SURFACE_DRAWS of them: the narrowest was kept)."""
 
     object_quat: tuple[float, float, float, float]
     point: tuple[float, float, float]
@@ -204,8 +205,8 @@ class Approach:
     ) -> Approach:
         """Draw, in this order: the object's orientation, the standoff ratio, the finger spread,
         then up to SURFACE_DRAWS times a surface point and a palm angle, keeping the first whose
-        width the fingers can wrap (at most the finger length) — the narrowest draw when none
-        can (`redraws` = SURFACE_DRAWS - 1 and a width above the finger length record that)."""
+        width the fingers can wrap (at most the finger length); the narrowest draw when none can
+        (`redraws` = SURFACE_DRAWS records that)."""
         object_quat = random_rotation(rng)
         standoff = float(rng.uniform(*ratio)) * finger_reach(scene)
         spread = float(rng.uniform())
@@ -220,7 +221,7 @@ class Approach:
             if candidate.width <= reach:
                 return candidate
         assert best is not None
-        return best
+        return replace(best, redraws=SURFACE_DRAWS)
 
     @staticmethod
     def facing(
