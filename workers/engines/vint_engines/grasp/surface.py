@@ -17,6 +17,10 @@ from vint_engines.objects.tessellate import TriangleMesh
 
 Array = npt.NDArray[np.float64]
 
+# A ray testing whether a surface point faces outwards starts this far off the surface, clear of
+# the triangle it starts on.
+RAY_OFFSET_M = 1e-6
+
 
 @dataclass(frozen=True, eq=False)
 class ObjectSurface:
@@ -57,6 +61,25 @@ class ObjectSurface:
         a, b, c = self.corners[face]
         point = (1.0 - root) * a + root * (1.0 - r2) * b + root * r2 * c
         return point, self.normals[face].copy()
+
+    def faces_outward(self, point: Array, normal: Array) -> bool:
+        """Whether the ray from `point` along `normal` leaves the object without meeting its
+        surface again: a palm can face the point from outside (not, e.g., the inside wall of a
+        mug or the inner side of a handle). Möller-Trumbore against every triangle."""
+        origin = point + RAY_OFFSET_M * normal
+        a = self.corners[:, 0]
+        e1, e2 = self.corners[:, 1] - a, self.corners[:, 2] - a
+        p = np.cross(normal, e2)
+        det = np.einsum("ij,ij->i", e1, p)
+        usable = np.abs(det) > 1e-15
+        inv = np.where(usable, 1.0 / np.where(usable, det, 1.0), 0.0)
+        s = origin - a
+        u = np.einsum("ij,ij->i", s, p) * inv
+        q = np.cross(s, e1)
+        v = (q @ normal) * inv
+        t = np.einsum("ij,ij->i", e2, q) * inv
+        hit = usable & (u >= 0.0) & (v >= 0.0) & (u + v <= 1.0) & (t > 0.0)
+        return not bool(hit.any())
 
     def width_across(self, point: Array, across: Array, along: Array, half_band: float) -> float:
         """The object's extent along `across` within the slab of points whose coordinate along

@@ -187,8 +187,8 @@ class Approach:
     The open hand (its finger spread `spread` in [0, 1] set, `GraspHand.spread_ranges`) then slides
     along its normal until its nearest geom is `standoff` m from the object. `width` is the
     object's extent across the fingers' closing direction (palm +x) over the band the palm covers;
-    `redraws` counts the surface draws rejected for a width beyond the finger length (all
-    SURFACE_DRAWS of them: the narrowest was kept)."""
+    `redraws` counts the surface draws rejected (facing into the object, or a width beyond the
+    finger length; SURFACE_DRAWS when all were: the narrowest outward one was kept)."""
 
     object_quat: tuple[float, float, float, float]
     point: tuple[float, float, float]
@@ -204,24 +204,31 @@ class Approach:
         rng: np.random.Generator, scene: GraspScene, ratio: tuple[float, float] = (0.025, 0.10)
     ) -> Approach:
         """Draw, in this order: the object's orientation, the standoff ratio, the finger spread,
-        then up to SURFACE_DRAWS times a surface point and a palm angle, keeping the first whose
-        width the fingers can wrap (at most the finger length); the narrowest draw when none can
-        (`redraws` = SURFACE_DRAWS records that)."""
+        then up to SURFACE_DRAWS times a surface point and a palm angle, keeping the first that
+        faces outwards (`ObjectSurface.faces_outward`) and whose width the fingers can wrap (at
+        most the finger length). When none does, the narrowest outward draw (or the first draw)
+        is kept with `redraws` = SURFACE_DRAWS."""
         object_quat = random_rotation(rng)
         standoff = float(rng.uniform(*ratio)) * finger_reach(scene)
         spread = float(rng.uniform())
         reach = finger_reach(scene)
         best: Approach | None = None
+        first: Approach | None = None
         for draw in range(SURFACE_DRAWS):
             point, normal = scene.obj.surface.sample(rng)
             angle = float(rng.uniform(0.0, 2.0 * math.pi))
             candidate = Approach.facing(object_quat, point, normal, angle, standoff, spread, scene, draw)
-            if best is None or candidate.width < best.width:
-                best = candidate
+            first = first or candidate
+            # Inside a mug or on the inner side of a handle, no palm can face the point.
+            if not scene.obj.surface.faces_outward(point, normal):
+                continue
             if candidate.width <= reach:
                 return candidate
-        assert best is not None
-        return replace(best, redraws=SURFACE_DRAWS)
+            if best is None or candidate.width < best.width:
+                best = candidate
+        chosen = best or first
+        assert chosen is not None
+        return replace(chosen, redraws=SURFACE_DRAWS)
 
     @staticmethod
     def facing(
@@ -389,7 +396,7 @@ class Rollout:
         self.dims = scene.hand
         self.ctrl = np.array([scene.joint_ctrl[j] for j in self.dims.joint_names()])
         self.qadr = np.array([scene.joint_qpos[j] for j in self.dims.joint_names()])
-        self.open = np.array(self.dims.open_pose())
+        self.open = np.array(self.dims.pregrasp_pose())
         self.closed = np.array(self.dims.closed_pose())
         self.spread_ranges = self.dims.spread_ranges()
         # Proximal joints lead and distal ones follow, so a finger wraps the object instead of
@@ -481,11 +488,18 @@ class Rollout:
         """Smallest signed distance between the hand's geoms and the object's (negative inside)."""
         model, data = self.scene.model, self.data
         cap = max(0.0, standoff) + GAP_SEARCH_M
-        return min(
-            mujoco.mj_geomDistance(model, data, hand, obj, cap, None)
-            for hand in self.scene.hand_geoms
-            for obj in self.scene.object_geoms
-        )
+        hand, obj = np.array(self.scene.hand_geoms), np.array(self.scene.object_geoms)
+        # Bounding spheres bound every pair's distance from below: only pairs that could be
+        # nearer than the best so far are asked (a wine glass has 132 hulls).
+        centres = np.linalg.norm(data.geom_xpos[hand][:, None] - data.geom_xpos[obj][None], axis=2)
+        bound = centres - model.geom_rbound[hand][:, None] - model.geom_rbound[obj][None]
+        best = cap
+        for flat in np.argsort(bound, axis=None, kind="stable"):
+            i, j = divmod(int(flat), len(obj))
+            if bound[i, j] >= best:
+                break
+            best = min(best, geom_distance(model, data, int(hand[i]), int(obj[j]), cap))
+        return best
 
     def close_fingers(self) -> None:
         """Follow the closing path from the open to the closed pose, then squeeze: position servos
@@ -618,6 +632,22 @@ class Rollout:
             raise Unstable("nan_state")
         if self.stability.warnings:
             raise Unstable(f"diverged: {next(iter(self.stability.warnings))}")
+
+
+def geom_distance(model: mujoco.MjModel, data: mujoco.MjData, geom1: int, geom2: int, cap: float) -> float:
+    """`mj_geomDistance`, asked again of libccd when MuJoCo's native CCD answers exactly 0: it
+    does so for some convex mesh pairs centimetres apart (MuJoCo issue #3383; here a palm 5 cm
+    from a mug's hull pieces), which stopped the hand's slide far short of its standoff."""
+    distance = mujoco.mj_geomDistance(model, data, geom1, geom2, cap, None)
+    if distance != 0.0:
+        return distance
+    native = int(mujoco.mjtDisableBit.mjDSBL_NATIVECCD)
+    flags = model.opt.disableflags
+    model.opt.disableflags = flags | native
+    try:
+        return mujoco.mj_geomDistance(model, data, geom1, geom2, cap, None)
+    finally:
+        model.opt.disableflags = flags
 
 
 def finger_contacts(scene: GraspScene, data: mujoco.MjData) -> list[dict[str, Any]]:
