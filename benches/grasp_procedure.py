@@ -29,7 +29,10 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
-SEED0, SEED_STEP = 1234567890123, 7919
+# Trial k of the i-th (object, hand) pair has seed SEED0 + SEED_STEP * k + PAIR_STEP * i: every
+# trial its own seed, as the planner derives them (one seed for all pairs would give every object
+# the same few orientations).
+SEED0, SEED_STEP, PAIR_STEP = 1234567890123, 7919, 104729
 
 # Runs inside a worker process with its engines on PYTHONPATH; one JSON request per line.
 WORKER = r"""
@@ -134,18 +137,14 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         workers = {"before": worker(extract(args.before, Path(tmp))), "after": worker(ROOT)}
         results: dict[str, dict[tuple[str, str], list[dict[str, Any]]]] = {name: {} for name in workers}
-        for obj in objects:
-            for hand in hands:
-                for k in range(args.trials):
-                    request = {
-                        "object": obj,
-                        "hand": hand,
-                        "seed": SEED0 + SEED_STEP * k,
-                        "hold_s": args.hold,
-                    }
-                    order = ("before", "after") if k % 2 == 0 else ("after", "before")
-                    for name in order:
-                        results[name].setdefault((obj, hand), []).append(ask(workers[name], request))
+        pairs = [(obj, hand) for obj in objects for hand in hands]
+        for i, (obj, hand) in enumerate(pairs):
+            for k in range(args.trials):
+                seed = SEED0 + SEED_STEP * k + PAIR_STEP * i
+                request = {"object": obj, "hand": hand, "seed": seed, "hold_s": args.hold}
+                order = ("before", "after") if k % 2 == 0 else ("after", "before")
+                for name in order:
+                    results[name].setdefault((obj, hand), []).append(ask(workers[name], request))
         for process in workers.values():
             assert process.stdin is not None
             process.stdin.close()

@@ -1,6 +1,7 @@
-"""One grasp trial, after VinT-6D's procedure: pick a point on the object's graspable surface, align
-the open palm tangentially to it at a standoff, close the fingers until they touch, squeeze (power
-grasp), lift, hold, optionally shake, judge, read out.
+"""One grasp trial, after VinT-6D's procedure: hold the object in free space at a random
+orientation, pick a point on its graspable surface, align the open palm tangentially to it at a
+standoff, close the fingers until they touch, squeeze (power grasp), release the object to the
+hand, lift, hold, optionally shake, judge, read out (`docs/physics.md`, "The grasp procedure").
 
 A trial depends only on the scene, the physics parameters, the hand's skin and its seed; `data` is
 reset fully at the start and the model's per-trial settings (`configure`) are rewritten from the
