@@ -41,6 +41,8 @@ CLOSE_S = 0.40
 SQUEEZE_S = 0.20
 STAGGER = 0.5
 LIFT_S = 0.60
+# After the release, before the lift: the object settles into the still hand.
+SETTLE_IN_HAND_S = 0.20
 
 # Approach sampling: surface draws per trial (the first whose width the fingers can wrap is kept).
 SURFACE_DRAWS = 16
@@ -514,12 +516,18 @@ class Rollout:
         self.run(SQUEEZE_S)
 
     def lift_and_hold(self) -> dict[str, float]:
-        """Release the object, lift the hand and hold; the drop is measured from the release."""
+        """Release the object and let it settle in the still hand (SETTLE_IN_HAND_S: it falls
+        from a fingertip hold onto an upturned palm, say), then lift the hand and hold; the drop
+        is measured from the settled state, as it was from the object resting on the ground
+        before. `settle_m` is how far the object moved in the palm frame while settling."""
         scene, data = self.scene, self.data
         start = data.mocap_pos[scene.mocap].copy()
+        self.release()
+        self.run(SETTLE_IN_HAND_S)
+        assert self.in_palm_at_release is not None
+        settle = float(np.linalg.norm(self.object_in_palm() - self.in_palm_at_release))
         offset_before = self.object_minus_palm_z()
         object_z0 = float(data.xpos[scene.object_body][2])
-        self.release()
 
         def raise_hand(s: float) -> None:
             smooth = 0.5 - 0.5 * math.cos(math.pi * s)
@@ -530,6 +538,7 @@ class Rollout:
         return {
             "drop_m": offset_before - self.object_minus_palm_z(),
             "object_rise_m": float(data.xpos[scene.object_body][2]) - object_z0,
+            "settle_m": settle,
             "steps": hold_steps,
         }
 
