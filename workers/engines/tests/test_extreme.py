@@ -15,6 +15,7 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
+import mujoco
 import numpy as np
 import pytest
 from conftest import ENGINES_DIR, new_dir, read_grasps_with_touch
@@ -23,8 +24,10 @@ from geometry import distance_to_mesh
 from vint_engines.grasp.engine import GraspEngine
 from vint_engines.grasp.hands import hand_dims
 from vint_engines.grasp.hands.catalog import read_hand_catalog
+from vint_engines.grasp.scene import build_scene
 from vint_engines.grasp.taxels import TaxelLayout, parse_layout
-from vint_engines.grasp.trial import Physics
+from vint_engines.grasp.touch import Skin, TouchParams
+from vint_engines.grasp.trial import Approach, Physics, run_trial
 from vint_engines.objects import ObjectSpec, build_model
 from vint_engines.poses import quat_to_matrix
 from vint_engines.protocol import BadInput, TaskRequest
@@ -123,23 +126,82 @@ def engine() -> GraspEngine:
 
 
 @pytest.mark.parametrize("hand", HANDS)
-def test_stirring_stick_is_approached_from_above_and_too_thin_to_pinch(
+def test_a_stirring_stick_is_pinched_or_cleanly_rejected(
     engine: GraspEngine, tmp_path: Path, hand: str
 ) -> None:
-    """1.5 mm high: round fingertips of 10–12 mm meet it beyond the friction cone."""
-    doc = run(engine, tmp_path, "stirring_stick", hand, SHORT)
-    assert {t["approach"]["mode"] for t in doc["trials"]} == {"top"}
-    assert all(t["reason"].startswith("too_thin:") for t in doc["trials"])
+    """1.5 mm thick and 0.8 g: held between the fingers with a gentle grip, or rejected."""
+    doc = run(engine, tmp_path, "stirring_stick", hand, SHORT, [SEEDS[0] + 7919 * i for i in range(3)])
+    for trial in (t for t in doc["trials"] if t["accepted"]):
+        assert {c["link"] for c in trial["contacts"]} - {"palm"}, "held by the fingers"
 
 
-def test_a_lying_marker_is_pinched_by_the_trx3(engine: GraspEngine, tmp_path: Path) -> None:
-    doc = run(engine, tmp_path, "large_marker", "trx3", SHORT, [SEEDS[0] + 7919 * i for i in range(4)])
-    assert {t["approach"]["mode"] for t in doc["trials"]} == {"top"}
-    pinched = [t for t in doc["trials"] if t["accepted"]]
-    assert pinched, [t["reason"] for t in doc["trials"]]
-    for trial in pinched:
-        assert {a["region"] for a in trial["touch"]["active"]} & {"tip", "pulp"}
+def test_a_16_g_marker_is_held_with_a_gentle_grip(engine: GraspEngine, tmp_path: Path) -> None:
+    """The full squeeze sank the fingers 13-21 mm into it; the weight-scaled grip does not."""
+    doc = run(engine, tmp_path, "large_marker", "trx3", SHORT, [SEEDS[0] + 7919 * i for i in range(6)])
+    held = [t for t in doc["trials"] if t["accepted"]]
+    assert held, [t["reason"] for t in doc["trials"]]
+    for trial in held:
         assert trial["hold"]["object_rise_m"] > 0.5 * doc["physics"]["lift_height"]
+
+
+def posed_trials(
+    obj: str, hand: str, approaches: list[tuple[np.ndarray, np.ndarray, float]], physics: dict[str, Any]
+) -> dict[str, Any]:
+    """Trials with the hand posed exactly: the object in its catalog orientation, the palm
+    tangent to the object's extreme point along each `direction` (palm normal = -direction, the
+    support plane of the object's surface there), turned by `angle` about it. Every record is
+    JSON without NaN and valid or cleanly rejected."""
+    entry = CATALOG[obj]
+    scene = build_scene(hand_dims(hand), ObjectSpec.parse(entry))
+    data = mujoco.MjData(scene.model)
+    parsed = Physics.parse(physics)
+    skin = Skin(scene, hand_layout(hand), TouchParams.parse({}))
+    vertices = scene.obj.surface.vertices
+    records = []
+    for index, (quat, direction, angle) in enumerate(approaches):
+        unit = direction / np.linalg.norm(direction)
+        point = vertices[int(np.argmax(vertices @ unit))]
+        approach = Approach.facing(quat, point, unit, angle, 0.05 * hand_dims(hand).reach(), 0.5, scene)
+        record = run_trial(scene, data, parsed, skin, index, index, approach)
+        json.dumps(record, allow_nan=False)  # no NaN or infinity anywhere
+        records.append(record)
+    doc = {"object": entry, "hand": {"name": hand}, "trials": records}
+    assert_valid_or_rejected(doc, parsed)
+    return doc
+
+
+UPRIGHT = np.array([1.0, 0.0, 0.0, 0.0])
+
+
+@pytest.mark.parametrize("hand", HANDS)
+@pytest.mark.parametrize(
+    ("obj", "physics"), [("power_drill", {"mass_override_kg": 2.0}), ("stirring_stick", {})]
+)
+def test_top_and_tilted_grasps_of_the_heaviest_and_lightest_objects(
+    hand: str, obj: str, physics: dict
+) -> None:
+    tilted = np.array([0.0, 1.0, 1.0])
+    doc = posed_trials(
+        obj, hand, [(UPRIGHT, np.array([0.0, 0.0, 1.0]), 0.0), (UPRIGHT, tilted, 1.0)], {**SHORT, **physics}
+    )
+    for trial, expected in zip(
+        doc["trials"], ([0.0, 0.0, -1.0], -tilted / np.linalg.norm(tilted)), strict=True
+    ):
+        assert np.allclose(trial["approach"]["palm_normal_world"], expected)
+
+
+@pytest.mark.parametrize("hand", HANDS)
+def test_palm_normals_along_the_axes_and_turns_of_0_and_pi_are_handled(hand: str) -> None:
+    """The palm frame is built from the normal alone: along a world axis a cross product with
+    that axis would vanish."""
+    axes = [np.array(v, dtype=float) for v in ([0, 0, 1], [0, 0, -1], [1, 0, 0], [-1, 0, 0])]
+    doc = posed_trials(
+        "tomato_soup_can", hand, [(UPRIGHT, a, angle) for a in axes for angle in (0.0, math.pi)], SHORT
+    )
+    for trial in doc["trials"]:
+        normal = np.array(trial["approach"]["palm_normal_world"])
+        assert np.isclose(np.abs(normal).max(), 1.0) and np.isclose(np.linalg.norm(normal), 1.0)
+    assert sum(t["accepted"] for t in doc["trials"]) >= 4, [t["reason"] for t in doc["trials"]]
 
 
 @pytest.mark.parametrize("hand", HANDS)

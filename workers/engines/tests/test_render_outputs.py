@@ -54,7 +54,10 @@ def grasp(workdir: Path) -> dict[str, Any]:
     }
     GraspEngine().run(TaskRequest("grasp", params, (), out))
     doc = json.loads((out / "grasps.json").read_text())
-    trial = next(t for t in doc["trials"] if t["accepted"])
+    # Grasps come from every direction; the views' cameras look from above, so take the grasp
+    # whose palm faces most upwards (the hand below the object, the object in sight).
+    accepted = [t for t in doc["trials"] if t["accepted"]]
+    trial = max(accepted, key=lambda t: t["approach"]["palm_normal_world"][2])
     return {"dir": out, "doc": doc, "trial": trial}
 
 

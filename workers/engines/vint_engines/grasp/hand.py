@@ -22,9 +22,9 @@ import numpy as np
 from vint_engines.grasp.hands import ALLEGRO, TRX3, GraspHand, HandDims, MjcfHand, hand_dims
 from vint_engines.grasp.hands.model import Finger, Vec3
 
-__all__ = ["ALLEGRO", "TRX3", "GraspHand", "HandDims", "add_hand", "hand_dims", "palm_frame_facing"]
+__all__ = ["ALLEGRO", "TRX3", "GraspHand", "HandDims", "add_hand", "hand_dims"]
 
-# Collision filtering: hand geoms collide with the object and the ground but never with each other.
+# Collision filtering: hand geoms collide with the object but never with each other.
 HAND_CONTYPE, HAND_CONAFFINITY = 2, 1
 WORLD_CONTYPE, WORLD_CONAFFINITY = 1, 1
 
@@ -34,7 +34,7 @@ TOUCH_PROBE = "touch_probe"
 TOUCH_PROBE_RADIUS = 1e-5
 
 # Every hand geom is covered by the tactile skin, whose contact parameters govern the hand's
-# contacts (priority 1 over the object's and the ground's): rubber-like friction and a stiff contact
+# contacts (priority 1 over the object's): rubber-like friction and a stiff contact
 # (time constant 5 ms, at least 2 timesteps), so a squeezed can sinks < 1 mm into the palm (MuJoCo's
 # default 20 ms let it sink 6 mm under the fingers' 60 N). The skin's softness is the touch model's
 # sensing depth instead (`touch.py`).
@@ -205,12 +205,3 @@ def finger_quat(grow: Vec3, palmar: Vec3) -> list[float]:
     quat = np.zeros(4)
     mujoco.mju_mat2Quat(quat, np.column_stack([x, np.cross(z, x), z]).flatten())
     return [float(v) for v in quat]
-
-
-def palm_frame_facing(direction: np.ndarray, up: np.ndarray) -> np.ndarray:
-    """Rotation (palm → world) whose palm normal (+z) is `direction` and whose +y is `up`."""
-    z = direction / np.linalg.norm(direction)
-    y = up - np.dot(up, z) * z
-    y /= np.linalg.norm(y)
-    x = np.cross(y, z)
-    return np.column_stack([x, y, z])

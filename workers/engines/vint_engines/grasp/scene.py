@@ -1,4 +1,8 @@
-"""The physics scene of a grasp: ground plane, one object, one hand, compiled once and cached.
+"""The physics scene of a grasp: one object and one hand in free space, compiled once and cached.
+
+There is no ground: after VinT-Sim, the object is placed in a predetermined pose (a random
+orientation at the world origin, `trial.py`), held there while the hand approaches and closes, then
+released to the hand. The renderer draws no ground either.
 
 Object frame convention (shared with the renderer and the model PLY; see `vint_engines.objects`):
 the body origin is the centre of the object's bounding box, cylinders and revolved shapes have
@@ -17,6 +21,7 @@ import mujoco
 import numpy as np
 
 from vint_engines.grasp.hand import WORLD_CONAFFINITY, WORLD_CONTYPE, GraspHand, add_hand
+from vint_engines.grasp.surface import ObjectSurface
 from vint_engines.objects import MODEL_FILE, ObjectModel, ObjectSpec, build_model
 from vint_engines.poses import matrix_to_quat
 
@@ -33,9 +38,10 @@ __all__ = [
 
 @dataclass(frozen=True, eq=False)
 class SceneObject:
-    """The object as a trial sees it: its model, resting on the ground at the world origin."""
+    """The object as a trial sees it: its model and its surface (`surface.py`)."""
 
     model: ObjectModel
+    surface: ObjectSurface
 
     @property
     def spec(self) -> ObjectSpec:
@@ -44,26 +50,6 @@ class SceneObject:
     @property
     def name(self) -> str:
         return self.model.spec.name
-
-    @property
-    def radius(self) -> float:
-        """Largest horizontal distance of the resting object from its origin's vertical."""
-        return self.model.rest.radius
-
-    @property
-    def height(self) -> float:
-        """Height of the resting object's top above the ground."""
-        return self.model.rest.top
-
-    @property
-    def rest_height(self) -> float:
-        """Height of the object's origin when it rests on the ground."""
-        return self.model.rest.height
-
-    @property
-    def rest_quat(self) -> tuple[float, float, float, float]:
-        """Orientation (w, x, y, z) of the resting object."""
-        return self.model.rest.quat
 
 
 @dataclass(frozen=True)
@@ -98,7 +84,8 @@ class GraspScene:
 
 def build_scene(hand: GraspHand, obj: ObjectSpec, object_model: ObjectModel | None = None) -> GraspScene:
     """Compile the scene; `object_model` is the object's built model when the caller caches them."""
-    placed = SceneObject(object_model if object_model is not None else build_model(obj))
+    built = object_model if object_model is not None else build_model(obj)
+    placed = SceneObject(built, ObjectSurface.of(built.mesh))
     spec = mujoco.MjSpec()
     spec.modelname = f"{hand.name}_{obj.name}"
     spec.compiler.degree = False  # MjSpec defaults to degrees; every angle here is in radians
@@ -107,13 +94,6 @@ def build_scene(hand: GraspHand, obj: ObjectSpec, object_model: ObjectModel | No
     opt.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
     opt.impratio = 10.0
     opt.jacobian = mujoco.mjtJacobian.mjJAC_DENSE
-    spec.worldbody.add_geom(
-        name="ground",
-        type=mujoco.mjtGeom.mjGEOM_PLANE,
-        size=[1.0, 1.0, 0.05],
-        contype=WORLD_CONTYPE,
-        conaffinity=WORLD_CONAFFINITY,
-    )
     add_object(spec, placed.model)
     add_hand(spec, hand)
     model = spec.compile()
@@ -144,10 +124,9 @@ def build_scene(hand: GraspHand, obj: ObjectSpec, object_model: ObjectModel | No
 
 
 def add_object(spec: mujoco.MjSpec, model: ObjectModel) -> None:
-    """The free body `object`, resting on the ground: one geom per convex piece (`object_{i}`;
-    hulls are meshes `object_piece_{i}`), the catalog mass and the mesh's inertia."""
-    rest = model.rest
-    body = spec.worldbody.add_body(name="object", pos=[0.0, 0.0, rest.height], quat=list(rest.quat))
+    """The free body `object` at the origin (each trial places it): one geom per convex piece
+    (`object_{i}`; hulls are meshes `object_piece_{i}`), the catalog mass and the mesh's inertia."""
+    body = spec.worldbody.add_body(name="object")
     body.add_freejoint(name="object_free")
     body.explicitinertial = True
     body.mass = model.spec.mass

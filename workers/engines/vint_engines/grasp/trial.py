@@ -1,6 +1,7 @@
-"""One grasp trial, after VinT-6D's procedure: pick a point on the object's graspable surface, align
-the open palm tangentially to it at a standoff, close the fingers until they touch, squeeze (power
-grasp), lift, hold, optionally shake, judge, read out.
+"""One grasp trial, after VinT-6D's procedure: hold the object in free space at a random
+orientation, pick a point on its graspable surface, align the open palm tangentially to it at a
+standoff, close the fingers until they touch, squeeze (power grasp), release the object to the
+hand, lift, hold, optionally shake, judge, read out (`docs/physics.md`, "The grasp procedure").
 
 A trial depends only on the scene, the physics parameters, the hand's skin and its seed; `data` is
 reset fully at the start and the model's per-trial settings (`configure`) are rewritten from the
@@ -19,16 +20,17 @@ what it took in `stability`.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 
 from vint_engines import contract
-from vint_engines.grasp.hand import SKIN, palm_frame_facing
 from vint_engines.grasp.scene import GraspScene
+from vint_engines.grasp.surface import palm_axes, random_rotation
 from vint_engines.grasp.touch import Skin, held_contacts
 from vint_engines.poses import matrix_to_quat, pose_json, quat_to_matrix
 from vint_engines.protocol import BadInput
@@ -39,30 +41,28 @@ CLOSE_S = 0.40
 SQUEEZE_S = 0.20
 STAGGER = 0.5
 LIFT_S = 0.60
+# After the release, before the lift: the object settles into the still hand.
+SETTLE_IN_HAND_S = 0.20
 
-# Approach sampling: where along the object the palm centre sits (side approach), how far from the
-# middle of a low object's long axis (top approach), and the hand's clearance above the ground. A
-# hand whose palm centre cannot sit below SIDE_MAX_FRACTION of the object's height without its
-# lower edge touching the ground approaches from the top.
-HEIGHT_FRACTION = (0.45, 0.62)
-SIDE_MAX_FRACTION = 0.8
-AZIMUTH_TRIES = 8
-TOP_OFFSET_FRACTION = 0.25
-TOP_YAW_JITTER = 0.2
-GROUND_CLEARANCE_M = 0.004
-# Setting the standoff: at most this many slides of the hand, to within this tolerance; gaps are
-# measured up to the standoff plus GAP_SEARCH_M (a farther hand is moved in by that much at once).
-STANDOFF_ITERATIONS = 6
+# Approach sampling: surface draws per trial (the first whose width the fingers can wrap is kept).
+SURFACE_DRAWS = 16
+# Setting the standoff: the open hand starts this far beyond a finger length from the object, then
+# slides along its normal at most STANDOFF_ITERATIONS times to within STANDOFF_TOLERANCE_M of the
+# standoff; gaps are measured up to the standoff plus GAP_SEARCH_M (a farther hand is moved in by
+# that much at once).
+START_MARGIN_M = 0.01
+STANDOFF_ITERATIONS = 8
 STANDOFF_TOLERANCE_M = 2e-4
 GAP_SEARCH_M = 0.1
-# The top approach's pre-shape: the closing path is searched at PRESHAPE_STEPS evenly spaced points,
-# then refined by PRESHAPE_BISECTIONS halvings.
-PRESHAPE_STEPS = 24
-PRESHAPE_BISECTIONS = 5
-# A pinch's lowest point (the fingertips) stays this far above the ground.
-PINCH_CLEARANCE_M = 0.001
-PINCH_ALIGNMENTS = 2
-PINCH_MAX_TILT = 0.2
+
+# While the fixture holds it, an object lighter than this is given this mass: MuJoCo softens a
+# contact with a light body (its regularisation scales with the lighter body's inverse weight), so
+# fingers closing on a fixed 16 g marker sank 21 mm into it; a free object yields instead.
+FIXTURE_MASS_KG = 1.0
+# Released, an object lighter than FULL_GRIP_KG is squeezed with a proportional share of the
+# fingers' force limits, at least MIN_GRIP (`grip_fraction`).
+FULL_GRIP_KG = 0.1
+MIN_GRIP = 0.01
 
 # The stability monitor looks at the state every CHECK_EVERY steps.
 CHECK_EVERY = 5
@@ -150,11 +150,30 @@ def configure(scene: GraspScene, data: mujoco.MjData, physics: Physics, timestep
         model.geom_solref[list(scene.hand_geoms), 0] = physics.hand_solref_timeconst
     if scene.actuator_forcerange:
         model.actuator_forcerange[:] = physics.force_scale * np.array(scene.actuator_forcerange)
+    set_object_mass(scene, data, object_mass(scene, physics))
+
+
+def object_mass(scene: GraspScene, physics: Physics) -> float:
+    return physics.mass_override_kg or scene.object_mass
+
+
+def grip_fraction(mass: float) -> float:
+    """The fraction of the fingers' force limits that holds a released object of `mass` kg: all
+    of it from FULL_GRIP_KG up, proportionally less for lighter objects (not below MIN_GRIP), as
+    a hand controller grips a light object gently. The full squeeze of a 16 g marker sank the
+    fingers 13-21 mm into it (MuJoCo's contact regularisation scales with the lighter body)."""
+    return min(1.0, max(MIN_GRIP, mass / FULL_GRIP_KG))
+
+
+def set_object_mass(scene: GraspScene, scratch: mujoco.MjData, mass: float) -> None:
+    """Give the object `mass` (its inertia scaled alike) and recompute the model's constants
+    (MuJoCo's contact softness depends on the bodies' masses through `body_invweight0`).
+    `mj_setConst` overwrites the state of `scratch`."""
+    model = scene.model
     if scene.object_mass > 0:
-        mass = physics.mass_override_kg or scene.object_mass
         model.body_mass[scene.object_body] = mass
         model.body_inertia[scene.object_body] = np.array(scene.object_inertia) * (mass / scene.object_mass)
-    mujoco.mj_setConst(model, data)
+    mujoco.mj_setConst(model, scratch)
 
 
 def finger_reach(scene: GraspScene) -> float:
@@ -162,101 +181,111 @@ def finger_reach(scene: GraspScene) -> float:
     return scene.hand.reach()
 
 
-def resting_vertices(scene: GraspScene) -> np.ndarray:
-    """The object's model vertices in the world frame as it rests before a trial."""
-    obj = scene.obj
-    rot = quat_to_matrix(obj.rest_quat)
-    return obj.model.mesh.vertices @ np.asarray(rot).T + np.array([0.0, 0.0, obj.rest_height])
-
-
 @dataclass(frozen=True)
 class Approach:
-    """Where the hand starts. `side`: palm normal horizontal, towards the object's vertical axis
-    from `azimuth`, palm centre at `height`; the open hand slides along its palm normal until its
-    nearest geom is `standoff` metres from the object, and rises if its open fingers would touch
-    the ground (a power grasp follows). `top` (objects too low for the side approach, e.g. a marker
-    lying down): palm normal down, the palm's +y along the object's long horizontal axis turned by
-    `azimuth`, centred `offset` metres along that axis; the fingers are pre-shaped along their
-    closing path so that their lowest points sit at the object's mid-height (not below the ground
-    clearance) and the nearest geom is `standoff` metres from the object: a fingertip pinch
-    across the long axis follows (`Rollout.place_for_pinch`)."""
+    """Where the object is held and where the hand starts, after VinT-Sim: the object sits at the
+    world origin in orientation `object_quat` (w, x, y, z; uniform over rotations); the palm faces
+    the surface point `point` (object frame) whose outward normal is `normal`: palm +z = -normal,
+    turned by `palm_angle` about it (`surface.palm_axes`), the hand's grasp centre over the point.
+    The open hand (its finger spread `spread` in [0, 1] set, `GraspHand.spread_ranges`) then slides
+    along its normal until its nearest geom is `standoff` m from the object. `width` is the
+    object's extent across the fingers' closing direction (palm +x) over the band the palm covers;
+    `redraws` counts the surface draws rejected (facing into the object, or a width beyond the
+    finger length; SURFACE_DRAWS when all were: the narrowest outward one was kept)."""
 
-    azimuth: float
-    height: float
+    object_quat: tuple[float, float, float, float]
+    point: tuple[float, float, float]
+    normal: tuple[float, float, float]
+    palm_angle: float
     standoff: float
-    mode: str = "side"
-    offset: float = 0.0
+    spread: float
+    width: float
+    redraws: int = 0
 
     @staticmethod
     def sample(
         rng: np.random.Generator, scene: GraspScene, ratio: tuple[float, float] = (0.025, 0.10)
     ) -> Approach:
+        """Draw, in this order: the object's orientation, the standoff ratio, the finger spread,
+        then up to SURFACE_DRAWS times a surface point and a palm angle, keeping the first that
+        faces outwards (`ObjectSurface.faces_outward`) and whose width the fingers can wrap (at
+        most the finger length). When none does, the narrowest outward draw (or the first draw)
+        is kept with `redraws` = SURFACE_DRAWS."""
+        object_quat = random_rotation(rng)
         standoff = float(rng.uniform(*ratio)) * finger_reach(scene)
-        # The palm's lower edge must clear the ground: a wide palm holds a short object higher up.
-        floor = scene.hand.palm_half[1] + GROUND_CLEARANCE_M + scene.hand.grasp_centre[1]
-        if floor > SIDE_MAX_FRACTION * scene.obj.height:
-            axis = long_axis(scene)
-            half_length = float(np.ptp(resting_vertices(scene)[:, :2] @ axis)) / 2
-            return Approach(
-                azimuth=math.atan2(axis[1], axis[0]) + float(rng.uniform(-TOP_YAW_JITTER, TOP_YAW_JITTER)),
-                height=scene.obj.height,
-                standoff=standoff,
-                mode="top",
-                offset=float(rng.uniform(-1.0, 1.0)) * TOP_OFFSET_FRACTION * half_length,
-            )
-        low, high = (max(fraction * scene.obj.height, floor) for fraction in HEIGHT_FRACTION)
-        height = float(rng.uniform(low, high))
-        # The graspable side: one the fingers can wrap, i.e. whose width across the closing
-        # direction is at most a finger's length (a cracker box's 158 mm face is not). The
-        # narrowest of AZIMUTH_TRIES draws when none is.
-        band = height_band(resting_vertices(scene), height, scene.hand.palm_half[1])
+        spread = float(rng.uniform())
         reach = finger_reach(scene)
-        best = (math.inf, 0.0)
-        for _ in range(AZIMUTH_TRIES):
-            azimuth = float(rng.uniform(0.0, 2.0 * math.pi))
-            across = np.array([-math.sin(azimuth), math.cos(azimuth)])
-            width = float(np.ptp(band[:, :2] @ across))
-            best = min(best, (width, azimuth))
-            if width <= reach:
-                break
-        return Approach(azimuth=best[1], height=height, standoff=standoff)
+        best: Approach | None = None
+        first: Approach | None = None
+        for draw in range(SURFACE_DRAWS):
+            point, normal = scene.obj.surface.sample(rng)
+            angle = float(rng.uniform(0.0, 2.0 * math.pi))
+            candidate = Approach.facing(object_quat, point, normal, angle, standoff, spread, scene, draw)
+            first = first or candidate
+            # Inside a mug or on the inner side of a handle, no palm can face the point.
+            if not scene.obj.surface.faces_outward(point, normal):
+                continue
+            if candidate.width <= reach:
+                return candidate
+            if best is None or candidate.width < best.width:
+                best = candidate
+        chosen = best or first
+        assert chosen is not None
+        return replace(chosen, redraws=SURFACE_DRAWS)
+
+    @staticmethod
+    def facing(
+        object_quat: npt.ArrayLike,
+        point: npt.ArrayLike,
+        normal: npt.ArrayLike,
+        palm_angle: float,
+        standoff: float,
+        spread: float,
+        scene: GraspScene,
+        redraws: int = 0,
+    ) -> Approach:
+        """The approach to `point` (object frame) with its width measured; also how tests pose
+        the hand exactly."""
+        point, normal = np.asarray(point, dtype=float), np.asarray(normal, dtype=float)
+        normal = normal / np.linalg.norm(normal)
+        axes = palm_axes(normal, palm_angle)
+        width = scene.obj.surface.width_across(point, axes[:, 0], axes[:, 1], scene.hand.palm_half[1])
+        return Approach(
+            object_quat=tuple(float(v) for v in object_quat),  # type: ignore[arg-type]
+            point=tuple(float(v) for v in point),  # type: ignore[arg-type]
+            normal=tuple(float(v) for v in normal),  # type: ignore[arg-type]
+            palm_angle=float(palm_angle),
+            standoff=float(standoff),
+            spread=float(spread),
+            width=width,
+            redraws=redraws,
+        )
+
+    def object_rotation(self) -> np.ndarray:
+        return quat_to_matrix(self.object_quat)
+
+    def palm_rotation(self) -> np.ndarray:
+        """Palm → world."""
+        return self.object_rotation() @ palm_axes(np.array(self.normal), self.palm_angle)
+
+    def to_json(self) -> dict[str, Any]:
+        """The record's `approach`: the fields, plus the palm normal in the world frame."""
+        return {**asdict(self), "palm_normal_world": [float(v) for v in self.palm_rotation()[:, 2]]}
 
 
-def height_band(points: np.ndarray, height: float, half: float) -> np.ndarray:
-    """The points within `half` of `height`; all of them when the band holds too few to span a
-    shape (a box's mesh has vertices only at its corners)."""
-    band = points[np.abs(points[:, 2] - height) <= half]
-    return band if len(band) >= 3 else points
-
-
-def long_axis(scene: GraspScene) -> np.ndarray:
-    """Unit horizontal direction along which the resting object is longest (principal axis)."""
-    xy = resting_vertices(scene)[:, :2]
-    xy = xy - xy.mean(axis=0)
-    _, vectors = np.linalg.eigh(xy.T @ xy)
-    axis = vectors[:, -1]
-    return axis * (1.0 if axis[0] + 1e-12 * axis[1] >= 0 else -1.0)
-
-
-def palm_pose(scene: GraspScene, approach: Approach) -> tuple[np.ndarray, np.ndarray]:
-    """Palm position and rotation (palm → world) for `approach`, before any ground clearance."""
+def start_pose(scene: GraspScene, approach: Approach) -> tuple[np.ndarray, np.ndarray]:
+    """Palm position and rotation (palm → world) before the slide to the standoff: the grasp
+    centre on the palmar face over the surface point, beyond everything of the object on that
+    side by a finger length (open fingers can stand out of the palm by that much)."""
+    obj_rot = approach.object_rotation()
+    rot = approach.palm_rotation()
+    point_world = obj_rot @ np.array(approach.point)
+    outward = -rot[:, 2]
+    beyond = float(((scene.obj.surface.vertices @ obj_rot.T - point_world) @ outward).max())
+    distance = beyond + finger_reach(scene) + max(approach.standoff, 0.0) + START_MARGIN_M
     dims = scene.hand
-    points = resting_vertices(scene)
-    if approach.mode == "top":
-        axis = np.array([math.cos(approach.azimuth), math.sin(approach.azimuth), 0.0])
-        rot = palm_frame_facing(np.array([0.0, 0.0, -1.0]), axis)
-        target = np.array([*(approach.offset * axis[:2]), approach.height + approach.standoff])
-        face = dims.palm_half[2]
-        return target + face * np.array([0.0, 0.0, 1.0]) - rot @ np.array([*dims.grasp_centre, 0.0]), rot
-    toward_axis = -np.array([math.cos(approach.azimuth), math.sin(approach.azimuth), 0.0])
-    rot = palm_frame_facing(toward_axis, np.array([0.0, 0.0, 1.0]))
-    # The object's extent towards the hand, over the band of heights the palm covers: a box's face
-    # or corner, a drill's handle — not its largest reach in any direction.
-    near = height_band(points, approach.height, dims.palm_half[1])
-    extent = float((near[:, :2] @ -toward_axis[:2]).max())
-    back_off = extent + approach.standoff + dims.palm_half[2]
-    centre = rot @ np.array([*dims.grasp_centre, 0.0])
-    return np.array([0.0, 0.0, approach.height]) - back_off * toward_axis - centre, rot
+    face = np.array([*dims.grasp_centre, dims.palm_half[2]])
+    return point_world + distance * outward - rot @ face, rot
 
 
 class TrialRejected(Exception):
@@ -295,15 +324,18 @@ def run_trial(
     skin: Skin,
     grasp_index: int,
     seed: int,
+    approach: Approach | None = None,
 ) -> dict:
-    """Simulate one trial and return its JSON record (accepted or with a rejection reason)."""
-    approach = Approach.sample(np.random.default_rng(seed), scene, physics.standoff_ratio)
+    """Simulate one trial and return its JSON record (accepted or with a rejection reason). The
+    approach is drawn from `seed` unless given (tests pose the hand exactly)."""
+    if approach is None:
+        approach = Approach.sample(np.random.default_rng(seed), scene, physics.standoff_ratio)
     record: dict[str, Any] = {
         "grasp_index": grasp_index,
         "seed": seed,
         "accepted": False,
         "reason": None,
-        "approach": asdict(approach),
+        "approach": approach.to_json(),
     }
     timestep, reasons = physics.timestep, []
     while True:
@@ -335,8 +367,6 @@ def attempt(rollout: Rollout, approach: Approach, skin: Skin) -> dict[str, Any]:
     """One rollout of the procedure; raises `TrialRejected` (or `Unstable`) on failure."""
     scene, data, physics = rollout.scene, rollout.data, rollout.physics
     rollout.check_timestep()
-    if approach.mode == "top":
-        check_pinchable(scene)
     rollout.place(approach)
     rollout.close_fingers()
     if not finger_contacts(scene, data):
@@ -357,23 +387,6 @@ def attempt(rollout: Rollout, approach: Approach, skin: Skin) -> dict[str, Any]:
     return {**readout(scene, data), "contacts": contacts, "hold": hold, "touch": touch}
 
 
-def check_pinchable(scene: GraspScene) -> None:
-    """Reject an object too thin for a fingertip pinch from the table. A round fingertip of radius
-    r resting on the ground meets an object of height h at most h above the ground, where its
-    surface normal leans arcsin((r - h) / r) from the horizontal; beyond the friction cone
-    (45° at the skin's friction 1) the squeeze pushes the object down instead of holding it.
-    A 1.5 mm stirring stick under 10–12 mm fingertips is such an object: a hand would have to
-    slide a nail under it."""
-    radius = scene.hand.fingertip_radius()
-    cone = math.atan(float(SKIN["friction"][0]))
-    needed = radius * (1.0 - math.cos(cone))
-    if scene.obj.height < needed:
-        raise TrialRejected(
-            f"too_thin: {1e3 * scene.obj.height:.3g} mm high, fingertips of radius {1e3 * radius:.3g} mm"
-            f" pinch from {1e3 * needed:.3g} mm"
-        )
-
-
 class Rollout:
     """Steps one trial through its phases, watching the simulation's health as it goes."""
 
@@ -386,15 +399,19 @@ class Rollout:
         self.dims = scene.hand
         self.ctrl = np.array([scene.joint_ctrl[j] for j in self.dims.joint_names()])
         self.qadr = np.array([scene.joint_qpos[j] for j in self.dims.joint_names()])
-        self.open = np.array(self.dims.open_pose())
+        self.open = np.array(self.dims.pregrasp_pose())
         self.closed = np.array(self.dims.closed_pose())
+        self.spread_ranges = self.dims.spread_ranges()
         # Proximal joints lead and distal ones follow, so a finger wraps the object instead of
         # hooking it with its tip: along the closing path s in [0, 1], joint k of a finger ramps
         # over [lead_k, lead_k + 1 - STAGGER].
         self.lead = STAGGER * np.array(self.dims.close_phases())
-        self.preshape = 0.0  # where on the closing path the fingers start (`place_for_pinch`)
-        tips = {scene.link_bodies[link] for link in self.dims.fingertips()}
-        self.tip_geoms = [g for g in scene.hand_geoms if int(scene.model.geom_bodyid[g]) in tips]
+        # The object's pose while it is held fixed (`place` to `release`), else None.
+        self.fixture: np.ndarray | None = None
+        # Once released: where the object sat in the palm frame, how far it may move from there
+        # before it is out of the hand (a finger length), and the reason a drop is rejected with.
+        self.in_palm_at_release: np.ndarray | None = None
+        self.drop_reason = "dropped"
         self.stability = Stability(timestep_used=self.timestep)
         model = scene.model
         self.object_dof = int(model.jnt_dofadr[model.body_jntadr[scene.object_body]])
@@ -416,24 +433,31 @@ class Rollout:
         progress = np.clip((s - self.lead) / (1.0 - STAGGER), 0.0, 1.0)
         return self.open + progress * (self.closed - self.open)
 
+    def set_spread(self, spread: float) -> None:
+        """Hold every spread joint (`GraspHand.spread_ranges`) at `spread` of its range, open and
+        closed alike."""
+        for k, span in enumerate(self.spread_ranges):
+            if span is not None:
+                self.open[k] = self.closed[k] = span[0] + spread * (span[1] - span[0])
+
     def place(self, approach: Approach) -> None:
+        """Hold the object at the origin in its orientation, then put the open hand at its start
+        pose and slide it along its normal until the nearest hand–object gap is the standoff (the
+        whole open hand's gap, not only the palm centre's: open fingers wider than the palm must
+        not start inside a wide box)."""
         scene, data, model = self.scene, self.data, self.scene.model
         mujoco.mj_resetData(model, data)
         configure(scene, data, self.physics, self.timestep)
-        obj = scene.obj
-        data.qpos[scene.object_qpos : scene.object_qpos + 7] = [0, 0, obj.rest_height, *obj.rest_quat]
-        palm_pos, rot = palm_pose(scene, approach)
-        quat = matrix_to_quat(rot)
-        self.preshape = 0.0
-        if approach.mode == "top" and self.place_for_pinch(approach, palm_pos, quat):
-            data.ctrl[self.ctrl] = self.closing_pose(self.preshape)
-            self.run(SETTLE_S)
-            return
+        self.fixture = np.array([0.0, 0.0, 0.0, *approach.object_quat])
+        mass = object_mass(scene, self.physics)
+        if mass < FIXTURE_MASS_KG:
+            set_object_mass(scene, data, FIXTURE_MASS_KG)
+        data.qpos[scene.object_qpos : scene.object_qpos + 7] = self.fixture
+        self.set_spread(approach.spread)
         data.qpos[self.qadr] = self.open
+        palm_pos, rot = start_pose(scene, approach)
+        quat = matrix_to_quat(rot)
         self._set_palm(palm_pos, quat)
-        # The standoff is the gap between the whole open hand and the object, not only the palm
-        # centre's: open fingers wider than the palm must not start inside a wide box. Slide the
-        # hand along its normal until the nearest hand–object gap is the standoff.
         normal = rot[:, 2]
         for _ in range(STANDOFF_ITERATIONS):
             error = approach.standoff - self.hand_object_gap(approach.standoff)
@@ -441,98 +465,20 @@ class Rollout:
                 break
             palm_pos = palm_pos - error * normal
             self._set_palm(palm_pos, quat)
-        # Open fingers reaching below the ground (a top approach with fingers along the palm
-        # normal) lift the hand until they clear it.
-        lift = GROUND_CLEARANCE_M - self.lowest_hand_point()
-        if lift > 0:
-            self._set_palm(palm_pos + np.array([0.0, 0.0, lift]), quat)
         data.ctrl[self.ctrl] = self.open
         self.run(SETTLE_S)
 
-    def place_for_pinch(self, approach: Approach, palm_pos: np.ndarray, quat: np.ndarray) -> bool:
-        """Pre-shape the fingers for a fingertip pinch of a low object: the end of the first
-        stretch of the closing path on which the hand, lowered until its fingertips' lowest point
-        is at the object's mid-height less the fingertip radius (at least PINCH_CLEARANCE_M above
-        the ground), clears the ground and is at least `standoff` from the object. Then, up to
-        PINCH_ALIGNMENTS times, the palm is tilted about its +y (the object's long axis, by at
-        most PINCH_MAX_TILT) so that the fingertips on either side are level — a shorter thumb
-        would otherwise meet a lying cylinder above its equator and squeeze it out — and shifted
-        along its +x so that they straddle the object's centre, and the pre-shape is searched
-        again. Sets `preshape`, the joints and the palm; False when no point of the path fits
-        (the hand then starts open, as for a side approach)."""
-        tip = self.dims.fingertip_radius()
-        floor = max(PINCH_CLEARANCE_M, self.scene.obj.height / 2 - tip)
-
-        def fits(s: float, pos: np.ndarray, quat: np.ndarray) -> bool:
-            self.data.qpos[self.qadr] = self.closing_pose(s)
-            self._set_palm(pos, quat)
-            self._set_palm(pos - np.array([0.0, 0.0, self.lowest_hand_point(self.tip_geoms) - floor]), quat)
-            return (
-                self.lowest_hand_point() >= 0.0
-                and self.hand_object_gap(approach.standoff) >= approach.standoff
-            )
-
-        def search(pos: np.ndarray, quat: np.ndarray) -> float | None:
-            low: float | None = None
-            for s in np.linspace(0.0, 1.0, PRESHAPE_STEPS + 1):
-                if fits(float(s), pos, quat):
-                    low = float(s)
-                elif low is not None:
-                    break
-            if low is None:
-                return None
-            high = min(1.0, low + 1.0 / PRESHAPE_STEPS)
-            for _ in range(PRESHAPE_BISECTIONS if high > low else 0):
-                middle = 0.5 * (low + high)
-                low, high = (middle, high) if fits(middle, pos, quat) else (low, middle)
-            fits(low, pos, quat)
-            return low
-
-        found = search(palm_pos, quat)
-        if found is None:
-            return False
-        for _ in range(PINCH_ALIGNMENTS):
-            alignment = self.pinch_alignment()
-            if alignment is None:
-                break
-            tilt, shift = alignment
-            turned = np.zeros(4)
-            mujoco.mju_mulQuat(turned, quat, tilt)
-            moved = palm_pos + shift
-            again = search(moved, turned)
-            if again is None:
-                break
-            found, palm_pos, quat = again, moved, turned
-        fits(found, palm_pos, quat)
-        self.preshape = found
-        return True
-
-    def pinch_alignment(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """How to level and centre the fingertips over the object: a rotation about the palm's +y
-        (a quaternion in the palm frame) that makes the straight line through the fingertips'
-        lowest points (height against palm x) horizontal, and a horizontal shift that puts the
-        middle of their palm-x span over the object's centre. None when they all lie at one palm x."""
-        data, scene = self.data, self.scene
-        rot = data.xmat[scene.palm_body].reshape(3, 3)
-        lowest: dict[int, np.ndarray] = {}
-        for geom in self.tip_geoms:
-            body = int(scene.model.geom_bodyid[geom])
-            if body not in lowest or data.geom_xpos[geom][2] < lowest[body][2]:
-                lowest[body] = data.geom_xpos[geom].copy()
-        points = np.array(list(lowest.values()))
-        across = rot[:, 0] - rot[2, 0] * np.array([0.0, 0.0, 1.0])
-        across /= np.linalg.norm(across)
-        xs = (points - data.xpos[scene.object_body]) @ across
-        if np.ptp(xs) < 1e-3:
-            return None
-        slope = float(np.polyfit(xs, points[:, 2], 1)[0])
-        # With the palm normal down, turning the palm by +a about its +y lowers points at palm
-        # +x; the palm's +x is `across` or its opposite.
-        sign = 1.0 if rot[:, 0] @ across > 0 else -1.0
-        angle = -sign * math.atan(slope) * (1.0 if rot[2, 2] < 0 else -1.0)
-        angle = min(PINCH_MAX_TILT, max(-PINCH_MAX_TILT, angle))
-        tilt = np.array([math.cos(angle / 2), 0.0, math.sin(angle / 2), 0.0])
-        return tilt, -0.5 * (xs.max() + xs.min()) * across
+    def release(self) -> None:
+        """Let the object go: from now on only the hand holds it against gravity."""
+        self.fixture = None
+        self.in_palm_at_release = self.object_in_palm()
+        scene, physics = self.scene, self.physics
+        mass = object_mass(scene, physics)
+        if mass < FIXTURE_MASS_KG:
+            set_object_mass(scene, mujoco.MjData(scene.model), mass)
+        if scene.actuator_forcerange:
+            grip = physics.force_scale * grip_fraction(mass)
+            scene.model.actuator_forcerange[:] = grip * np.array(scene.actuator_forcerange)
 
     def _set_palm(self, pos: np.ndarray, quat: np.ndarray) -> None:
         scene, data = self.scene, self.data
@@ -545,42 +491,41 @@ class Rollout:
         """Smallest signed distance between the hand's geoms and the object's (negative inside)."""
         model, data = self.scene.model, self.data
         cap = max(0.0, standoff) + GAP_SEARCH_M
-        return min(
-            mujoco.mj_geomDistance(model, data, hand, obj, cap, None)
-            for hand in self.scene.hand_geoms
-            for obj in self.scene.object_geoms
-        )
-
-    def lowest_hand_point(self, geoms: Iterable[int] | None = None) -> float:
-        """Height of the lowest point of the hand's geoms (or of `geoms`)."""
-        model, data = self.scene.model, self.data
-        lowest = math.inf
-        for geom in self.scene.hand_geoms if geoms is None else geoms:
-            kind, size = model.geom_type[geom], model.geom_size[geom]
-            centre, axis = data.geom_xpos[geom], data.geom_xmat[geom].reshape(3, 3)
-            if kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
-                z = centre[2] - abs(axis[2, 2]) * size[1] - size[0]
-            elif kind == mujoco.mjtGeom.mjGEOM_SPHERE:
-                z = centre[2] - size[0]
-            else:
-                z = centre[2] - float(np.abs(axis[2, :3]) @ size[:3])
-            lowest = min(lowest, float(z))
-        return lowest
+        hand, obj = np.array(self.scene.hand_geoms), np.array(self.scene.object_geoms)
+        # Bounding spheres bound every pair's distance from below: only pairs that could be
+        # nearer than the best so far are asked (a wine glass has 132 hulls).
+        centres = np.linalg.norm(data.geom_xpos[hand][:, None] - data.geom_xpos[obj][None], axis=2)
+        bound = centres - model.geom_rbound[hand][:, None] - model.geom_rbound[obj][None]
+        best = cap
+        for flat in np.argsort(bound, axis=None, kind="stable"):
+            i, j = divmod(int(flat), len(obj))
+            if bound[i, j] >= best:
+                break
+            best = min(best, geom_distance(model, data, int(hand[i]), int(obj[j]), cap))
+        return best
 
     def close_fingers(self) -> None:
-        """Follow the closing path from the pre-shape (0 unless pinching) to the closed pose,
-        then squeeze."""
-        start = self.preshape
+        """Follow the closing path from the open to the closed pose, then squeeze: position servos
+        whose targets lie beyond contact, so each finger stops where it touches the (fixed)
+        object and presses with its force limit."""
 
         def close(s: float) -> None:
-            self.data.ctrl[self.ctrl] = self.closing_pose(start + s * (1.0 - start))
+            self.data.ctrl[self.ctrl] = self.closing_pose(s)
 
         self.ramp(CLOSE_S, close)
         self.run(SQUEEZE_S)
 
     def lift_and_hold(self) -> dict[str, float]:
+        """Release the object and let it settle in the still hand (SETTLE_IN_HAND_S: it falls
+        from a fingertip hold onto an upturned palm, say), then lift the hand and hold; the drop
+        is measured from the settled state, as it was from the object resting on the ground
+        before. `settle_m` is how far the object moved in the palm frame while settling."""
         scene, data = self.scene, self.data
         start = data.mocap_pos[scene.mocap].copy()
+        self.release()
+        self.run(SETTLE_IN_HAND_S)
+        assert self.in_palm_at_release is not None
+        settle = float(np.linalg.norm(self.object_in_palm() - self.in_palm_at_release))
         offset_before = self.object_minus_palm_z()
         object_z0 = float(data.xpos[scene.object_body][2])
 
@@ -593,6 +538,7 @@ class Rollout:
         return {
             "drop_m": offset_before - self.object_minus_palm_z(),
             "object_rise_m": float(data.xpos[scene.object_body][2]) - object_z0,
+            "settle_m": settle,
             "steps": hold_steps,
         }
 
@@ -601,6 +547,7 @@ class Rollout:
         scene, data, shake = self.scene, self.data, self.physics.shake
         centre = data.mocap_pos[scene.mocap].copy()
         before = self.object_in_palm()
+        self.drop_reason = "dropped: shake"
         period = shake.duration_s / shake.directions
         omega = 2.0 * math.pi / period
         amplitude = shake.accel_mps2 / omega**2  # x = A sin(ωt) peaks at A ω² acceleration
@@ -627,7 +574,7 @@ class Rollout:
         done = 0
         while done < steps:
             chunk = min(CHECK_EVERY, steps - done)
-            mujoco.mj_step(self.scene.model, self.data, nstep=chunk)
+            self.step(chunk)
             done += chunk
             self.monitor()
         self.steps += steps
@@ -639,11 +586,28 @@ class Rollout:
         steps = max(1, round(seconds / self.timestep))
         for k in range(steps):
             apply((k + 1) / steps)
-            mujoco.mj_step(self.scene.model, self.data)
+            self.step(1)
             if k % CHECK_EVERY == CHECK_EVERY - 1:
                 self.monitor()
         self.steps += steps
         self.check()
+
+    def step(self, count: int) -> None:
+        """Advance `count` steps; a fixed object is put back in its pose, at rest, around every
+        step (kinematically, like a mocap body: exact for any object mass, where a weld
+        constraint would give way to the fingers' squeeze by an amount that grows as the object
+        gets lighter)."""
+        model, data = self.scene.model, self.data
+        if self.fixture is None:
+            mujoco.mj_step(model, data, nstep=count)
+            return
+        adr, dof = self.scene.object_qpos, self.object_dof
+        for _ in range(count):
+            data.qpos[adr : adr + 7] = self.fixture
+            data.qvel[dof : dof + 6] = 0.0
+            mujoco.mj_step(model, data)
+        data.qpos[adr : adr + 7] = self.fixture
+        data.qvel[dof : dof + 6] = 0.0
 
     def monitor(self) -> None:
         """Track penetration, object speed and kinetic energy; reject a blow-up at once."""
@@ -662,6 +626,11 @@ class Rollout:
             raise Unstable(f"energy: object speed {speed:.3g} m/s")
         if not math.isfinite(kinetic) or kinetic > self.max_kinetic:
             raise Unstable(f"energy: kinetic {kinetic:.3g} J")
+        # There is no ground to catch a dropped object: stop the trial once it left the hand.
+        if self.in_palm_at_release is not None:
+            moved = float(np.linalg.norm(self.object_in_palm() - self.in_palm_at_release))
+            if moved > self.dims.reach():
+                raise TrialRejected(self.drop_reason)
 
     def check(self) -> None:
         data = self.data
@@ -673,6 +642,22 @@ class Rollout:
             raise Unstable("nan_state")
         if self.stability.warnings:
             raise Unstable(f"diverged: {next(iter(self.stability.warnings))}")
+
+
+def geom_distance(model: mujoco.MjModel, data: mujoco.MjData, geom1: int, geom2: int, cap: float) -> float:
+    """`mj_geomDistance`, asked again of libccd when MuJoCo's native CCD answers exactly 0: it
+    does so for some convex mesh pairs centimetres apart (MuJoCo issue #3383; here a palm 5 cm
+    from a mug's hull pieces), which stopped the hand's slide far short of its standoff."""
+    distance = mujoco.mj_geomDistance(model, data, geom1, geom2, cap, None)
+    if distance != 0.0:
+        return distance
+    native = int(mujoco.mjtDisableBit.mjDSBL_NATIVECCD)
+    flags = model.opt.disableflags
+    model.opt.disableflags = flags | native
+    try:
+        return mujoco.mj_geomDistance(model, data, geom1, geom2, cap, None)
+    finally:
+        model.opt.disableflags = flags
 
 
 def finger_contacts(scene: GraspScene, data: mujoco.MjData) -> list[dict[str, Any]]:

@@ -27,6 +27,8 @@ phalanges then wrap it and the thumb closes on the other side.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 from vint_engines.grasp.hands.model import Finger, HandDims, Joint, JointKind, Link
 
 RADIUS = 0.0098
@@ -40,6 +42,13 @@ def _link(
 ) -> Link:
     return Link(name, length, RADIUS, mass, Joint(kind, rng, TORQUE, KP, op, cl))
 
+
+# The finger spread (`Joint.spread`) each trial draws: index and ring abduct from slightly together
+# (0.1 rad towards the middle finger) to spread apart (0.4 rad, within the ±0.47 rad limits; a
+# positive angle turns a finger towards the palm's -y), the middle finger stays straight, and the
+# thumb's abduction turns from 0 to 0.5 rad (limits -0.105…1.163).
+INDEX_SPREAD = (0.1, -0.4)
+THUMB_SPREAD = (0.0, 0.5)
 
 FINGER_LINKS = (
     _link("base", 0.0164, 0.0119, "abduct", (-0.47, 0.47), 0.0, 0.0),
@@ -55,13 +64,17 @@ THUMB_LINKS = (
 )
 
 
-def _finger(name: str, y: float) -> Finger:
+def _spread(link: Link, spread: tuple[float, float] | None) -> Link:
+    return replace(link, joint=replace(link.joint, spread=spread))
+
+
+def _finger(name: str, y: float, spread: tuple[float, float] | None) -> Finger:
     return Finger(
         name=name,
         base=(-0.0475, y, FINGER_Z),
         grow=(-1.0, 0.0, 0.0),
         palmar=(0.0, 0.0, 1.0),
-        links=FINGER_LINKS,
+        links=(_spread(FINGER_LINKS[0], spread), *FINGER_LINKS[1:]),
         tip_radius=0.012,
         tip_mass=0.0168,
     )
@@ -72,15 +85,15 @@ ALLEGRO = HandDims(
     palm_half=(0.0475, 0.0565, 0.0204),
     palm_mass=0.54,
     fingers=(
-        _finger("index", 0.0435),
-        _finger("middle", 0.0),
-        _finger("ring", -0.0435),
+        _finger("index", 0.0435, INDEX_SPREAD),
+        _finger("middle", 0.0, None),
+        _finger("ring", -0.0435, (-INDEX_SPREAD[0], -INDEX_SPREAD[1])),
         Finger(
             name="thumb",
             base=(-0.0015, 0.019, 0.0204),
             grow=(1.0, 0.0, 0.0),
             palmar=(0.0, 0.0, 1.0),
-            links=THUMB_LINKS,
+            links=(THUMB_LINKS[0], _spread(THUMB_LINKS[1], THUMB_SPREAD), *THUMB_LINKS[2:]),
             tip_radius=0.012,
             tip_mass=0.0168,
         ),

@@ -80,6 +80,12 @@ class MjcfHand:
     def closed_pose(self) -> list[float]:
         return list(self.closed)
 
+    def pregrasp_pose(self) -> list[float]:
+        return list(self.open)
+
+    def spread_ranges(self) -> list[tuple[float, float] | None]:
+        return [None] * len(self.joints)  # every hinge follows the closing path
+
     def reach(self) -> float:
         return self.finger_length
 

@@ -35,6 +35,13 @@ class Joint:
     kp: float  # N·m/rad: the position servo's gain
     open: float  # rad: target while placing the hand
     closed: float  # rad: target while grasping (beyond contact, so the finger presses)
+    # A joint that sets the hand's finger spread (an abduction) instead of closing: each trial
+    # draws the spread s in [0, 1] and holds this joint at spread[0] + s · (spread[1] - spread[0])
+    # through the pre-grasp and the close; `open` and `closed` are then unused.
+    spread: tuple[float, float] | None = None
+    # Target while the hand approaches the object (the pre-grasp) when it differs from `open`
+    # (the pose the taxel layout is generated in): None means `open`.
+    pregrasp: float | None = None
 
 
 @dataclass(frozen=True)
@@ -111,6 +118,12 @@ class HandDims:
     def closed_pose(self) -> list[float]:
         return [joint.closed for _, joint in self.joints()]
 
+    def pregrasp_pose(self) -> list[float]:
+        return [joint.open if joint.pregrasp is None else joint.pregrasp for _, joint in self.joints()]
+
+    def spread_ranges(self) -> list[tuple[float, float] | None]:
+        return [joint.spread for _, joint in self.joints()]
+
     @property
     def finger_count(self) -> int:
         return len(self.fingers)
@@ -153,6 +166,15 @@ class GraspHand(Protocol):
     def joint_names(self) -> list[str]: ...
     def open_pose(self) -> list[float]: ...
     def closed_pose(self) -> list[float]: ...
+    def pregrasp_pose(self) -> list[float]:
+        """Joint targets while the hand approaches; the closing path starts from it."""
+        ...
+
+    def spread_ranges(self) -> list[tuple[float, float] | None]:
+        """Per joint: the angles (rad) between which a trial's finger spread sets it, or None for
+        a joint that follows the closing path."""
+        ...
+
     def reach(self) -> float: ...
     def close_phases(self) -> list[float]: ...
     def fingertips(self) -> list[str]:

@@ -12,7 +12,11 @@ and electronics); finger links are capsules of radius 9 mm, 45/35/25 mm long, 45
 carries a micro gear-motor), thumb links 55/40 mm, 55/30 g; round fingertips of radius 10 mm (8 g).
 Inertias are MuJoCo's, inferred from each capsule with its explicit mass (uniform density). Joint
 limits -0.5…1.6 rad (prox), 0…1.9 (mid), 0…1.7 (tip); position servos with kp 6 N·m/rad and torque
-limits 0.8/0.6/0.4 N·m (the thumb, which opposes two fingers, is twice as strong).
+limits 0.8/0.6/0.4 N·m (the thumb, which opposes two fingers, is twice as strong). In the
+pre-grasp (`Joint.pregrasp`) the proximal joints lean out to their -0.5 rad limit: the fingertips
+then stand ~180 mm apart and straddle an object approached from any side (open at -0.25 rad,
+130 mm, they landed on a 102 mm can's cap or a mug's side before the palm came near; 2 of 8 such
+grasps touched the can). The taxel layout is generated in the open pose.
 """
 
 from __future__ import annotations
@@ -34,13 +38,21 @@ def _finger(x: float, y: float, palmar_x: float, strength: float, links: tuple[L
         grow=(0.0, 0.0, 1.0),
         palmar=(palmar_x, 0.0, 0.0),
         links=tuple(
-            Link(name, length, RADIUS, mass, Joint("flex", rng, torque * strength, KP * strength, op, cl))
+            Link(
+                name,
+                length,
+                RADIUS,
+                mass,
+                Joint("flex", rng, torque * strength, KP * strength, op, cl, pregrasp=PREGRASP.get(name)),
+            )
             for name, length, mass, rng, torque, op, cl in links
         ),
         tip_radius=0.010,
         tip_mass=0.008,
     )
 
+
+PREGRASP = {"prox": -0.5}
 
 FINGER_LINKS: tuple[LinkRow, ...] = (
     ("prox", 0.045, 0.045, (-0.5, 1.6), 0.8, -0.25, 1.5),
