@@ -155,7 +155,8 @@ def posed_trials(
     scene = build_scene(hand_dims(hand), ObjectSpec.parse(entry))
     data = mujoco.MjData(scene.model)
     parsed = Physics.parse(physics)
-    skin = Skin(scene, hand_layout(hand), TouchParams.parse({}))
+    touch = TouchParams.parse({})
+    skin = Skin(scene, hand_layout(hand), touch)
     vertices = scene.obj.surface.vertices
     records = []
     for index, (quat, direction, angle) in enumerate(approaches):
@@ -165,7 +166,7 @@ def posed_trials(
         record = run_trial(scene, data, parsed, skin, index, index, approach)
         json.dumps(record, allow_nan=False)  # no NaN or infinity anywhere
         records.append(record)
-    doc = {"object": entry, "hand": {"name": hand}, "trials": records}
+    doc = {"object": entry, "hand": {"name": hand}, "trials": records, "touch": touch.to_json()}
     assert_valid_or_rejected(doc, parsed)
     return doc
 
