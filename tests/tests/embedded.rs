@@ -330,3 +330,59 @@ fn a_user_hdri_must_be_a_readable_hdr_or_exr_file_next_to_the_spec() {
     assert_eq!(shadow.status.code(), Some(2));
     assert!(stderr(&shadow).contains("must not reuse the name of a bundled HDRI"), "{}", stderr(&shadow));
 }
+
+/// The grasps a dataset holds, per (object, hand): `object.hand` → grasp indices.
+fn grasps_by_pair(lines: &[serde_json::Value]) -> BTreeMap<String, std::collections::BTreeSet<u32>> {
+    let mut out: BTreeMap<String, std::collections::BTreeSet<u32>> = BTreeMap::new();
+    for line in lines {
+        let grasp = line["sample_id"].as_str().unwrap().rsplit_once(".v").unwrap().0;
+        let (pair, index) = grasp.rsplit_once(".g").unwrap();
+        out.entry(pair.to_string()).or_default().insert(index.parse().unwrap());
+    }
+    out
+}
+
+#[test]
+fn a_quota_keeps_the_first_accepted_grasps_of_the_same_trials() {
+    let tmp = tempfile::tempdir().unwrap();
+    let spec = |quota: &str| {
+        format!(
+            "hands = [\"trx3\", \"allegro\"]\nobjects = [\"tomato_soup_can\"]\n[dataset]\nname = \"quota\"\nseed = 11\n\
+             [grasp]\ntrials_per_pair = 4\nchunk_size = 2\nhold_s = 0.3\n{quota}\n\
+             [render]\nresolution = [16, 16]\nviews_per_environment = 1\nenvironments = [\"studio\"]\n\
+             [outputs]\nmodalities = [\"depth\", \"pose\"]\n"
+        )
+    };
+    let mut datasets = Vec::new();
+    for (name, quota) in [("all", ""), ("quota", "accepted_per_pair = 1")] {
+        let dir = tmp.path().join(name);
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("spec.toml");
+        std::fs::write(&path, spec(quota)).unwrap();
+        let (out, state) = (dir.join("out"), dir.join("state"));
+        let o = vintctl(&[
+            "--json",
+            "run",
+            path.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--state",
+            state.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{name}: vintctl run failed:\n{}\n{}", stdout(&o), stderr(&o));
+        datasets.push(grasps_by_pair(&verify_dataset(&out)));
+    }
+    let (all, quota) = (&datasets[0], &datasets[1]);
+    assert!(!all.is_empty(), "no pair accepted any of its 4 trials");
+    // The same seeds run the same trials: with a quota of one, each pair keeps exactly the first
+    // grasp the unlimited run accepted, and runs nothing past it.
+    for (pair, grasps) in all {
+        let first = grasps.iter().next().copied();
+        assert_eq!(
+            quota.get(pair).map(|g| g.iter().copied().collect::<Vec<_>>()),
+            Some(first.into_iter().collect()),
+            "{pair}"
+        );
+    }
+    assert_eq!(quota.keys().collect::<Vec<_>>(), all.keys().collect::<Vec<_>>());
+}

@@ -88,8 +88,8 @@ class SolverConfig:
 
 
 REFERENCE = SolverConfig(timestep=0.00025)
-# The engine as it runs by default: 2 ms, Newton, elliptic cone, up to 2 reruns at half the step.
-DEFAULT = SolverConfig(timestep=0.002, retries=2)
+# The engine as it runs by default: 1 ms, Newton, elliptic cone, up to 2 reruns at half the step.
+DEFAULT = SolverConfig(timestep=0.001, retries=2)
 # The engine refuses a timestep above half the hand's contact time constant (5 ms): coarser steps
 # are studied with the softer skin MuJoCo itself would clamp the time constant to (2 timesteps).
 COARSEST = SolverConfig(0.008, skin_timeconst_s=0.016)
@@ -97,8 +97,9 @@ FULL_CONFIGS = (
     REFERENCE,
     SolverConfig(0.0005),
     SolverConfig(0.001),
-    SolverConfig(0.002),
     DEFAULT,
+    SolverConfig(0.002),
+    SolverConfig(0.002, retries=2),
     SolverConfig(0.0025),
     SolverConfig(0.004, skin_timeconst_s=0.008),
     COARSEST,
@@ -108,7 +109,7 @@ FULL_CONFIGS = (
     SolverConfig(0.002, cone="pyramidal"),
     SolverConfig(0.001, cone="pyramidal"),
 )
-QUICK_CONFIGS = (REFERENCE, SolverConfig(0.001), DEFAULT, COARSEST, SolverConfig(0.002, solver="cg"))
+QUICK_CONFIGS = (REFERENCE, DEFAULT, SolverConfig(0.002), COARSEST, SolverConfig(0.002, solver="cg"))
 
 
 @dataclass(frozen=True)
