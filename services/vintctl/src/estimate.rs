@@ -45,8 +45,8 @@ const RGB_BYTES_PER_PIXEL: f64 = 1.8; // rgb.png, median 29 916 B
 const DEPTH_BYTES_PER_PIXEL: f64 = 4.0; // depth.npy and depth_noisy.npy, 65 664 B each
 const MASKS_BYTES_PER_PIXEL: f64 = 0.05; // mask.png + mask_full.png, 383 + 398 B
 const SEGMENTATION_BYTES_PER_PIXEL: f64 = 0.045; // segmentation.png, 707 B
-const META_JSON_BYTES: f64 = 3_959.0; // meta.json, median (3.8–4.1 KB): the view alone
-const GRASP_RECORD_BYTES: f64 = 75_274.0; // <grasp_id>/grasp.json, median (48–97 KB), once per grasp
+const META_JSON_BYTES: f64 = 4_417.0; // meta.json, median (4.1–4.7 KB): the view alone
+const GRASP_RECORD_BYTES: f64 = 37_053.0; // <grasp_id>/grasp.json, median (26–50 KB), once per grasp
 
 /// Above these a spec earns a warning.
 pub const LARGE_CPU_S: f64 = 86_400.0; // one CPU-day
