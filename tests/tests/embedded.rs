@@ -68,6 +68,26 @@ fn tiny_spec_produces_verified_samples_identical_for_any_worker_count_and_engine
             let environment = if view < 3 { "studio" } else { "forest" };
             assert_eq!(meta["camera"]["environment"]["name"], environment, "{sample}");
         }
+        // The Allegro spreads its fingers: its index (f0_j0), ring (f2_j0) and thumb (f3_j1)
+        // abduction joints take different angles from grasp to grasp (the audit found them fixed).
+        let mut abduction: BTreeMap<&str, Vec<f64>> = BTreeMap::new();
+        let mut seen = std::collections::BTreeSet::new();
+        for line in &lines {
+            let sample = line["sample_id"].as_str().unwrap();
+            let grasp = sample.rsplit_once(".v").unwrap().0;
+            if !grasp.contains(".allegro.") || !seen.insert(grasp.to_string()) {
+                continue;
+            }
+            let record = grasp_record(&dir.join("out"), sample);
+            for joint in ["f0_j0", "f2_j0", "f3_j1"] {
+                abduction.entry(joint).or_default().push(record["trial"]["joints"][joint].as_f64().unwrap());
+            }
+        }
+        for (joint, angles) in &abduction {
+            let mean = angles.iter().sum::<f64>() / angles.len() as f64;
+            let std = (angles.iter().map(|a| (a - mean).powi(2)).sum::<f64>() / angles.len() as f64).sqrt();
+            assert!(angles.len() >= 3 && std > 0.05, "allegro {joint} hardly moves: {angles:?}");
+        }
         // Every accepted grasp is seen from 3 views in each of 2 environments.
         let mut views_per_grasp = std::collections::BTreeMap::<String, usize>::new();
         for line in &lines {
