@@ -118,8 +118,8 @@ pub struct TouchSettings {
     pub contact_margin_m: f64,
     /// Radius of the pressure patch around each MuJoCo contact point.
     pub footprint_radius_m: f64,
-    /// Simulation steps whose contact forces are averaged.
-    pub contact_steps: u32,
+    /// Time over which contact forces are averaged (s).
+    pub contact_window_s: f64,
     /// Local force below which a taxel reads nothing (N).
     pub activation_force_n: f64,
     /// Local force at which a new taxel reads half its gain (N).
@@ -267,7 +267,7 @@ pub fn number_fields() -> Vec<NumberField> {
         float("grasp.shake_duration_s", grasp::SHAKE_DURATION_S),
         float("touch.contact_margin_m", grasp::CONTACT_MARGIN_M),
         float("touch.footprint_radius_m", grasp::FOOTPRINT_RADIUS_M),
-        count("touch.contact_steps", grasp::CONTACT_STEPS),
+        float("touch.contact_window_s", grasp::CONTACT_WINDOW_S),
         float("touch.activation_force_n", grasp::ACTIVATION_FORCE_N),
         float("touch.half_force_n", grasp::HALF_FORCE_N),
         float("touch.response_exponent", grasp::RESPONSE_EXPONENT),
@@ -495,7 +495,7 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
     let touch = TouchSettings {
         contact_margin_m: r.number(&mut t, "touch", "contact_margin_m", grasp::CONTACT_MARGIN_M),
         footprint_radius_m: r.number(&mut t, "touch", "footprint_radius_m", grasp::FOOTPRINT_RADIUS_M),
-        contact_steps: r.count(&mut t, "touch", "contact_steps", grasp::CONTACT_STEPS),
+        contact_window_s: r.number(&mut t, "touch", "contact_window_s", grasp::CONTACT_WINDOW_S),
         activation_force_n: r.number(&mut t, "touch", "activation_force_n", grasp::ACTIVATION_FORCE_N),
         half_force_n: r.number(&mut t, "touch", "half_force_n", grasp::HALF_FORCE_N),
         response_exponent: r.number(&mut t, "touch", "response_exponent", grasp::RESPONSE_EXPONENT),
@@ -509,7 +509,7 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
         &[
             "contact_margin_m",
             "footprint_radius_m",
-            "contact_steps",
+            "contact_window_s",
             "activation_force_n",
             "half_force_n",
             "response_exponent",

@@ -270,9 +270,9 @@ fn oversized_specs_are_refused() {
 fn touch_settings_have_defaults_and_ranges() {
     let spec = DatasetSpec::parse("objects = [\"mug\"]\n[dataset]\nname = \"t\"\nseed = 1\n").unwrap();
     assert_eq!(spec.touch.contact_margin_m, 0.0005, "default");
-    assert_eq!(spec.touch.contact_steps, 4, "default");
+    assert_eq!(spec.touch.contact_window_s, 0.004, "default");
     let text = tiny_with("contact_margin_m = 0.0005", "contact_margin_m = 0.003")
-        .replace("contact_steps = 4", "contact_steps = 0")
+        .replace("contact_window_s = 0.004", "contact_window_s = -0.001")
         .replace("aging = 1.0", "aging = 1.5")
         .replace("min_active_taxels = 3", "min_active_taxels = -1");
     let errs = errors(&text);
@@ -280,7 +280,7 @@ fn touch_settings_have_defaults_and_ranges() {
         errs,
         vec![
             "touch.contact_margin_m: must be in [0, 0.002], got 0.003",
-            "touch.contact_steps: must be 1..=64, got 0",
+            "touch.contact_window_s: must be in [0, 0.064], got -0.001",
             "touch.aging: must be in [0.01, 1], got 1.5",
             "touch.min_active_taxels: must be 0..=10000, got -1",
         ]

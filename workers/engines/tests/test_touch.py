@@ -28,6 +28,7 @@ from vint_engines.grasp.touch import (
     object_distances,
     response,
     taxel_gains,
+    window_steps,
 )
 from vint_engines.objects import ObjectSpec, build_model
 from vint_engines.poses import quat_to_matrix
@@ -188,7 +189,8 @@ def test_active_taxels_touch_the_object_on_links_in_contact(runs: list[Run]) -> 
         for trial in r.accepted:
             touch = trial["touch"]
             assert touch["active_count"] == len(touch["active"]) > 0
-            assert touch["contact_margin_m"] == margin and touch["contact_steps"] == DEFAULTS.contact_steps
+            steps = window_steps(DEFAULTS.contact_window_s, trial["stability"]["timestep_used"])
+            assert touch["contact_margin_m"] == margin and touch["contact_steps"] == steps
             forces = link_contact_force(trial)
             indices = [a["taxel"] for a in touch["active"]]
             world = taxels_in_world(layout, trial)
@@ -255,7 +257,9 @@ def test_with_one_step_the_taxels_share_exactly_the_recorded_contact_force(
     reported on the skin's links."""
     unsensed = total = 0.0
     for hand in HANDS:
-        params = grasp_params("tomato_soup_can", hand, SEEDS[:3], contact_steps=1, activation_force_n=0.0)
+        params = grasp_params(
+            "tomato_soup_can", hand, SEEDS[:3], contact_window_s=0.0, activation_force_n=0.0
+        )
         doc, _ = run(engine, params, tmp_path / hand)
         links = set(layout_of(hand).links)
         for trial in (t for t in doc["trials"] if t["accepted"]):
@@ -357,13 +361,18 @@ def test_readings_depend_on_the_gain_seed_alone(engine: GraspEngine, tmp_path: P
 
 
 def test_averaging_more_steps_changes_only_the_touch(engine: GraspEngine, tmp_path: Path) -> None:
-    """The averaged steps run on a copy of the state: poses and contacts stay those of the capture."""
-    one, _ = run(engine, grasp_params("mug", "allegro", SEEDS[:2], contact_steps=1), tmp_path / "one")
-    many, _ = run(engine, grasp_params("mug", "allegro", SEEDS[:2], contact_steps=16), tmp_path / "many")
+    """The averaged steps run on a copy of the state: poses and contacts stay those of the capture.
+    A window spans as many steps as fit in it at the step the trial used."""
+    one, _ = run(engine, grasp_params("mug", "allegro", SEEDS[:2], contact_window_s=0.0), tmp_path / "one")
+    many, _ = run(
+        engine, grasp_params("mug", "allegro", SEEDS[:2], contact_window_s=0.016), tmp_path / "many"
+    )
     for t1, t16 in zip(one["trials"], many["trials"], strict=True):
         assert {k: v for k, v in t1.items() if k != "touch"} == {k: v for k, v in t16.items() if k != "touch"}
         if t1["accepted"]:
-            assert t1["touch"]["contact_steps"] == 1 and t16["touch"]["contact_steps"] == 16
+            timestep = t16["stability"]["timestep_used"]
+            assert t1["touch"]["contact_steps"] == 1
+            assert t16["touch"]["contact_steps"] == round(0.016 / timestep) >= 16
 
 
 def test_grasps_activate_several_taxels_in_every_region(
@@ -398,7 +407,7 @@ def test_too_few_active_taxels_reject_the_grasp(engine: GraspEngine, tmp_path: P
     [
         {"contact_margin_m": -0.001},
         {"footprint_radius_m": 0.0},
-        {"contact_steps": 0},
+        {"contact_window_s": -0.001},
         {"activation_force_n": -0.1},
         {"half_force_n": 0.0},
         {"response_exponent": 5.0},

@@ -21,7 +21,7 @@ pub const MODEL_FILE: &str = "object.ply";
 pub const TRIALS_PER_TASK: Bound<u32> = Bound::new(1, 1024, 8);
 
 /// Default 1 ms: the cheapest step within the grasp study's tolerances once touch reads contact
-/// forces (at 2 ms the active-taxel sets overlap the 0.25 ms reference's by 0.72; docs/physics.md).
+/// forces (at 2 ms the active-taxel sets overlap the 0.25 ms reference's by 0.73; docs/physics.md).
 pub const TIMESTEP_S: Bound<f64> = Bound::new(1e-4, 0.01, 0.001);
 pub const LIFT_HEIGHT_M: Bound<f64> = Bound::new(0.0, 1.0, 0.10);
 pub const HOLD_S: Bound<f64> = Bound::new(0.0, 30.0, 1.0);
@@ -50,8 +50,11 @@ pub const CONTACT_MARGIN_M: Bound<f64> = Bound::new(0.0, 0.002, 0.0005);
 /// Radius (m) of the pressure patch one MuJoCo contact point spreads over: the Hertz contact radius
 /// of a fingertip on an elastomer cover at grasp forces (a few millimetres, about one taxel pitch).
 pub const FOOTPRINT_RADIUS_M: Bound<f64> = Bound::new(0.001, 0.03, 0.006);
-/// Simulation steps whose contact forces are averaged: the capture and the steps after it.
-pub const CONTACT_STEPS: Bound<u32> = Bound::new(1, 64, 4);
+/// Time (s) over which contact forces are averaged: the capture and the simulation steps within
+/// this window after it, `max(1, round(window / timestep))` samples in all, so the read-out means
+/// the same at any timestep. 4 ms: one sample period of the paper's skin (it samples above 250 Hz,
+/// VinT-6D App. A.2); 0 reads the capture alone.
+pub const CONTACT_WINDOW_S: Bound<f64> = Bound::new(0.0, 0.064, 0.004);
 /// Local force (N) below which a taxel reads nothing: an FSR's actuation force (Interlink FSR 400).
 pub const ACTIVATION_FORCE_N: Bound<f64> = Bound::new(0.0, 10.0, 0.2);
 /// Local force (N) at which a new taxel reads half its gain, where it is most sensitive: the
@@ -228,9 +231,9 @@ pub struct Touch {
     /// Radius of the pressure patch around each MuJoCo contact point (m).
     #[schemars(range(min = FOOTPRINT_RADIUS_M.min, max = FOOTPRINT_RADIUS_M.max))]
     pub footprint_radius_m: f64,
-    /// Steps whose contact forces are averaged (the capture and the steps after it).
-    #[schemars(range(min = CONTACT_STEPS.min, max = CONTACT_STEPS.max))]
-    pub contact_steps: u32,
+    /// Time over which contact forces are averaged, from the capture on (s).
+    #[schemars(range(min = CONTACT_WINDOW_S.min, max = CONTACT_WINDOW_S.max))]
+    pub contact_window_s: f64,
     /// Local force below which a taxel reads nothing (N).
     #[schemars(range(min = ACTIVATION_FORCE_N.min, max = ACTIVATION_FORCE_N.max))]
     pub activation_force_n: f64,
@@ -259,7 +262,7 @@ impl Default for Touch {
         Touch {
             contact_margin_m: CONTACT_MARGIN_M.default,
             footprint_radius_m: FOOTPRINT_RADIUS_M.default,
-            contact_steps: CONTACT_STEPS.default,
+            contact_window_s: CONTACT_WINDOW_S.default,
             activation_force_n: ACTIVATION_FORCE_N.default,
             half_force_n: HALF_FORCE_N.default,
             response_exponent: RESPONSE_EXPONENT.default,

@@ -6,11 +6,12 @@ taxel-to-taxel gain differences from manufacturing, and aging ("over time, a gre
 required for the same level of activation"). The force comes from the contacts MuJoCo resolves;
 docs/touch.md gives the equations, the sources of the constants and the measured behaviour.
 
-1. Contacts. The hand–object contacts of the captured state, and of the `contact_steps - 1`
-   steps after it (simulated on a copy of the state, so the capture is untouched: MuJoCo's contact
+1. Contacts. The hand–object contacts of the captured state, and of the steps after it within
+   `contact_window_s` (`window_steps`: round(window / timestep) samples, at least the capture; the
+   steps are simulated on a copy of the state, so the capture is untouched: MuJoCo's contact
    forces jitter from step to step, and a single contact point per geom pair wanders over the
    contact patch), each as (link, point in the link's frame, normal force F_c); the record keeps
-   them as `contact_samples`.
+   them as `contact_samples` and their number as `contact_steps`.
 2. Eligible taxels: on a link in contact at the capture, and within `contact_margin_m` (m) of the
    object's surface (signed distance d_i, negative inside): the skin's compliance.
 3. Local force. Each contact's force is shared by the eligible taxels of its link within the
@@ -62,7 +63,7 @@ DISTANCE_SLACK_M = 1e-3
 class TouchParams:
     contact_margin_m: float
     footprint_radius_m: float
-    contact_steps: int
+    contact_window_s: float
     activation_force_n: float
     half_force_n: float
     response_exponent: float
@@ -139,6 +140,12 @@ def link_frame_contacts(
         local = data.xmat[body].reshape(3, 3).T @ (np.asarray(contact["p"]) - data.xpos[body])
         moved.append(LinkContact(contact["link"], local, float(contact["force"])))
     return moved
+
+
+def window_steps(window_s: float, timestep: float) -> int:
+    """Contact samples a window of `window_s` seconds takes at `timestep`: the capture and the
+    steps after it, at least the capture alone."""
+    return max(1, round(window_s / timestep))
 
 
 def held_contacts(

@@ -31,7 +31,7 @@ import numpy.typing as npt
 from vint_engines import contract
 from vint_engines.grasp.scene import GraspScene
 from vint_engines.grasp.surface import palm_axes, random_rotation
-from vint_engines.grasp.touch import Skin, held_contacts
+from vint_engines.grasp.touch import Skin, held_contacts, window_steps
 from vint_engines.poses import matrix_to_quat, pose_json, quat_to_matrix
 from vint_engines.protocol import BadInput
 
@@ -381,7 +381,8 @@ def attempt(rollout: Rollout, approach: Approach, skin: Skin) -> dict[str, Any]:
     contacts = finger_contacts(scene, data)
     if not contacts:
         raise TrialRejected("no_contact")
-    touch = skin.read(data, held_contacts(scene, data, skin.params.contact_steps, finger_contacts))
+    steps = window_steps(skin.params.contact_window_s, rollout.timestep)
+    touch = skin.read(data, held_contacts(scene, data, steps, finger_contacts))
     if touch["active_count"] < skin.params.min_active_taxels:
         raise TrialRejected("no_touch")
     return {**readout(scene, data), "contacts": contacts, "hold": hold, "touch": touch}
