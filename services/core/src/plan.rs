@@ -145,6 +145,11 @@ impl JobPlan {
         }
         let mut render_outputs: Vec<RenderOutput> =
             spec.outputs.modalities.iter().flat_map(|m| m.render_outputs().iter().copied()).collect();
+        // The noise model reads each pixel's material from the segmentation: rendered for the noise
+        // stage even when the segmentation modality is not requested (and then not packaged).
+        if wants(Modality::DepthNoisy) && spec.noise.model.materials {
+            render_outputs.push(RenderOutput::Segmentation);
+        }
         render_outputs.sort();
         render_outputs.dedup();
         Ok(JobPlan {
@@ -597,6 +602,10 @@ mod tests {
         assert_eq!(noise.params["noise"]["mode"], "nfov_unbinned");
         let package = tasks.iter().find(|t| t.stage == Stage::Package).unwrap();
         assert_eq!(package.params["modalities"], json!(["depth_noisy", "pose"]), "no segmentation.png in samples");
+        // Without the materials piece the noise model reads no segmentation: none is rendered.
+        let s = spec("[noise]\nmaterials = false\n[outputs]\nmodalities = [\"depth_noisy\", \"pose\"]\n");
+        let tasks = after_grasp(&plan(&s), &c, &[0]).unwrap();
+        assert_eq!(tasks.iter().find(|t| t.stage == Stage::Render).unwrap().params["outputs"], json!(["depth"]));
         // Without noisy depth: no segmentation and no noise task.
         let s = spec("[outputs]\nmodalities = [\"depth\", \"pose\"]\n");
         let tasks = after_grasp(&plan(&s), &c, &[0]).unwrap();

@@ -49,14 +49,13 @@ impl Modality {
         Modality::ALL.into_iter().find(|m| m.as_str() == name)
     }
 
-    /// The render outputs this modality needs: noisy depth needs the clean depth it perturbs and
-    /// the segmentation that tells the noise model which material each pixel sees (rendered for
-    /// the noise stage even when the segmentation modality is not requested, and then not packaged).
+    /// The render outputs this modality needs: noisy depth needs the clean depth it perturbs (and,
+    /// when the noise model's `materials` piece is on, the segmentation: `plan::JobPlan` adds it).
     pub fn render_outputs(self) -> &'static [RenderOutput] {
         match self {
             Modality::Rgb => &[RenderOutput::Rgb],
             Modality::Depth => &[RenderOutput::Depth],
-            Modality::DepthNoisy => &[RenderOutput::Depth, RenderOutput::Segmentation],
+            Modality::DepthNoisy => &[RenderOutput::Depth],
             Modality::Mask => &[RenderOutput::Mask],
             Modality::Segmentation => &[RenderOutput::Segmentation],
             Modality::Pose => &[],
