@@ -29,7 +29,7 @@ docs/touch.md gives the equations, the sources of the constants and the measured
    of the layout; a physical sensor's gains do not change between grasps, so the seed is the
    hand's (the Rust side derives it from the job seed and the hand).
 
-A taxel is active when its reading is positive. Distances come from MuJoCo (`mj_geomDistance`
+A taxel is active when its reading is positive. Distances come from MuJoCo (`scene.geom_distance`
 between a tiny probe sphere placed on the taxel and each of the object's geoms), so every geom type
 an object may be built from works. Only the taxels of links in contact are evaluated, only at the
 capture: nothing runs during the rollout.
@@ -49,7 +49,7 @@ import numpy.typing as npt
 
 from vint_engines import contract
 from vint_engines.grasp.hand import TOUCH_PROBE, TOUCH_PROBE_RADIUS
-from vint_engines.grasp.scene import GraspScene
+from vint_engines.grasp.scene import GraspScene, geom_distance
 from vint_engines.grasp.taxels import TaxelLayout
 from vint_engines.protocol import BadInput
 
@@ -298,7 +298,7 @@ def object_distances(
 ) -> Array:
     """Signed distance (m, negative inside) from each world point to the union of `geoms`, exact
     below `cap` and `>= cap` otherwise. Points whose distance to a geom's bounding box (which holds
-    the geom) is at least `cap` are not queried; the others are measured with `mj_geomDistance`
+    the geom) is at least `cap` are not queried; the others are measured with `geom_distance`
     from the `probe` sphere placed on the point (its centre distance is the result plus its radius)."""
     distance = np.full(len(points), np.inf)
     for geom in geoms:
@@ -307,6 +307,6 @@ def object_distances(
         outside = np.maximum(np.abs(local) - aabb[3:], 0.0)
         for k in np.flatnonzero((outside**2).sum(axis=1) < cap**2):
             data.geom_xpos[probe] = points[k]
-            measured = mujoco.mj_geomDistance(model, data, probe, geom, cap, None) + TOUCH_PROBE_RADIUS
+            measured = geom_distance(model, data, probe, geom, cap) + TOUCH_PROBE_RADIUS
             distance[k] = min(distance[k], measured)
     return distance

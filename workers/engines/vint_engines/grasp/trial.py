@@ -29,7 +29,7 @@ import numpy as np
 import numpy.typing as npt
 
 from vint_engines import contract
-from vint_engines.grasp.scene import GraspScene
+from vint_engines.grasp.scene import GraspScene, geom_distance
 from vint_engines.grasp.surface import palm_axes, random_rotation
 from vint_engines.grasp.touch import Skin, held_contacts, window_steps
 from vint_engines.poses import matrix_to_quat, pose_json, quat_to_matrix
@@ -643,22 +643,6 @@ class Rollout:
             raise Unstable("nan_state")
         if self.stability.warnings:
             raise Unstable(f"diverged: {next(iter(self.stability.warnings))}")
-
-
-def geom_distance(model: mujoco.MjModel, data: mujoco.MjData, geom1: int, geom2: int, cap: float) -> float:
-    """`mj_geomDistance`, asked again of libccd when MuJoCo's native CCD answers exactly 0: it
-    does so for some convex mesh pairs centimetres apart (MuJoCo issue #3383; here a palm 5 cm
-    from a mug's hull pieces), which stopped the hand's slide far short of its standoff."""
-    distance = mujoco.mj_geomDistance(model, data, geom1, geom2, cap, None)
-    if distance != 0.0:
-        return distance
-    native = int(mujoco.mjtDisableBit.mjDSBL_NATIVECCD)
-    flags = model.opt.disableflags
-    model.opt.disableflags = flags | native
-    try:
-        return mujoco.mj_geomDistance(model, data, geom1, geom2, cap, None)
-    finally:
-        model.opt.disableflags = flags
 
 
 def finger_contacts(scene: GraspScene, data: mujoco.MjData) -> list[dict[str, Any]]:
