@@ -222,13 +222,13 @@ pub struct PairBudget {
 }
 
 impl PairBudget {
-    /// Grasps the pair aims at: every trial without a quota.
-    fn target(&self) -> u32 {
+    /// Grasps the pair aims at (at most this many become samples): every trial without a quota.
+    pub fn grasps(&self) -> u32 {
         self.accepted.map_or(self.trials, |a| a.min(self.trials)).max(1)
     }
 
     pub fn chunks(&self) -> u32 {
-        self.target().div_ceil(self.chunk_size.max(1))
+        self.grasps().div_ceil(self.chunk_size.max(1))
     }
 
     /// Chunk `c`'s quota of accepted grasps: `None` without a quota.
@@ -237,13 +237,13 @@ impl PairBudget {
     }
 
     fn slots(&self, c: u32) -> std::ops::Range<u32> {
-        let start = c.saturating_mul(self.chunk_size).min(self.target());
-        start..start.saturating_add(self.chunk_size).min(self.target())
+        let start = c.saturating_mul(self.chunk_size).min(self.grasps());
+        start..start.saturating_add(self.chunk_size).min(self.grasps())
     }
 
     /// First trial index of grasp slot `k`.
     fn trial_of_slot(&self, k: u32) -> u32 {
-        (u64::from(self.trials) * u64::from(k) / u64::from(self.target())) as u32
+        (u64::from(self.trials) * u64::from(k) / u64::from(self.grasps())) as u32
     }
 
     /// The trial indices chunk `c` may run.
@@ -254,7 +254,7 @@ impl PairBudget {
 
     /// The most trials one chunk may run.
     pub fn max_task_trials(&self) -> u32 {
-        let per_slot = u64::from(self.trials).div_ceil(u64::from(self.target()));
+        let per_slot = u64::from(self.trials).div_ceil(u64::from(self.grasps()));
         u32::try_from(per_slot.saturating_mul(u64::from(self.chunk_size))).unwrap_or(u32::MAX).min(self.trials)
     }
 

@@ -172,6 +172,13 @@ pub const VIEWS_PER_ENVIRONMENT: Bound<u32> = Bound::new(1, MAX_VIEWS_PER_GRASP,
 /// The spec's shake acceleration: 0 (the default) disables the shake test.
 pub const SHAKE_ACCEL_MPS2: Bound<f64> = Bound::new(0.0, grasp::SHAKE_ACCEL_MPS2.max, 0.0);
 
+impl GraspSettings {
+    /// How each (object, hand) pair's trials split into grasp-sim tasks.
+    pub fn budget(&self) -> PairBudget {
+        PairBudget { trials: self.trials_per_pair, accepted: self.accepted_per_pair, chunk_size: self.chunk_size }
+    }
+}
+
 impl RenderSettings {
     pub fn views_per_grasp(&self) -> u32 {
         self.views_per_environment * self.environments.len() as u32
@@ -360,21 +367,14 @@ impl DatasetSpec {
         if r.errors.is_empty() { Ok(spec) } else { Err(SpecErrors(r.errors)) }
     }
 
-    /// How each (object, hand) pair's trials split into grasp-sim tasks.
-    pub fn pair_budget(&self) -> PairBudget {
-        let g = &self.grasp;
-        PairBudget { trials: g.trials_per_pair, accepted: g.accepted_per_pair, chunk_size: g.chunk_size }
-    }
-
     /// Number of grasp-sim tasks (chunks) per (object, hand) pair.
     pub fn chunks_per_pair(&self) -> u32 {
-        self.pair_budget().chunks()
+        self.grasp.budget().chunks()
     }
 
     /// Upper bound on the number of samples: every trial accepted, up to the quota.
     pub fn max_samples(&self) -> u64 {
-        let g = &self.grasp;
-        let grasps = g.accepted_per_pair.map_or(g.trials_per_pair, |a| a.min(g.trials_per_pair));
+        let grasps = self.grasp.budget().grasps();
         (self.hands.len() * self.objects.len()) as u64 * u64::from(grasps) * u64::from(self.render.views_per_grasp())
     }
 
@@ -474,8 +474,7 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
             "shake_duration_s",
         ],
     );
-    let budget =
-        PairBudget { trials: grasp.trials_per_pair, accepted: grasp.accepted_per_pair, chunk_size: grasp.chunk_size };
+    let budget = grasp.budget();
     if budget.max_task_trials() > grasp::TRIALS_PER_TASK.max {
         r.error(
             "grasp.chunk_size",
