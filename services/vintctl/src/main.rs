@@ -13,6 +13,7 @@ mod embedded;
 mod estimate;
 mod export;
 mod failure;
+mod formats;
 mod report;
 mod spec_file;
 mod study;
@@ -126,6 +127,17 @@ enum Command {
         #[arg(long, env = "VINT_STORE")]
         store: Option<String>,
     },
+    /// Convert a dataset in the native layout to BOP's layout (`--format bop`).
+    Convert {
+        /// The native dataset directory (with dataset.json and manifest.jsonl).
+        dataset: PathBuf,
+        /// Where the converted dataset is written (a new or empty directory).
+        #[arg(long)]
+        out: PathBuf,
+        /// Layout to convert to: bop.
+        #[arg(long)]
+        format: String,
+    },
     /// Accuracy-versus-cost studies: run the same work at several settings against a fine
     /// reference and write CSV, a log-log plot and a markdown table.
     Study {
@@ -208,6 +220,18 @@ async fn dispatch(command: Command, json: bool, coordinator: &str) -> CliResult 
             commands::lineage(coordinator, &subject, job, artifact, json).await
         }
         Command::Export { job, out, store } => commands::export(coordinator, &job, &out, store, json).await,
+        Command::Convert { dataset, out, format } => {
+            if format != "bop" {
+                return Err(bad_input(anyhow!("--format {format}: this branch converts to bop only")));
+            }
+            std::fs::create_dir_all(&out).map_err(|e| anyhow!("creating {}: {e}", out.display()))?;
+            let converted = formats::bop::write(&dataset, &out)?;
+            println!(
+                "{}",
+                serde_json::json!({"samples": converted.samples, "files": converted.files, "bytes": converted.bytes})
+            );
+            Ok(())
+        }
         Command::Study { subject, out, quick, extra } => study::run(&subject, &out, quick, &extra).await,
         Command::Diff(args) => diff::run(&args, json),
         Command::Hands => {
