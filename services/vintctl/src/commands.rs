@@ -115,22 +115,8 @@ pub async fn lineage(url: &str, subject: &str, job: Option<String>, artifact: bo
 /// Writes a finished job's packaged samples to `out`. A running job is refused (its dataset is
 /// not there yet); a failed or cancelled one exports what it packaged and says what is missing.
 pub async fn export(url: &str, job_id: &str, out: &Path, store: Option<String>, json: bool) -> CliResult {
-    let mut coordinator = Coordinator::connect(url).await?;
-    let job = coordinator.job(job_id).await?;
+    let (job, state, summary) = export_job(url, job_id, out, store).await?;
     let p = job.progress.clone().unwrap_or_default();
-    let state: JobState = job.state.parse().map_err(|e| anyhow!("coordinator answered job {job_id}: {e}"))?;
-    if state == JobState::Running {
-        let done = p.tasks_succeeded + p.tasks_failed + p.tasks_cancelled;
-        return Err(bad_input(anyhow!(
-            "job {job_id} is still running ({done} of {} tasks so far done, {} samples packaged): export writes \
-             a finished job's dataset; wait for it with `vintctl watch {job_id}`, then export",
-            p.tasks_total,
-            p.samples_packaged
-        )));
-    }
-    let store = artifact_store(&mut coordinator, store).await?;
-    let listed = coordinator.samples(job_id).await?;
-    let summary = export::export(&store, job_id, &listed, out).await?;
     // The spec's upper bound (every trial accepted): what a failed job could have had.
     let planned = vint_core::DatasetSpec::parse(&job.spec_toml).ok().map(|spec| spec.max_samples());
     if json {
@@ -151,6 +137,33 @@ pub async fn export(url: &str, job_id: &str, out: &Path, store: Option<String>, 
         );
     }
     Ok(())
+}
+
+/// Exports a finished job's native dataset to `out` (what `export` prints about, and what `stats`
+/// computes on): the job and its state, and what was written. A running job is refused.
+pub async fn export_job(
+    url: &str,
+    job_id: &str,
+    out: &Path,
+    store: Option<String>,
+) -> Result<(pb::Job, JobState, export::ExportSummary), Failure> {
+    let mut coordinator = Coordinator::connect(url).await?;
+    let job = coordinator.job(job_id).await?;
+    let p = job.progress.clone().unwrap_or_default();
+    let state: JobState = job.state.parse().map_err(|e| anyhow!("coordinator answered job {job_id}: {e}"))?;
+    if state == JobState::Running {
+        let done = p.tasks_succeeded + p.tasks_failed + p.tasks_cancelled;
+        return Err(bad_input(anyhow!(
+            "job {job_id} is still running ({done} of {} tasks so far done, {} samples packaged): export writes \
+             a finished job's dataset; wait for it with `vintctl watch {job_id}`, then export",
+            p.tasks_total,
+            p.samples_packaged
+        )));
+    }
+    let store = artifact_store(&mut coordinator, store).await?;
+    let listed = coordinator.samples(job_id).await?;
+    let summary = export::export(&store, job_id, &listed, out).await?;
+    Ok((job, state, summary))
 }
 
 /// The artifact store to export from: `--store` when given, else the one the coordinator was

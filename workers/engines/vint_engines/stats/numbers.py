@@ -171,7 +171,6 @@ def orientation_stats(views: Sequence[View], objects: Sequence[str]) -> dict[str
             }
             for o in objects
         },
-        "azimuth_deg": summary([a for a, _ in angles]),
         "elevation_deg": summary([e for _, e in angles]),
     }
 

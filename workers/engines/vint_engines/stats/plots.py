@@ -12,16 +12,17 @@ from __future__ import annotations
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
+import matplotlib as mpl
+import matplotlib.style
 import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 from vint_engines.stats.dataset import Dataset
 from vint_engines.stats.numbers import viewing_direction
-
-if TYPE_CHECKING:
-    from matplotlib.axes import Axes
-    from matplotlib.figure import Figure
 
 OCCLUSION_PNG = "occlusion.png"
 ORIENTATION_PNG = "orientation.png"
@@ -45,32 +46,33 @@ SCATTER_MAX = 3000  # views drawn as points on the orientation map; beyond, the 
 
 
 def write_all(out: Path, stats: dict[str, Any], dataset: Dataset) -> list[Path]:
-    with plotting() as plt:
+    """Draws every figure into `out`. Figures are built without pyplot (no global figure
+    registry, no GUI backend: `Figure.savefig` renders with Agg)."""
+    paths = []
+    with fixed_style():
         figures = {
-            OCCLUSION_PNG: occlusion(plt, stats),
-            ORIENTATION_PNG: orientation(plt, stats, dataset),
-            DISTANCE_PNG: distance(plt, stats),
-            TAXELS_PNG: taxels(plt, stats),
-            ACCEPTANCE_PNG: acceptance(plt, stats),
+            OCCLUSION_PNG: occlusion(stats),
+            ORIENTATION_PNG: orientation(stats, dataset),
+            DISTANCE_PNG: distance(stats),
+            TAXELS_PNG: taxels(stats),
+            ACCEPTANCE_PNG: acceptance(stats),
         }
-        paths = []
         for name, figure in figures.items():
             path = out / name
             figure.savefig(path, metadata=PNG_METADATA)
-            plt.close(figure)
             paths.append(path)
     return paths
 
 
 @contextmanager
-def plotting() -> Iterator[Any]:
-    import matplotlib
+def fixed_style() -> Iterator[None]:
+    """matplotlib's defaults plus STYLE, whatever the user's matplotlibrc says."""
+    with mpl.style.context("default"), mpl.rc_context(STYLE):
+        yield
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    with matplotlib.style.context("default"), matplotlib.rc_context(STYLE):
-        yield plt
+def new_figure(width: float, height: float) -> Figure:
+    return Figure(figsize=(width, height), layout="constrained")
 
 
 def hand_colors(hands: Sequence[str]) -> dict[str, str]:
@@ -84,20 +86,31 @@ def stacked_bars(
     colors = hand_colors(list(by_hand))
     bottom = np.zeros(len(lefts))
     for hand, counts in by_hand.items():
-        ax.bar(lefts, counts, widths, bottom=bottom, align="edge", color=colors[hand], label=hand)
+        ax.bar(
+            lefts,
+            counts,
+            widths,
+            bottom=bottom,
+            align="edge",
+            color=colors[hand],
+            label=hand,
+            edgecolor="white",
+        )
         bottom += np.asarray(counts, dtype=np.float64)
     for left, width, total in zip(lefts, widths, bottom, strict=True):
         if total > 0:
             ax.annotate(f"{int(total)}", (left + width / 2, total), ha="center", va="bottom", fontsize=8)
     ax.set_ylim(0, max(float(bottom.max()), 1.0) * 1.12)
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_ylabel("samples")
     ax.legend(title="hand")
 
 
-def occlusion(plt: Any, stats: dict[str, Any]) -> Figure:
+def occlusion(stats: dict[str, Any]) -> Figure:
     occ = stats["occlusion"]
     edges = [100 * e for e in occ["edges"]]
-    figure, ax = plt.subplots(figsize=(6.4, 4.0), layout="constrained")
+    figure = new_figure(6.4, 4.0)
+    ax = figure.subplots()
     stacked_bars(ax, edges[:-1], np.diff(edges).tolist(), occ["by_hand"])
     ax.set_xticks(edges)
     ax.set_xlim(0, 100)
@@ -107,10 +120,11 @@ def occlusion(plt: Any, stats: dict[str, Any]) -> Figure:
     return figure
 
 
-def distance(plt: Any, stats: dict[str, Any]) -> Figure:
+def distance(stats: dict[str, Any]) -> Figure:
     dist = stats["distance_m"]
     edges = dist["edges"]
-    figure, ax = plt.subplots(figsize=(6.4, 4.0), layout="constrained")
+    figure = new_figure(6.4, 4.0)
+    ax = figure.subplots()
     stacked_bars(ax, edges[:-1], np.diff(edges).tolist(), dist["by_hand"])
     ax.set_xticks(edges)
     ax.tick_params(axis="x", labelrotation=45 if len(edges) > 10 else 0)
@@ -121,14 +135,15 @@ def distance(plt: Any, stats: dict[str, Any]) -> Figure:
     return figure
 
 
-def orientation(plt: Any, stats: dict[str, Any], dataset: Dataset) -> Figure:
+def orientation(stats: dict[str, Any], dataset: Dataset) -> Figure:
     """Which side of the object each view shows: the camera's direction in the object frame on an
     equal-area map (azimuth against sin elevation), cells shaded by count, views as points."""
     orient = stats["orientation"]
     az_edges = orient["azimuth_edges_deg"]
     z_edges = orient["sin_elevation_edges"]
     counts = np.asarray(orient["counts"], dtype=np.float64)
-    figure, ax = plt.subplots(figsize=(8.0, 4.6), layout="constrained")
+    figure = new_figure(8.0, 4.6)
+    ax = figure.subplots()
     shaded = np.ma.masked_equal(counts, 0)
     mesh = ax.pcolormesh(az_edges, z_edges, shaded, cmap="Blues", vmin=0, edgecolors="0.85", linewidth=0.5)
     figure.colorbar(mesh, ax=ax, label="views per cell (each cell 1/72 of the sphere)")
@@ -156,22 +171,22 @@ def orientation(plt: Any, stats: dict[str, Any], dataset: Dataset) -> Figure:
     return figure
 
 
-def taxels(plt: Any, stats: dict[str, Any]) -> Figure:
+def taxels(stats: dict[str, Any]) -> Figure:
     """Left: the spread of active taxels per grasp for each hand; right: the mean per grasp by
     region (tip, pulp, palm)."""
     tax = stats["taxels"]
     hands = [h for h in stats["hands"] if tax["by_hand"][h]["grasps"] > 0]
     regions = tax["regions"]
     colors = hand_colors(stats["hands"])
-    figure, (left, right) = plt.subplots(1, 2, figsize=(9.6, 4.0), layout="constrained")
+    figure = new_figure(9.6, 4.0)
+    left, right = figure.subplots(1, 2)
     for i, hand in enumerate(hands):
         s = tax["by_hand"][hand]["active"]
         left.bar(i, s["p75"] - s["p25"], 0.5, bottom=s["p25"], color=colors[hand], alpha=0.5)
         left.plot([i - 0.25, i + 0.25], [s["p50"], s["p50"]], color="k")
         left.plot([i, i], [s["min"], s["max"]], color=colors[hand], marker="_", markersize=14)
         left.plot(i, s["mean"], "D", color="k", markersize=4)
-        left.annotate(f"n={s['count']}", (i, s["max"]), ha="center", va="bottom", fontsize=8)
-    left.set_xticks(range(len(hands)), hands)
+    left.set_xticks(range(len(hands)), [f"{h}\n({tax['by_hand'][h]['grasps']} grasps)" for h in hands])
     left.set_xlim(-0.6, len(hands) - 0.4)
     left.set_ylim(0, None)
     left.set_ylabel("active taxels per grasp")
@@ -192,16 +207,18 @@ def taxels(plt: Any, stats: dict[str, Any]) -> Figure:
     return figure
 
 
-def acceptance(plt: Any, stats: dict[str, Any]) -> Figure:
+def acceptance(stats: dict[str, Any]) -> Figure:
     """One bar per (object, hand) pair: its trials split into accepted and each rejection reason."""
     pairs = stats["pairs"]
     if pairs is None:
-        figure, ax = plt.subplots(figsize=(6.4, 2.0), layout="constrained")
+        figure = new_figure(6.4, 2.0)
+        ax = figure.subplots()
         ax.axis("off")
         ax.text(0.5, 0.5, "no dataset.json: this dataset does not record its trials", ha="center")
         return figure
     rows = pairs["pairs"]
-    figure, ax = plt.subplots(figsize=(8.0, 1.2 + 0.32 * len(rows)), layout="constrained")
+    figure = new_figure(8.0, 1.2 + 0.32 * len(rows))
+    ax = figure.subplots()
     y = np.arange(len(rows))[::-1]
     left = np.zeros(len(rows))
     segments = [("accepted", [r["accepted"] for r in rows], "tab:green")]
@@ -217,8 +234,9 @@ def acceptance(plt: Any, stats: dict[str, Any]) -> Figure:
         ax.annotate(f" {row['accepted']}/{row['trials']} ({rate})", (total, yi), va="center", fontsize=8)
     ax.set_yticks(y, [f"{r['object']} / {r['hand']}" for r in rows])
     ax.set_xlim(0, max(float(left.max()), 1.0) * 1.25)
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlabel("grasp trials")
-    ax.legend(loc="lower right", fontsize=8)
+    figure.legend(loc="outside lower center", ncols=min(len(segments), 4), fontsize=8)
     total = pairs["total"]
     ax.set_title(f"Grasp acceptance per pair — {total['accepted']} of {total['trials']} trials accepted")
     return figure

@@ -113,14 +113,9 @@ def orientation(stats: dict[str, Any]) -> str:
         f"{orient['cells']} equal-area cells of the sphere (12 azimuth sectors × 6 bands of equal "
         "sin(elevation)); coverage is the share of cells at least one view falls in.\n\n"
         + table(["object", "samples", "cells seen", "coverage"], rows)
-        + "\n\nAngles (°):\n\n"
-        + table(
-            ["angle", *SUMMARY_COLUMNS],
-            [
-                ["azimuth", *summary_row(orient["azimuth_deg"])],
-                ["elevation", *summary_row(orient["elevation_deg"])],
-            ],
-        )
+        + "\n\nElevation of the viewing direction above the object's xy plane (°; the azimuth is "
+        "circular, so it has no meaningful mean: the map shows it):\n\n"
+        + table(SUMMARY_COLUMNS, [summary_row(orient["elevation_deg"])])
     )
 
 
