@@ -11,6 +11,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, anyhow};
 use tokio::process::Command;
 
+use crate::formats::{Format, SHARD_SAMPLES, Target};
 use crate::{CliResult, Failure, bad_input, commands, report};
 
 /// What `python -m vint_engines stats` writes into OUT besides its figures.
@@ -25,7 +26,8 @@ pub async fn run(subject: &str, out: &Path, store: Option<String>, coordinator: 
         return Err(bad_input(anyhow!("stats: {subject} is not a dataset directory (nor a job id)")));
     }
     let staging = Staging::new(subject)?;
-    commands::export_job(coordinator, subject, &staging.0, store).await?;
+    let native = Target { format: Format::Native, shard_samples: SHARD_SAMPLES as usize };
+    commands::export_job(coordinator, subject, &staging.0, native, store).await?;
     compute(&staging.0, out, json).await
 }
 
