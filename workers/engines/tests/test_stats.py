@@ -135,6 +135,8 @@ def write_bop(root: Path) -> Path:
                 {"cam_R_m2c": R.reshape(9).tolist(), "cam_t_m2c": (1000 * t).tolist(), "obj_id": obj_ids[obj]}
             ]
             meta[str(v)] = {"sample_id": f"{gid}.v{v:02d}", "grasp_id": gid, "occlusion": occ}
+            if scene_id % 2 == 0:  # the hand in scene_meta, or only in scene_hand
+                meta[str(v)]["hand"] = hand
             touch[str(v)] = {"active": touch_entries(regions), "readings": []}
             hands[str(v)] = {"hand": hand, "joints": {}, "link_poses_cam": {}}
         for name, doc in (("gt", gt), ("meta", meta), ("touch", touch), ("hand", hands)):

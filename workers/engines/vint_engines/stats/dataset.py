@@ -147,8 +147,8 @@ def native_grasp(record: dict[str, Any], path: Path) -> Grasp:
 
 def read_bop(root: Path, description: dict[str, Any] | None) -> tuple[list[View], list[Grasp]]:
     """One scene per grasp, one image per view: the views from scene_gt (pose, mm) and scene_meta
-    (ids, occlusion), the hand from scene_hand, the grasp's touch from any one image of
-    scene_touch (a grasp's views share it)."""
+    (ids, occlusion, hand; the hand from scene_hand where scene_meta lacks it), the grasp's touch
+    from any one image of scene_touch (a grasp's views share it)."""
     if description is None:
         raise DatasetError(f"{root}: a BOP dataset without dataset.json (it names the objects' obj_ids)")
     try:
@@ -168,14 +168,18 @@ def read_bop(root: Path, description: dict[str, Any] | None) -> tuple[list[View]
 
 def bop_scene(scene: Path, names: dict[int, str]) -> tuple[list[View], dict[str, Grasp]]:
     gt, meta = read_json(scene / "scene_gt.json"), read_json(scene / "scene_meta.json")
-    hand, touch = read_json(scene / "scene_hand.json"), read_json(scene / "scene_touch.json")
+    touch = read_json(scene / "scene_touch.json")
+    hands: dict[str, Any] | None = None  # scene_hand.json, read only if scene_meta lacks the hand
     views: list[View] = []
     grasps: dict[str, Grasp] = {}
     try:
         for im_id in sorted(gt, key=int):
             (instance,) = gt[im_id]  # one object per image
             image_meta = meta[im_id]
-            grasp_id, hand_name = image_meta["grasp_id"], hand[im_id]["hand"]
+            grasp_id, hand_name = image_meta["grasp_id"], image_meta.get("hand")
+            if hand_name is None:
+                hands = hands if hands is not None else read_json(scene / "scene_hand.json")
+                hand_name = hands[im_id]["hand"]
             obj = names[int(instance["obj_id"])]
             views.append(
                 View(
