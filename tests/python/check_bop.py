@@ -273,6 +273,10 @@ def check_models(
         )
         obj = declared.get(obj_id, {})
         fail.check(
+            obj.get("model") == f"models/{path.name}",
+            f"dataset.json names {obj.get('model')!r} for {path.name}",
+        )
+        fail.check(
             abs(d - obj.get("diameter_mm", -1)) <= MODEL_MM,
             f"{path.name}: diameter {d:.4f} != dataset.json {obj.get('diameter_mm')}",
         )

@@ -69,17 +69,17 @@ pub fn write(native: &Path, out: &Path) -> anyhow::Result<Converted> {
         }));
     }
 
-    let models: serde_json::Map<String, Value> = objects
-        .by_id
-        .iter()
-        .map(|(id, o)| (id.to_string(), json!({"object": o["name"], "file": format!("models/obj_{id:06}.ply")})))
-        .collect();
     let mut described = dataset.clone();
     described["format"] = json!("vint-bop");
+    // Each object's model is where this layout keeps it.
+    for o in described["objects"].as_array_mut().into_iter().flatten() {
+        if let Some(id) = o["obj_id"].as_u64() {
+            o["model"] = json!(format!("models/obj_{id:06}.ply"));
+        }
+    }
     described["bop"] = json!({
         "scenes": scenes,
         "depth_scale": DEPTH_SCALE_MM,
-        "models": models,
         "conventions": {
             "scene": "one scene per grasp: scene_id is the grasp's position in the sorted list of all grasp ids; im_id is the view index",
             "units": "mm (models, cam_t_*, depth × depth_scale, touch *_mm); rotations row-major",
