@@ -268,7 +268,7 @@ impl Report<'_> {
         let _ = writeln!(out);
         let _ = writeln!(
             out,
-            "Dataset {} (split {}): {} ground-truth instances, {} with an estimate, {} missing (scored as failures).",
+            "Dataset {} (splits {}): {} ground-truth instances, {} with an estimate, {} missing (scored as failures).",
             self.args.dataset.display(),
             self.dataset.splits.join(", "),
             overall.n,
@@ -277,7 +277,8 @@ impl Report<'_> {
         );
         let _ = writeln!(
             out,
-            "Estimates: {} rows; {} lower-scored duplicates and {} for images or objects without ground truth not scored.",
+            "Estimates: {} rows; not scored: {} below the best of their image and object, {} for images or objects \
+             without ground truth.",
             self.rows, s.duplicates, s.unmatched
         );
         let _ = writeln!(
