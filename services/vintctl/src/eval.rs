@@ -101,7 +101,8 @@ fn bucket(occlusion: f64) -> usize {
 struct Scoring<'a> {
     /// One per ground-truth instance, in the dataset's order.
     scored: Vec<Scored<'a>>,
-    /// Lower-scored estimates of an image and object whose instances already had one.
+    /// Estimates of an image and object below the best-scored one (lower or equal score, later
+    /// line), which are not scored.
     duplicates: usize,
     /// Estimates of an image or object the selected splits do not annotate.
     unmatched: usize,
