@@ -11,6 +11,7 @@ mod commands;
 mod diff;
 mod embedded;
 mod estimate;
+mod eval;
 mod export;
 mod failure;
 mod formats;
@@ -45,8 +46,8 @@ struct Cli {
     /// Print machine-readable JSON instead of text (errors too, on stdout).
     #[arg(long, global = true)]
     json: bool,
-    /// Coordinator URL for the commands that talk to one (all but validate, run, study, hands,
-    /// objects and stats on a directory); HOST:PORT means http://HOST:PORT.
+    /// Coordinator URL for the commands that talk to one (all but validate, run, convert, eval,
+    /// diff, study, hands, objects and stats on a directory); HOST:PORT means http://HOST:PORT.
     #[arg(long, global = true, env = "VINT_COORDINATOR", default_value = "http://127.0.0.1:7700")]
     coordinator: String,
     #[command(subcommand)]
@@ -178,6 +179,9 @@ enum Command {
     /// poses, touch readings); say which samples differ and by how much. Exit 0: all within
     /// tolerance; 1: some sample differs beyond it or is missing on one side.
     Diff(diff::DiffArgs),
+    /// Score pose estimates (a BOP results CSV) against a BOP dataset: ADD, ADD-S and ADD(S) AUC up
+    /// to 10 cm, ADD(S)-0.1d and -0.05d, overall, per object and per occlusion bucket.
+    Eval(eval::EvalArgs),
     /// List the built-in hands with their DoF and taxel counts per region.
     Hands,
     /// List the built-in objects: mass, material, texture and symmetries (`--json`: in BOP's form).
@@ -269,6 +273,7 @@ async fn dispatch(command: Command, json: bool, coordinator: &str) -> CliResult 
         Command::Study { subject, out, quick, extra } => study::run(&subject, &out, quick, &extra).await,
         Command::Stats { dataset, out, store } => stats::run(&dataset, &out, store, coordinator, json).await,
         Command::Diff(args) => diff::run(&args, json),
+        Command::Eval(args) => eval::run(&args, json),
         Command::Hands => {
             report::hands(json);
             Ok(())
