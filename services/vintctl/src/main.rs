@@ -13,6 +13,8 @@ mod embedded;
 mod estimate;
 mod export;
 mod failure;
+#[allow(dead_code)] // scaffold: wired by the lead's formats plumbing
+mod formats;
 mod report;
 mod spec_file;
 mod study;
