@@ -204,12 +204,26 @@ impl Manifest {
         })?;
         let mut entries = BTreeMap::new();
         for (number, line) in text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty()) {
+            if is_summary_line(line) {
+                continue;
+            }
             let (id, files) = manifest_line(line)
                 .map_err(|e| bad_input(anyhow!("{side} {}: line {}: {e:#}", path.display(), number + 1)))?;
             entries.insert(id, files);
         }
         Ok(Manifest { dir: dir.to_path_buf(), entries })
     }
+}
+
+/// A native manifest's `dataset` (dataset.json) and `model` (models/<object>.ply) lines. They are
+/// not compared: the models are built from the catalog entries the samples' records name, and
+/// dataset.json summarises the grasps and samples that are compared (a grasp accepted on one side
+/// only shows up as its samples missing on the other).
+fn is_summary_line(line: &str) -> bool {
+    serde_json::from_str::<serde_json::Value>(line)
+        .ok()
+        .and_then(|v| v.as_object().map(|o| o.contains_key("dataset") || o.contains_key("model")))
+        .unwrap_or(false)
 }
 
 fn manifest_line(line: &str) -> anyhow::Result<(String, BTreeMap<String, Listed>)> {
