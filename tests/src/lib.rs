@@ -202,9 +202,14 @@ pub fn verify_dataset(dir: &Path) -> Vec<serde_json::Value> {
         manifest.lines().map(|l| serde_json::from_str(l).expect("manifest line")).collect();
     let mut records = std::collections::BTreeMap::new();
     for line in &lines {
-        let id = line["sample_id"].as_str().or(line["grasp_id"].as_str()).expect("sample_id or grasp_id");
+        // A sample's or grasp's files are in its directory, a model's in models/, dataset.json at the root.
+        let (id, sub) = match (line["sample_id"].as_str(), line["grasp_id"].as_str(), line["model"].as_str()) {
+            (Some(id), _, _) | (_, Some(id), _) => (id, id),
+            (_, _, Some(object)) => (object, "models"),
+            _ => (line["dataset"].as_str().expect("a sample_id, grasp_id, model or dataset line"), ""),
+        };
         for (name, f) in line["files"].as_object().expect("files") {
-            let bytes = std::fs::read(dir.join(id).join(name)).unwrap_or_else(|e| panic!("{id}/{name}: {e}"));
+            let bytes = std::fs::read(dir.join(sub).join(name)).unwrap_or_else(|e| panic!("{id}/{name}: {e}"));
             assert_eq!(hex::encode(Sha256::digest(&bytes)), f["sha256"].as_str().unwrap(), "{id}/{name} hash");
             assert_eq!(bytes.len() as u64, f["size"].as_u64().unwrap(), "{id}/{name} size");
         }
@@ -231,6 +236,8 @@ pub fn verify_dataset(dir: &Path) -> Vec<serde_json::Value> {
         let grasp = meta["grasp_id"].as_str().expect("grasp_id");
         assert!(sample.starts_with(&format!("{grasp}.v")), "{sample} is not a view of {grasp}");
         assert_eq!(meta["grasp"]["record"], format!("../{grasp}/grasp.json"), "{sample}");
+        let model = meta["object"]["model"]["file"].as_str().expect("the object's model file");
+        assert!(dir.join(sample).join(model).is_file(), "{sample}: its model {model} is in the dataset");
         assert_eq!(
             meta["grasp"]["sha256"].as_str(),
             records.get(grasp).map(String::as_str),

@@ -1,6 +1,6 @@
 //! The client API (`JobService`): submit, inspect, watch and cancel jobs; lineage and samples.
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet};
 
 use sha2::{Digest, Sha256};
 use tokio_stream::wrappers::ReceiverStream;
@@ -376,6 +376,56 @@ impl JobService for JobApi {
             .into_iter()
             .map(|(grasp_id, file)| pb::GraspRecord { grasp_id, file: Some(convert::artifact(&file)) })
             .collect();
-        Ok(Response::new(pb::ListSamplesResponse { samples, grasps }))
+        let models = self.object_models(&job_id).await?;
+        let pairs = self.pair_trials(&job_id).await?;
+        Ok(Response::new(pb::ListSamplesResponse { samples, grasps, models, pairs }))
+    }
+}
+
+impl JobApi {
+    /// One model mesh per object: the first grasp task's `object.ply` (every grasp task of an
+    /// object builds the same mesh from the same entry).
+    async fn object_models(&self, job_id: &str) -> Result<Vec<pb::ObjectModel>, Status> {
+        let made = self
+            .store
+            .stage_artifacts(job_id, vint_core::Stage::Grasp, vint_core::contract::grasp::MODEL_FILE)
+            .await
+            .map_err(status)?;
+        let mut models: BTreeMap<String, pb::ObjectModel> = BTreeMap::new();
+        for artifact in &made {
+            if let Some(chunk) = plan::GraspChunk::from_key(&artifact.task_key) {
+                models.entry(chunk.object.clone()).or_insert_with(|| pb::ObjectModel {
+                    object: chunk.object,
+                    file: Some(convert::artifact(artifact)),
+                });
+            }
+        }
+        Ok(models.into_values().collect())
+    }
+
+    /// Trials per (object, hand), summed over the pair's finished grasp tasks' results.
+    async fn pair_trials(&self, job_id: &str) -> Result<Vec<pb::PairTrials>, Status> {
+        let mut pairs: BTreeMap<(String, String), pb::PairTrials> = BTreeMap::new();
+        for task in self.store.tasks_of_job(job_id).await.map_err(status)? {
+            let (Some(chunk), Some(result)) = (plan::GraspChunk::from_key(&task.key), task.result_json.as_deref())
+            else {
+                continue;
+            };
+            let result: vint_core::contract::grasp::GraspResult = serde_json::from_str(result)
+                .map_err(|e| Status::internal(format!("task {}: unreadable grasp result: {e}", task.key)))?;
+            let pair = pairs.entry((chunk.object.clone(), chunk.hand.clone())).or_insert_with(|| pb::PairTrials {
+                object: chunk.object,
+                hand: chunk.hand,
+                ..Default::default()
+            });
+            let accepted = u32::try_from(result.accepted.len()).unwrap_or(u32::MAX);
+            pair.accepted += accepted;
+            pair.trials += accepted;
+            for (reason, n) in result.rejected {
+                pair.trials += n;
+                *pair.rejected.entry(reason).or_default() += n;
+            }
+        }
+        Ok(pairs.into_values().collect())
     }
 }

@@ -11,6 +11,7 @@ pub mod plan;
 pub mod sample;
 pub mod seed;
 pub mod spec;
+pub mod split;
 pub mod stage;
 pub mod state;
 pub mod suggest;

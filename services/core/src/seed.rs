@@ -16,6 +16,7 @@ pub enum Stream {
     RenderView,
     NoiseView,
     TaxelGain,
+    Split,
 }
 
 impl Stream {
@@ -25,6 +26,7 @@ impl Stream {
             Stream::RenderView => "render-view",
             Stream::NoiseView => "noise-view",
             Stream::TaxelGain => "taxel-gain",
+            Stream::Split => "split",
         }
     }
 }
@@ -65,6 +67,11 @@ pub fn noise_view(job_seed: u64, object: &str, hand: &str, grasp_index: u32, vie
 /// hand alone, not on the grasp.
 pub fn taxel_gains(job_seed: u64, hand: &str) -> u64 {
     derive(job_seed, Stream::TaxelGain, &[hand])
+}
+
+/// A grasp's place in the order that deals grasps into train/val/test (`split`).
+pub fn split_rank(job_seed: u64, object: &str, hand: &str, grasp_index: u32) -> u64 {
+    derive(job_seed, Stream::Split, &[object, hand, &grasp_index.to_string()])
 }
 
 #[cfg(test)]

@@ -22,6 +22,7 @@ use crate::contract::package::Modality;
 use crate::contract::render::{self as render_contract, Bounces};
 use crate::contract::{Bound, grasp, noise, object};
 use crate::plan::PairBudget;
+use crate::split::{self, SplitSettings};
 
 use crate::suggest;
 
@@ -40,6 +41,8 @@ pub struct DatasetSpec {
     pub render: RenderSettings,
     pub noise: NoiseSettings,
     pub outputs: Outputs,
+    /// `[split]`: how exports deal grasps into train/val/test.
+    pub split: SplitSettings,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -295,6 +298,9 @@ pub fn number_fields() -> Vec<NumberField> {
         pair(float("render.radius_m", render_contract::RADIUS_M)),
         pair(float("render.elevation_deg", render_contract::ELEVATION_DEG)),
         pair(float("render.roll_deg", render_contract::ROLL_DEG)),
+        float("split.train", split::TRAIN),
+        float("split.val", split::VAL),
+        float("split.test", split::TEST),
         float("noise.sigma_scale", noise::SIGMA_SCALE),
         float("noise.lateral_sigma_px", noise::LATERAL_SIGMA_PX),
         float("noise.flying_jump_m", noise::FLYING_JUMP_M),
@@ -652,13 +658,39 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
     };
     r.finish(o, "outputs", &["modalities"]);
     check_min_range(r, &render, &noise, &outputs);
+    let split = read_split(r, root, &objects, &hands);
 
     r.finish(
         std::mem::take(root),
         "",
-        &["dataset", "hands", "objects", "hand", "object", "grasp", "touch", "render", "noise", "outputs"],
+        &["dataset", "hands", "objects", "hand", "object", "grasp", "touch", "render", "noise", "outputs", "split"],
     );
-    DatasetSpec { dataset, hands, objects, hand_defs, object_defs, grasp, touch, render, noise, outputs }
+    DatasetSpec { dataset, hands, objects, hand_defs, object_defs, grasp, touch, render, noise, outputs, split }
+}
+
+/// `[split]`: fractions that sum to 1, and held-out objects and hands the spec lists.
+fn read_split(r: &mut Reader, root: &mut Table, objects: &[String], hands: &[String]) -> SplitSettings {
+    let mut t = r.section(root, "split");
+    let (train, val, test) = (
+        r.number(&mut t, "split", "train", split::TRAIN),
+        r.number(&mut t, "split", "val", split::VAL),
+        r.number(&mut t, "split", "test", split::TEST),
+    );
+    let sum = train + val + test;
+    if (sum - 1.0).abs() > split::SUM_TOLERANCE {
+        r.error("split", Value::Float(sum), "split.train + split.val + split.test must sum to 1");
+    }
+    let mut held_out = |key: &str, listed: &[String], what: &str| {
+        if !t.contains_key(key) {
+            return Vec::new();
+        }
+        let known: Vec<&str> = listed.iter().map(String::as_str).collect();
+        r.name_list(&mut t, "split", key, &[], &known, &format!("one of the spec's {what}"))
+    };
+    let held_out_objects = held_out("held_out_objects", objects, "objects");
+    let held_out_hands = held_out("held_out_hands", hands, "hands");
+    r.finish(t, "split", &["train", "val", "test", "held_out_objects", "held_out_hands"]);
+    SplitSettings { train, val, test, held_out_objects, held_out_hands }
 }
 
 /// With noisy depth requested, the nearest camera must stand within the mode's range (a nearer one

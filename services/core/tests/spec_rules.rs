@@ -498,3 +498,20 @@ fn cycles_settings_have_defaults_and_ranges() {
         "render.denoise: must be true or false, got 1",
     );
 }
+
+#[test]
+fn split_fractions_must_sum_to_one_and_held_out_names_must_be_the_specs() {
+    assert_single_error(
+        &format!("{TINY}\n[split]\ntrain = 0.7\nval = 0.2\ntest = 0.2\n"),
+        "split: split.train + split.val + split.test must sum to 1, got 1.0999999999999999",
+    );
+    assert_single_error(
+        &format!("{TINY}\n[split]\nheld_out_objects = [\"banana\"]\n"),
+        "split.held_out_objects[0]: must be one of the spec's objects, got \"banana\"",
+    );
+    let spec = DatasetSpec::parse(&format!(
+        "{TINY}\n[split]\ntrain = 0.6\nval = 0.2\ntest = 0.2\nheld_out_hands = [\"trx3\"]\n"
+    ))
+    .expect("a valid split");
+    assert_eq!((spec.split.train, spec.split.held_out_hands.as_slice()), (0.6, ["trx3".to_string()].as_slice()));
+}

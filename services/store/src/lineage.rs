@@ -148,6 +148,29 @@ impl Store {
         Ok(out)
     }
 
+    /// The artifacts named `name` that a job's `stage` tasks made, in task-key order (e.g. each
+    /// grasp task's `object.ply`).
+    pub async fn stage_artifacts(
+        &self,
+        job_id: &str,
+        stage: vint_core::Stage,
+        name: &str,
+    ) -> Result<Vec<ArtifactRecord>> {
+        sqlx::query(
+            "SELECT a.task_id, t.key, a.name, a.sha256, a.size, a.media_type, a.object_key \
+             FROM tasks t JOIN artifacts a ON a.task_id = t.id \
+             WHERE t.job_id = $1 AND t.stage = $2 AND a.name = $3 ORDER BY t.key",
+        )
+        .bind(job_id)
+        .bind(stage.as_str())
+        .bind(name)
+        .fetch_all(&self.pool)
+        .await?
+        .iter()
+        .map(artifact_from_row)
+        .collect()
+    }
+
     /// The (job, package task) that made `sample_id`: in `job_id` if given, else in the newest job
     /// that packaged it.
     pub async fn sample_package_task(&self, job_id: Option<&str>, sample_id: &str) -> Result<Option<(String, String)>> {

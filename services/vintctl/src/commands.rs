@@ -13,6 +13,7 @@ use vint_proto::v1::get_lineage_request::Subject;
 
 use crate::client::Coordinator;
 use crate::estimate::Estimate;
+use crate::formats::Target;
 use crate::report::{self, JsonProgress, ProgressView};
 use crate::spec_file::load_spec;
 use crate::{CliResult, Failure, bad_input, export};
@@ -114,7 +115,14 @@ pub async fn lineage(url: &str, subject: &str, job: Option<String>, artifact: bo
 
 /// Writes a finished job's packaged samples to `out`. A running job is refused (its dataset is
 /// not there yet); a failed or cancelled one exports what it packaged and says what is missing.
-pub async fn export(url: &str, job_id: &str, out: &Path, store: Option<String>, json: bool) -> CliResult {
+pub async fn export(
+    url: &str,
+    job_id: &str,
+    out: &Path,
+    target: Target,
+    store: Option<String>,
+    json: bool,
+) -> CliResult {
     let mut coordinator = Coordinator::connect(url).await?;
     let job = coordinator.job(job_id).await?;
     let p = job.progress.clone().unwrap_or_default();
@@ -128,11 +136,15 @@ pub async fn export(url: &str, job_id: &str, out: &Path, store: Option<String>, 
             p.samples_packaged
         )));
     }
+    let spec = vint_core::DatasetSpec::parse(&job.spec_toml).map_err(|e| {
+        anyhow!("job {job_id}: its spec no longer parses ({e}); export it with the vintctl that ran it")
+    })?;
     let store = artifact_store(&mut coordinator, store).await?;
     let listed = coordinator.samples(job_id).await?;
-    let summary = export::export(&store, job_id, &listed, out).await?;
+    let info = export::DatasetInfo { name: &spec.dataset.name, seed: spec.dataset.seed, split: &spec.split };
+    let summary = export::export(&store, job_id, &info, &listed, out, target).await?;
     // The spec's upper bound (every trial accepted): what a failed job could have had.
-    let planned = vint_core::DatasetSpec::parse(&job.spec_toml).ok().map(|spec| spec.max_samples());
+    let planned = Some(spec.max_samples());
     if json {
         let mut doc = report::export_json(&summary);
         doc["job_state"] = json!(job.state);
@@ -149,6 +161,20 @@ pub async fn export(url: &str, job_id: &str, out: &Path, store: Option<String>, 
              (`vintctl status {job_id}` says why)",
             job.state, summary.samples, p.tasks_failed
         );
+    }
+    Ok(())
+}
+
+/// `vintctl convert`: a native dataset directory to another layout.
+pub fn convert(dataset: &Path, out: &Path, target: Target, json: bool) -> CliResult {
+    if target.format == crate::formats::Format::Native {
+        return Err(bad_input(anyhow!("--format native: the dataset is native already; choose bop or webdataset")));
+    }
+    let summary = export::convert_dir(dataset, out, target)?;
+    if json {
+        report::print_json(&report::export_json(&summary));
+    } else {
+        report::export_text(&summary);
     }
     Ok(())
 }

@@ -18,6 +18,7 @@ use vint_proto::v1 as pb;
 use vint_store::{RetryPolicy, Store};
 
 use crate::client::Coordinator;
+use crate::formats::Target;
 use crate::report::{self, JsonProgress, ProgressView};
 use crate::spec_file::{LoadedSpec, load_spec};
 use crate::{CliResult, Failure, bad_input, commands, export};
@@ -25,8 +26,9 @@ use crate::{CliResult, Failure, bad_input, commands, export};
 /// Lease used by local workers: short, so a crashed worker's task is retried within seconds.
 const LOCAL_LEASE_MS: u32 = 10_000;
 
-pub async fn run(spec_path: &Path, out: &Path, state: &Path, workers: u32, json: bool) -> CliResult {
+pub async fn run(spec_path: &Path, out: &Path, target: Target, state: &Path, workers: u32, json: bool) -> CliResult {
     let LoadedSpec { text, spec, assets } = load_spec(spec_path)?;
+    export::check_destination(out)?;
     if workers == 0 || workers > 64 {
         return Err(bad_input(anyhow!("--workers: must be 1..=64, got {workers}")));
     }
@@ -73,7 +75,8 @@ pub async fn run(spec_path: &Path, out: &Path, state: &Path, workers: u32, json:
         pool.stop().await;
         let last = followed?;
         let listed = coordinator.samples(&job.job_id).await?;
-        let summary = export::export(&artifacts, &job.job_id, &listed, out).await?;
+        let info = export::DatasetInfo { name: &spec.dataset.name, seed: spec.dataset.seed, split: &spec.split };
+        let summary = export::export(&artifacts, &job.job_id, &info, &listed, out, target).await?;
         let outcome = commands::job_outcome(&last);
         if !json {
             report::export_text(&summary);

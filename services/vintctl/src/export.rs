@@ -1,7 +1,10 @@
-//! Writing a job's packaged samples to a directory: one directory per sample, one per grasp
-//! record its samples share (`<grasp_id>/grasp.json`), and a `manifest.jsonl` listing every file
-//! with its SHA-256: a line `{"grasp_id", "files"}` per grasp record and `{"sample_id", "files"}`
-//! per sample, in id order (a grasp's line comes just before its samples').
+//! Writing a job's packaged samples to a directory in the native layout: one directory per
+//! sample, one per grasp record its samples share (`<grasp_id>/grasp.json`), each object's model
+//! once (`models/<object>.ply`), the dataset's own record (`dataset.json`: objects with their BOP
+//! ids, trials per pair, the split) and a `manifest.jsonl` listing every file with its SHA-256: a
+//! line `{"dataset", "files"}`, then `{"model", "files"}` per object, then `{"grasp_id", "files"}`
+//! per grasp record and `{"sample_id", "files"}` per sample in id order (a grasp's line comes just
+//! before its samples'). The other formats (`formats`) are converted from this layout.
 //!
 //! The dataset is assembled in a sibling temporary directory and renamed into place, so a reader
 //! never sees half a dataset. Every file is verified against its hash as it is read from storage.
@@ -12,16 +15,35 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, anyhow};
 use serde::Serialize;
+use serde_json::{Value, json};
 use sha2::{Digest, Sha256};
 use vint_artifacts::ArtifactStore;
+use vint_core::contract::package::{GRASP_RECORD_FILE, model_path};
+use vint_core::split::{self, SplitSettings};
+use vint_core::{GraspId, catalog};
 use vint_proto::v1 as pb;
 
+use crate::formats::{self, Format, Target};
 use crate::{Failure, bad_input};
+
+/// The dataset's own record, at its root.
+pub const DATASET_FILE: &str = "dataset.json";
+/// BOP object ids of objects that are not in the catalog start here (catalog objects keep their
+/// catalog position, so the 21 YCB-Video objects have BOP's ycbv ids 1–21).
+const USER_OBJECT_IDS: u32 = 1001;
+
+/// What the export needs to know of the job besides its samples: the seed and how to split.
+pub struct DatasetInfo<'a> {
+    pub name: &'a str,
+    pub seed: u64,
+    pub split: &'a SplitSettings,
+}
 
 #[derive(Debug, Serialize)]
 pub struct ExportSummary {
     pub job_id: String,
     pub out: PathBuf,
+    pub format: &'static str,
     pub samples: usize,
     pub files: usize,
     pub bytes: u64,
@@ -31,6 +53,10 @@ pub struct ExportSummary {
 
 #[derive(Serialize)]
 struct ManifestLine<'a> {
+    #[serde(skip_serializing_if = "Option::is_none")]
+    dataset: Option<&'a str>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    model: Option<&'a str>,
     #[serde(skip_serializing_if = "Option::is_none")]
     grasp_id: Option<&'a str>,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -45,46 +71,104 @@ struct ManifestFile<'a> {
     media_type: &'a str,
 }
 
-/// Writes the samples the coordinator `listed` for job `job_id`, read from `store`, to `out`
-/// (replacing an earlier dataset there, never anything else).
+/// Writes the samples the coordinator `listed` for job `job_id`, read from `store`, to `out` in
+/// `format` (replacing an earlier dataset there, never anything else).
 pub async fn export(
     store: &ArtifactStore,
     job_id: &str,
+    info: &DatasetInfo<'_>,
     listed: &pb::ListSamplesResponse,
     out: &Path,
+    target: Target,
 ) -> Result<ExportSummary, Failure> {
     check_destination(out)?;
-    let samples = &listed.samples;
+    let native = staging_dir(out, "native")?;
+    let written = write_dataset(store, info, listed, &native).await;
+    let (files, bytes, manifest) = match written {
+        Ok(w) => w,
+        Err(e) => {
+            let _ = std::fs::remove_dir_all(&native);
+            return Err(e);
+        }
+    };
+    let samples = listed.samples.len();
+    if target.format == Format::Native {
+        replace_with(&native, out)?;
+        return Ok(ExportSummary {
+            job_id: job_id.to_string(),
+            out: out.to_path_buf(),
+            format: target.format.as_str(),
+            samples,
+            files,
+            bytes,
+            manifest_sha256: hex::encode(Sha256::digest(&manifest)),
+        });
+    }
+    let converted = convert_dir(&native, out, target);
+    let _ = std::fs::remove_dir_all(&native);
+    let mut summary = converted?;
+    summary.job_id = job_id.to_string();
+    Ok(summary)
+}
+
+/// Converts the native dataset at `native` into `format` at `out` (replacing an earlier dataset
+/// there, never anything else): `vintctl convert`, and the last step of a non-native export.
+pub fn convert_dir(native: &Path, out: &Path, target: Target) -> Result<ExportSummary, Failure> {
+    let format = target.format;
+    check_destination(out)?;
+    if !native.join(DATASET_FILE).is_file() {
+        return Err(bad_input(anyhow!(
+            "{}: not a vint dataset in the native layout (no {DATASET_FILE}; `vintctl run` and `vintctl \
+             export` write one)",
+            native.display()
+        )));
+    }
+    let staging = staging_dir(out, format.as_str())?;
+    let converted = formats::convert(target, native, &staging).and_then(|c| {
+        let manifest = formats::write_manifest(&staging)?;
+        Ok((c, manifest))
+    });
+    let (converted, manifest) = match converted {
+        Ok(c) => c,
+        Err(e) => {
+            let _ = std::fs::remove_dir_all(&staging);
+            return Err(e.context(format!("writing the {} dataset", format.as_str())).into());
+        }
+    };
+    replace_with(&staging, out)?;
+    Ok(ExportSummary {
+        job_id: String::new(),
+        out: out.to_path_buf(),
+        format: format.as_str(),
+        samples: converted.samples,
+        files: converted.files,
+        bytes: converted.bytes,
+        manifest_sha256: hex::encode(Sha256::digest(&manifest)),
+    })
+}
+
+/// A fresh sibling of `out` to assemble a dataset in, so that a reader never sees half of one.
+fn staging_dir(out: &Path, what: &str) -> Result<PathBuf, Failure> {
     let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
     let staging = parent.join(format!(
-        ".{}.partial-{}",
+        ".{}.partial-{what}-{}",
         out.file_name().and_then(|n| n.to_str()).unwrap_or("dataset"),
         std::process::id()
     ));
     if staging.exists() {
         std::fs::remove_dir_all(&staging).with_context(|| format!("removing stale {}", staging.display()))?;
     }
-    let written = write_dataset(store, samples, &listed.grasps, &staging).await;
-    let (files, bytes, manifest) = match written {
-        Ok(w) => w,
-        Err(e) => {
-            let _ = std::fs::remove_dir_all(&staging);
-            return Err(e);
-        }
-    };
+    Ok(staging)
+}
+
+/// Moves the finished dataset at `staging` to `out`, replacing what was there.
+fn replace_with(staging: &Path, out: &Path) -> Result<(), Failure> {
     if out.exists() {
         std::fs::remove_dir_all(out).with_context(|| format!("replacing {}", out.display()))?;
     }
-    std::fs::rename(&staging, out).with_context(|| format!("moving the dataset into {}", out.display()))?;
-    Ok(ExportSummary {
-        job_id: job_id.to_string(),
-        out: out.to_path_buf(),
-        samples: samples.len(),
-        files,
-        bytes,
-        manifest_sha256: hex::encode(Sha256::digest(&manifest)),
-    })
+    std::fs::rename(staging, out).with_context(|| format!("moving the dataset into {}", out.display()))?;
+    Ok(())
 }
 
 /// Refuses to replace a non-empty directory that is not a vint dataset.
@@ -105,52 +189,172 @@ pub fn check_destination(out: &Path) -> Result<(), Failure> {
     Ok(())
 }
 
-/// A directory of the dataset: a grasp record's or a sample's, with its files.
+/// What a manifest line lists: an object's model, a grasp record's or a sample's directory.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum EntryKind {
+    Model,
+    Grasp,
+    Sample,
+}
+
+/// A directory of the dataset and its files, under their names there.
 struct Entry<'a> {
     id: &'a str,
-    is_grasp: bool,
-    files: Vec<&'a pb::ArtifactRef>,
+    kind: EntryKind,
+    files: Vec<(String, &'a pb::ArtifactRef)>,
+}
+
+impl Entry<'_> {
+    fn dir(&self) -> &str {
+        if self.kind == EntryKind::Model { "models" } else { self.id }
+    }
 }
 
 async fn write_dataset(
     store: &ArtifactStore,
-    samples: &[pb::Sample],
-    grasps: &[pb::GraspRecord],
+    info: &DatasetInfo<'_>,
+    listed: &pb::ListSamplesResponse,
     dir: &Path,
 ) -> Result<(usize, u64, Vec<u8>), Failure> {
-    let mut entries: Vec<Entry> = Vec::with_capacity(samples.len() + grasps.len());
-    for g in grasps {
-        if g.grasp_id.parse::<vint_core::GraspId>().is_err() {
-            return Err(anyhow!("coordinator returned a malformed grasp id {:?}", g.grasp_id).into());
-        }
-        entries.push(Entry { id: &g.grasp_id, is_grasp: true, files: g.file.iter().collect() });
+    let mut entries: Vec<Entry> = Vec::with_capacity(listed.samples.len() + listed.grasps.len() + listed.models.len());
+    let mut grasp_ids = Vec::with_capacity(listed.grasps.len());
+    for g in &listed.grasps {
+        let id: GraspId =
+            g.grasp_id.parse().map_err(|_| anyhow!("coordinator returned a malformed grasp id {:?}", g.grasp_id))?;
+        grasp_ids.push(id);
+        let files = g.file.iter().map(|f| (f.name.clone(), f)).collect();
+        entries.push(Entry { id: &g.grasp_id, kind: EntryKind::Grasp, files });
     }
-    for s in samples {
+    for s in &listed.samples {
         if s.sample_id.parse::<vint_core::SampleId>().is_err() {
             return Err(anyhow!("coordinator returned a malformed sample id {:?}", s.sample_id).into());
         }
-        entries.push(Entry { id: &s.sample_id, is_grasp: false, files: s.files.iter().collect() });
+        let files = s.files.iter().map(|f| (f.name.clone(), f)).collect();
+        entries.push(Entry { id: &s.sample_id, kind: EntryKind::Sample, files });
     }
     entries.sort_by(|a, b| a.id.cmp(b.id));
-    let mut manifest = Vec::new();
+    let mut models: Vec<Entry> = Vec::new();
+    for m in &listed.models {
+        let Some(file) = &m.file else { continue };
+        let name = model_path(&m.object);
+        let name = name.trim_start_matches("models/").to_string();
+        models.push(Entry { id: &m.object, kind: EntryKind::Model, files: vec![(name, file)] });
+    }
+    models.sort_by(|a, b| a.id.cmp(b.id));
+    let mut lines = Vec::new();
     let (mut files, mut bytes) = (0usize, 0u64);
-    for entry in &entries {
-        let (grasp_id, sample_id) = if entry.is_grasp { (Some(entry.id), None) } else { (None, Some(entry.id)) };
-        let mut line = ManifestLine { grasp_id, sample_id, files: BTreeMap::new() };
-        for f in &entry.files {
-            if f.name.contains('/') || f.name.starts_with('.') {
-                return Err(anyhow!("{}: refusing file name {:?}", entry.id, f.name).into());
+    for entry in models.iter().chain(&entries) {
+        let id = Some(entry.id);
+        let mut line = ManifestLine {
+            dataset: None,
+            model: id.filter(|_| entry.kind == EntryKind::Model),
+            grasp_id: id.filter(|_| entry.kind == EntryKind::Grasp),
+            sample_id: id.filter(|_| entry.kind == EntryKind::Sample),
+            files: BTreeMap::new(),
+        };
+        for (name, f) in &entry.files {
+            if name.contains('/') || name.starts_with('.') {
+                return Err(anyhow!("{}: refusing file name {:?}", entry.id, name).into());
             }
-            let path = dir.join(entry.id).join(&f.name);
-            store.get_to_file(&f.sha256, &path).await.with_context(|| format!("{}: fetching {}", entry.id, f.name))?;
+            let path = dir.join(entry.dir()).join(name);
+            store.get_to_file(&f.sha256, &path).await.with_context(|| format!("{}: fetching {}", entry.id, name))?;
             files += 1;
             bytes += f.size;
-            line.files.insert(&f.name, ManifestFile { sha256: &f.sha256, size: f.size, media_type: &f.media_type });
+            line.files.insert(name, ManifestFile { sha256: &f.sha256, size: f.size, media_type: &f.media_type });
         }
-        serde_json::to_writer(&mut manifest, &line).context("encoding manifest")?;
-        manifest.push(b'\n');
+        serde_json::to_writer(&mut lines, &line).context("encoding manifest")?;
+        lines.push(b'\n');
     }
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let record = dataset_record(info, listed, &grasp_ids, dir)?;
+    let record = serde_json::to_vec_pretty(&record).context("encoding dataset.json")?;
+    std::fs::write(dir.join(DATASET_FILE), &record).context("writing dataset.json")?;
+    let sha = hex::encode(Sha256::digest(&record));
+    let size = record.len() as u64;
+    let mut head =
+        ManifestLine { dataset: Some(info.name), model: None, grasp_id: None, sample_id: None, files: BTreeMap::new() };
+    head.files.insert(DATASET_FILE, ManifestFile { sha256: &sha, size, media_type: "application/json" });
+    let mut manifest = serde_json::to_vec(&head).context("encoding manifest")?;
+    manifest.push(b'\n');
+    manifest.extend_from_slice(&lines);
     std::fs::write(dir.join("manifest.jsonl"), &manifest).context("writing manifest.jsonl")?;
-    Ok((files, bytes, manifest))
+    Ok((files + 1, bytes + size, manifest))
+}
+
+/// `dataset.json`: the objects with their BOP ids and model facts, the trials per pair, and each
+/// grasp's split. Everything in it derives from the job's content (no ids of runs or times), so
+/// equal jobs write equal records.
+fn dataset_record(
+    info: &DatasetInfo<'_>,
+    listed: &pb::ListSamplesResponse,
+    grasps: &[GraspId],
+    dir: &Path,
+) -> Result<Value, Failure> {
+    let mut objects = Vec::new();
+    let mut user_objects: Vec<&str> = listed
+        .models
+        .iter()
+        .map(|m| m.object.as_str())
+        .filter(|o| catalog::objects().iter().all(|c| c.name != *o))
+        .collect();
+    user_objects.sort_unstable();
+    for m in &listed.models {
+        let obj_id = match catalog::objects().iter().position(|c| c.name == m.object) {
+            Some(i) => u32::try_from(i + 1).unwrap_or(u32::MAX),
+            None => {
+                USER_OBJECT_IDS
+                    + u32::try_from(user_objects.iter().position(|o| *o == m.object).unwrap_or(0)).unwrap_or(0)
+            }
+        };
+        let record = object_record(grasps, &m.object, dir)?;
+        let model = &record["model"];
+        // Micrometre resolution: the record's metres have nine decimals, and ×1000 adds float noise.
+        let mm = |v: &Value| v.as_f64().map(|m| (m * 1e9).round() / 1e6);
+        objects.push(json!({
+            "name": m.object,
+            "obj_id": obj_id,
+            "ycb_id": record["ycb_id"],
+            "model": model_path(&m.object),
+            "units": "mm",
+            "diameter_mm": mm(&model["diameter_m"]),
+            "extent_mm": model["extent_m"].as_array().map(|e| e.iter().map(mm).collect::<Vec<_>>()),
+            "symmetries_continuous": record["symmetries_continuous"],
+            "symmetries_discrete": record["symmetries_discrete"],
+        }));
+    }
+    objects.sort_by_key(|o| o["obj_id"].as_u64());
+    let pairs: Vec<Value> = listed
+        .pairs
+        .iter()
+        .map(|p| json!({"object": p.object, "hand": p.hand, "trials": p.trials, "accepted": p.accepted, "rejected": p.rejected}))
+        .collect();
+    let assigned = split::assign(grasps, info.seed, info.split);
+    let by_grasp: BTreeMap<String, &str> = assigned.iter().map(|(g, s)| (g.to_string(), s.as_str())).collect();
+    Ok(json!({
+        "format": "vint-native",
+        "version": 1,
+        "name": info.name,
+        "seed": info.seed,
+        "objects": objects,
+        "pairs": pairs,
+        "split": {
+            "seed": info.seed,
+            "fractions": {"train": info.split.train, "val": info.split.val, "test": info.split.test},
+            "held_out_objects": info.split.held_out_objects,
+            "held_out_hands": info.split.held_out_hands,
+            "grasps": by_grasp,
+        },
+    }))
+}
+
+/// The object's record as a grasp of it holds it (symmetries, model facts); null fields when the
+/// job packaged no grasp of it.
+fn object_record(grasps: &[GraspId], object: &str, dir: &Path) -> Result<Value, Failure> {
+    let Some(grasp) = grasps.iter().find(|g| g.object == object) else {
+        return Ok(Value::Null);
+    };
+    let path = dir.join(grasp.to_string()).join(GRASP_RECORD_FILE);
+    let text = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
+    let record: Value = serde_json::from_slice(&text).with_context(|| format!("parsing {}", path.display()))?;
+    Ok(record["object"].clone())
 }

@@ -13,6 +13,7 @@ mod embedded;
 mod estimate;
 mod export;
 mod failure;
+mod formats;
 mod report;
 mod spec_file;
 mod study;
@@ -72,6 +73,8 @@ enum Command {
         /// Worker processes to start.
         #[arg(long, default_value_t = 2)]
         workers: u32,
+        #[command(flatten)]
+        format: FormatArgs,
     },
     /// Submit a spec to a coordinator and print the job id.
     Submit {
@@ -125,6 +128,19 @@ enum Command {
         /// coordinator's own --store.
         #[arg(long, env = "VINT_STORE")]
         store: Option<String>,
+        #[command(flatten)]
+        format: FormatArgs,
+    },
+    /// Convert a dataset in the native layout (what `run` and `export` write by default) to BOP's
+    /// layout or WebDataset shards.
+    Convert {
+        /// The native dataset directory (with dataset.json and manifest.jsonl).
+        dataset: PathBuf,
+        /// Where the converted dataset and its manifest.jsonl are written.
+        #[arg(long)]
+        out: PathBuf,
+        #[command(flatten)]
+        format: FormatArgs,
     },
     /// Accuracy-versus-cost studies: run the same work at several settings against a fine
     /// reference and write CSV, a log-log plot and a markdown table.
@@ -150,6 +166,27 @@ enum Command {
     Hands,
     /// List the built-in objects: mass, material, texture and symmetries (`--json`: in BOP's form).
     Objects,
+}
+
+/// The dataset layout an export writes (`docs/formats.md`).
+#[derive(clap::Args)]
+struct FormatArgs {
+    /// Layout of the dataset: native (a directory per sample and per grasp), bop (the BOP
+    /// toolkit's layout, one scene per grasp) or webdataset (tar shards).
+    #[arg(long, value_enum, default_value = "native")]
+    format: formats::Format,
+    /// Samples per WebDataset shard (at most).
+    #[arg(long, default_value_t = formats::SHARD_SAMPLES, value_parser = clap::value_parser!(u64).range(1..))]
+    shard_samples: u64,
+}
+
+impl FormatArgs {
+    fn target(&self) -> formats::Target {
+        formats::Target {
+            format: self.format,
+            shard_samples: usize::try_from(self.shard_samples).unwrap_or(usize::MAX),
+        }
+    }
 }
 
 fn main() -> ExitCode {
@@ -198,7 +235,9 @@ fn getting_started(json: bool) -> ExitCode {
 async fn dispatch(command: Command, json: bool, coordinator: &str) -> CliResult {
     match command {
         Command::Validate { spec } => commands::validate(&spec, json),
-        Command::Run { spec, out, state, workers } => embedded::run(&spec, &out, &state, workers, json).await,
+        Command::Run { spec, out, state, workers, format } => {
+            embedded::run(&spec, &out, format.target(), &state, workers, json).await
+        }
         Command::Submit { spec, idempotency_key } => commands::submit(coordinator, &spec, idempotency_key, json).await,
         Command::Status { job } => commands::status(coordinator, &job, json).await,
         Command::Watch { job } => commands::watch(coordinator, &job, json).await,
@@ -207,7 +246,10 @@ async fn dispatch(command: Command, json: bool, coordinator: &str) -> CliResult 
         Command::Lineage { subject, job, artifact } => {
             commands::lineage(coordinator, &subject, job, artifact, json).await
         }
-        Command::Export { job, out, store } => commands::export(coordinator, &job, &out, store, json).await,
+        Command::Export { job, out, store, format } => {
+            commands::export(coordinator, &job, &out, format.target(), store, json).await
+        }
+        Command::Convert { dataset, out, format } => commands::convert(&dataset, &out, format.target(), json),
         Command::Study { subject, out, quick, extra } => study::run(&subject, &out, quick, &extra).await,
         Command::Diff(args) => diff::run(&args, json),
         Command::Hands => {

@@ -342,8 +342,9 @@ pub fn export_json(s: &ExportSummary) -> Value {
 /// What an export wrote (text); `--json` callers print `export_json` inside their own report.
 pub fn export_text(s: &ExportSummary) {
     println!(
-        "wrote {} samples ({} files, {} bytes) to {}\nmanifest.jsonl sha256 {}",
+        "wrote {} samples ({} layout: {} files, {} bytes) to {}\nmanifest.jsonl sha256 {}",
         s.samples,
+        s.format,
         s.files,
         s.bytes,
         s.out.display(),

@@ -14,7 +14,7 @@ use serde_json::{Value, json};
 use vint_artifacts::ArtifactStore;
 use vint_core::contract::grasp::{GRASPS_FILE, TOUCH_FILE};
 use vint_core::contract::noise::noisy_depth_file;
-use vint_core::contract::package::{GRASP_RECORD_FILE, META_FILE, PackageResult, Params, Source};
+use vint_core::contract::package::{GRASP_RECORD_FILE, META_FILE, PackageResult, Params, Source, model_path};
 use vint_core::contract::render::ViewFile;
 use vint_core::plan::{GraspChunk, noise_key, render_key};
 use vint_core::{GraspId, SampleId};
@@ -204,7 +204,7 @@ fn grasp_record(grasp: &GraspId, grasps: &Value, touch: &Value) -> Result<Value,
     }
     Ok(json!({
         "grasp_id": name,
-        "object": grasps["object"],
+        "object": with_model_path(&grasps["object"]),
         "hand": grasps["hand"],
         "grasp_index": grasp.grasp_index,
         "trial": trial_fields,
@@ -219,6 +219,19 @@ fn grasp_record(grasp: &GraspId, grasps: &Value, touch: &Value) -> Result<Value,
                       of hand.taxels' layout; touch.contact_samples: the contacts whose forces were averaged",
         },
     }))
+}
+
+/// The object record with its model's file named as the dataset keeps it (`../models/<name>.ply`
+/// from a grasp's or a sample's directory), not as the grasp task wrote it next to grasps.json.
+fn with_model_path(object: &Value) -> Value {
+    let mut object = object.clone();
+    let file = object["name"].as_str().map(|name| format!("../{}", model_path(name)));
+    if let Some(file) = file
+        && let Some(model) = object.get_mut("model").and_then(Value::as_object_mut)
+    {
+        model.insert("file".into(), json!(file));
+    }
+    object
 }
 
 /// A sample's metadata: its view — camera, visibility, the object's and hand's poses — and a
@@ -237,7 +250,7 @@ fn sample_meta(id: &SampleId, grasps: &Value, camera: &Value, record_sha256: &st
             "texture": object["texture"],
             "symmetries_continuous": object["symmetries_continuous"],
             "symmetries_discrete": object["symmetries_discrete"],
-            "model": object["model"],
+            "model": with_model_path(object)["model"],
         },
         "hand": grasps["hand"]["name"],
         "grasp_index": id.grasp_index,

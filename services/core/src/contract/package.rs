@@ -16,6 +16,12 @@ pub const META_FILE: &str = "meta.json";
 /// A grasp's record, shared by the samples of its views.
 pub const GRASP_RECORD_FILE: &str = "grasp.json";
 
+/// Where an exported dataset keeps an object's model mesh (binary PLY, millimetres, object frame),
+/// relative to its root: once per object, not once per grasp.
+pub fn model_path(object: &str) -> String {
+    format!("models/{object}.ply")
+}
+
 /// What a dataset spec can ask for.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "snake_case")]

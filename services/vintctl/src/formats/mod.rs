@@ -1,0 +1,119 @@
+//! The dataset formats an export can write. The native layout (`export`) is the source; the
+//! others are converted from a native directory: BOP's layout (`bop`), for the BOP toolkit and the
+//! pose-estimation loaders built on it, and WebDataset tar shards (`webdataset`), for streaming
+//! training. A converter reads only the native directory and writes only its output directory;
+//! the caller stages, writes the output's `manifest.jsonl` (`write_manifest`) and renames it into
+//! place.
+
+pub mod bop;
+pub mod webdataset;
+
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use serde::Serialize;
+use sha2::{Digest, Sha256};
+
+/// `--format`: which layout a dataset is written in.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Format {
+    /// One directory per sample and per grasp, models/, dataset.json, manifest.jsonl.
+    Native,
+    /// The BOP toolkit's layout: models/ in mm, one scene per grasp per split.
+    Bop,
+    /// WebDataset tar shards per split, one sample per key.
+    Webdataset,
+}
+
+impl Format {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Format::Native => "native",
+            Format::Bop => "bop",
+            Format::Webdataset => "webdataset",
+        }
+    }
+}
+
+/// Samples shards hold at most, by default (`--shard-samples`).
+pub const SHARD_SAMPLES: u64 = 1000;
+
+/// Where a dataset goes: its format and, for shards, how many samples each holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Target {
+    pub format: Format,
+    pub shard_samples: usize,
+}
+
+/// What a conversion wrote.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Converted {
+    pub samples: usize,
+    pub files: usize,
+    pub bytes: u64,
+}
+
+/// Converts the native dataset at `native` into `format` in the empty directory `out`.
+pub fn convert(target: Target, native: &Path, out: &Path) -> anyhow::Result<Converted> {
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    match target.format {
+        Format::Native => anyhow::bail!("a native dataset is exported, not converted"),
+        Format::Bop => bop::write(native, out),
+        Format::Webdataset => webdataset::write(native, out, target.shard_samples),
+    }
+}
+
+#[derive(Serialize)]
+struct ManifestLine<'a> {
+    path: &'a str,
+    sha256: String,
+    size: u64,
+}
+
+/// Writes `dir/manifest.jsonl`: a line `{"path", "sha256", "size"}` for every file under `dir`, in
+/// path order; returns its bytes (equal outputs have equal manifests).
+pub fn write_manifest(dir: &Path) -> anyhow::Result<Vec<u8>> {
+    let mut paths = Vec::new();
+    collect_files(dir, &mut paths)?;
+    let mut rel: Vec<(String, PathBuf)> = paths
+        .into_iter()
+        .filter_map(|p| {
+            let r = p.strip_prefix(dir).ok()?.to_str()?.replace('\\', "/");
+            Some((r, p))
+        })
+        .collect();
+    rel.sort();
+    let mut manifest = Vec::new();
+    let mut buf = vec![0u8; 1 << 16];
+    for (path, full) in &rel {
+        let mut file = std::fs::File::open(full).with_context(|| format!("reading {}", full.display()))?;
+        let (mut hash, mut size) = (Sha256::new(), 0u64);
+        loop {
+            let n = file.read(&mut buf).with_context(|| format!("reading {}", full.display()))?;
+            if n == 0 {
+                break;
+            }
+            hash.update(&buf[..n]);
+            size += n as u64;
+        }
+        let line = ManifestLine { path, sha256: hex::encode(hash.finalize()), size };
+        serde_json::to_writer(&mut manifest, &line)?;
+        manifest.push(b'\n');
+    }
+    std::fs::write(dir.join("manifest.jsonl"), &manifest).context("writing manifest.jsonl")?;
+    Ok(manifest)
+}
+
+fn collect_files(dir: &Path, out: &mut Vec<PathBuf>) -> anyhow::Result<()> {
+    for entry in std::fs::read_dir(dir).with_context(|| format!("listing {}", dir.display()))? {
+        let entry = entry?;
+        let path = entry.path();
+        if entry.file_type()?.is_dir() {
+            collect_files(&path, out)?;
+        } else {
+            out.push(path);
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,106 @@
+//! The dataset formats end to end: examples/tiny.toml is run once per test process in the native
+//! layout, converted to BOP's layout and to WebDataset shards with `vintctl convert`, and each
+//! module checks one format or one consumer of them (an independent re-projection of the BOP
+//! export, the PyTorch loader example, `vintctl eval`, `vintctl stats`).
+
+mod bop;
+mod eval;
+mod stats;
+mod webdataset;
+
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use vint_tests::{stdout, vintctl};
+
+struct Fixture {
+    _dir: tempfile::TempDir,
+    native: PathBuf,
+}
+
+fn fixture() -> &'static Fixture {
+    static FIXTURE: OnceLock<Fixture> = OnceLock::new();
+    FIXTURE.get_or_init(|| {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let out = vint_tests::run_tiny(dir.path(), 2);
+        assert!(out.status.success(), "tiny run failed:\n{}\n{}", stdout(&out), String::from_utf8_lossy(&out.stderr));
+        let native = dir.path().join("out");
+        Fixture { _dir: dir, native }
+    })
+}
+
+/// The tiny dataset in the native layout.
+pub fn tiny() -> &'static Path {
+    &fixture().native
+}
+
+fn converted(format: &str, cell: &'static OnceLock<PathBuf>) -> &'static Path {
+    cell.get_or_init(|| {
+        let out = tiny().with_file_name(format!("out-{format}"));
+        let args = ["convert", path_str(tiny()), "--out", path_str(&out), "--format", format, "--json"];
+        let run = vintctl(&args);
+        assert!(
+            run.status.success(),
+            "vintctl convert --format {format} failed:\n{}\n{}",
+            stdout(&run),
+            String::from_utf8_lossy(&run.stderr)
+        );
+        out
+    })
+}
+
+/// The tiny dataset in BOP's layout.
+pub fn bop() -> &'static Path {
+    static BOP: OnceLock<PathBuf> = OnceLock::new();
+    converted("bop", &BOP)
+}
+
+/// The tiny dataset as WebDataset shards (the default shard size).
+pub fn webdataset() -> &'static Path {
+    static WDS: OnceLock<PathBuf> = OnceLock::new();
+    converted("webdataset", &WDS)
+}
+
+pub fn path_str(p: &Path) -> &str {
+    p.to_str().expect("test paths are UTF-8")
+}
+
+/// The native export has each object's model once and a dataset record whose split covers every
+/// grasp, views of one grasp never apart.
+#[test]
+fn native_export_has_models_and_a_split_of_every_grasp() {
+    let dir = tiny();
+    vint_tests::verify_dataset(dir);
+    let record: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("dataset.json")).expect("dataset.json")).expect("json");
+    let objects = record["objects"].as_array().expect("objects");
+    assert_eq!(objects.len(), 3, "tiny has three objects");
+    for o in objects {
+        let model = dir.join(o["model"].as_str().expect("model path"));
+        assert!(model.is_file(), "{}", model.display());
+        assert!(o["obj_id"].as_u64().is_some_and(|id| (1..=26).contains(&id)), "{o}");
+        assert!(o["diameter_mm"].as_f64().is_some_and(|d| d > 50.0 && d < 400.0), "{o}");
+    }
+    let grasps: Vec<String> = std::fs::read_dir(dir)
+        .expect("dataset dir")
+        .filter_map(|e| e.ok()?.file_name().into_string().ok())
+        .filter(|n| n.parse::<vint_core::GraspId>().is_ok())
+        .collect();
+    let split = record["split"]["grasps"].as_object().expect("split.grasps");
+    assert_eq!(split.len(), grasps.len(), "every grasp has a split");
+    let mut tally = std::collections::BTreeMap::new();
+    for g in &grasps {
+        *tally.entry(split[g].as_str().expect("split name")).or_insert(0) += 1;
+    }
+    let n = grasps.len();
+    assert_eq!(tally.values().sum::<usize>(), n);
+    assert!(tally.get("train").copied().unwrap_or(0) >= n * 7 / 10, "{tally:?}");
+    let pairs = record["pairs"].as_array().expect("pairs");
+    assert_eq!(pairs.len(), 6, "2 hands × 3 objects");
+    let accepted: u64 = pairs.iter().map(|p| p["accepted"].as_u64().expect("accepted")).sum();
+    assert_eq!(accepted as usize, n, "accepted trials are the grasps packaged");
+    for p in pairs {
+        let rejected: u64 = p["rejected"].as_object().expect("rejected").values().filter_map(|v| v.as_u64()).sum();
+        assert_eq!(p["trials"].as_u64(), Some(p["accepted"].as_u64().unwrap_or(0) + rejected), "{p}");
+    }
+}
