@@ -16,6 +16,7 @@ from vint_engines.study.icp import Surface, nearest
 
 Array = npt.NDArray[np.float64]
 
+SCORER = "the study's own ADD/ADD-S (`study/pose_scores.py`)"
 AUC_MAX_MM = 100.0  # the accuracy–threshold curve runs from 0 to 10 cm (PoseCNN)
 
 
