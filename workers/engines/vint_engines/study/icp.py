@@ -130,8 +130,8 @@ def icp(
     scale = max(surface.radius_mm, 1e-9)
     if len(points) < 3:
         return IcpResult(
-            R=A.T,
-            t=-A.T @ b,
+            R=np.array(R0, dtype=np.float64),
+            t=np.array(t0, dtype=np.float64),
             iterations=0,
             converged=False,
             degenerate=True,
