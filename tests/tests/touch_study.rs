@@ -8,7 +8,8 @@ fn quick_touch_study_writes_both_variants_for_every_view() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("study");
     let work = tmp.path().join("work");
-    let o = vintctl(&["study", "touch", "--out", out.to_str().unwrap(), "--quick", "--", "--work", work.to_str().unwrap()]);
+    let o =
+        vintctl(&["study", "touch", "--out", out.to_str().unwrap(), "--quick", "--", "--work", work.to_str().unwrap()]);
     assert!(o.status.success(), "{}\n{}", stdout(&o), stderr(&o));
     for f in ["touch_vs_vision.csv", "touch_vs_vision_summary.csv", "touch_vs_vision.png", "touch_vs_vision.md"] {
         assert!(out.join(f).metadata().map(|m| m.len() > 0).unwrap_or(false), "{f} missing");

@@ -77,8 +77,15 @@ def subsample(points: Array, count: int, rng: np.random.Generator) -> Array:
     return points[np.sort(rng.choice(len(points), size=count, replace=False))]
 
 
-def estimate_view(view: View, surface: Surface, seed: int) -> dict[str, Estimate]:
-    """Both variants' estimates of one view, keyed by variant."""
+@dataclass(frozen=True)
+class ViewEstimates:
+    start_R: Array
+    start_t: Array  # mm
+    by_variant: dict[str, Estimate]
+
+
+def estimate_view(view: View, surface: Surface, seed: int) -> ViewEstimates:
+    """Both variants' estimates of one view, from the same start."""
     R0, t0 = start_pose(view, seed)
     vision = subsample(
         view.vision_mm, VISION_POINTS, sample_rng(seed, view.sample_id, "touch-study-subsample")
@@ -88,7 +95,7 @@ def estimate_view(view: View, surface: Surface, seed: int) -> dict[str, Estimate
         b = dataclasses.replace(a, variant=VISION_TOUCH, guard=a.guard or "no_taxels")
     else:
         b = _fit(VISION_TOUCH, vision, view.touch_mm, surface, R0, t0)
-    return {VISION: a, VISION_TOUCH: b}
+    return ViewEstimates(start_R=R0, start_t=t0, by_variant={VISION: a, VISION_TOUCH: b})
 
 
 def _fit(variant: str, vision: Array, touch: Array, surface: Surface, R0: Array, t0: Array) -> Estimate:
