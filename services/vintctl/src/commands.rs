@@ -123,28 +123,8 @@ pub async fn export(
     store: Option<String>,
     json: bool,
 ) -> CliResult {
-    let mut coordinator = Coordinator::connect(url).await?;
-    let job = coordinator.job(job_id).await?;
+    let ExportedJob { job, state, planned, summary } = export_job(url, job_id, out, target, store).await?;
     let p = job.progress.clone().unwrap_or_default();
-    let state: JobState = job.state.parse().map_err(|e| anyhow!("coordinator answered job {job_id}: {e}"))?;
-    if state == JobState::Running {
-        let done = p.tasks_succeeded + p.tasks_failed + p.tasks_cancelled;
-        return Err(bad_input(anyhow!(
-            "job {job_id} is still running ({done} of {} tasks so far done, {} samples packaged): export writes \
-             a finished job's dataset; wait for it with `vintctl watch {job_id}`, then export",
-            p.tasks_total,
-            p.samples_packaged
-        )));
-    }
-    let spec = vint_core::DatasetSpec::parse(&job.spec_toml).map_err(|e| {
-        anyhow!("job {job_id}: its spec no longer parses ({e}); export it with the vintctl that ran it")
-    })?;
-    let store = artifact_store(&mut coordinator, store).await?;
-    let listed = coordinator.samples(job_id).await?;
-    let info = export::DatasetInfo { name: &spec.dataset.name, seed: spec.dataset.seed, split: &spec.split };
-    let summary = export::export(&store, job_id, &info, &listed, out, target).await?;
-    // The spec's upper bound (every trial accepted): what a failed job could have had.
-    let planned = Some(spec.max_samples());
     if json {
         let mut doc = report::export_json(&summary);
         doc["job_state"] = json!(job.state);
@@ -177,6 +157,47 @@ pub fn convert(dataset: &Path, out: &Path, target: Target, json: bool) -> CliRes
         report::export_text(&summary);
     }
     Ok(())
+}
+
+/// A job's dataset as `export_job` wrote it.
+pub struct ExportedJob {
+    pub job: pb::Job,
+    pub state: JobState,
+    /// The spec's upper bound on samples (every trial accepted): what a failed job could have had.
+    pub planned: Option<u64>,
+    pub summary: export::ExportSummary,
+}
+
+/// Exports a finished job's dataset to `out` in `target`'s layout: what `export` reports on, and
+/// what `stats` computes on. A running job is refused (its dataset is not there yet).
+pub async fn export_job(
+    url: &str,
+    job_id: &str,
+    out: &Path,
+    target: Target,
+    store: Option<String>,
+) -> Result<ExportedJob, Failure> {
+    let mut coordinator = Coordinator::connect(url).await?;
+    let job = coordinator.job(job_id).await?;
+    let p = job.progress.clone().unwrap_or_default();
+    let state: JobState = job.state.parse().map_err(|e| anyhow!("coordinator answered job {job_id}: {e}"))?;
+    if state == JobState::Running {
+        let done = p.tasks_succeeded + p.tasks_failed + p.tasks_cancelled;
+        return Err(bad_input(anyhow!(
+            "job {job_id} is still running ({done} of {} tasks so far done, {} samples packaged): export writes \
+             a finished job's dataset; wait for it with `vintctl watch {job_id}`, then export",
+            p.tasks_total,
+            p.samples_packaged
+        )));
+    }
+    let spec = vint_core::DatasetSpec::parse(&job.spec_toml).map_err(|e| {
+        anyhow!("job {job_id}: its spec no longer parses ({e}); export it with the vintctl that ran it")
+    })?;
+    let store = artifact_store(&mut coordinator, store).await?;
+    let listed = coordinator.samples(job_id).await?;
+    let info = export::DatasetInfo { name: &spec.dataset.name, seed: spec.dataset.seed, split: &spec.split };
+    let summary = export::export(&store, job_id, &info, &listed, out, target).await?;
+    Ok(ExportedJob { job, state, planned: Some(spec.max_samples()), summary })
 }
 
 /// The artifact store to export from: `--store` when given, else the one the coordinator was

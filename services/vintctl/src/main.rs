@@ -11,11 +11,13 @@ mod commands;
 mod diff;
 mod embedded;
 mod estimate;
+mod eval;
 mod export;
 mod failure;
 mod formats;
 mod report;
 mod spec_file;
+mod stats;
 mod study;
 
 use std::path::PathBuf;
@@ -44,8 +46,8 @@ struct Cli {
     /// Print machine-readable JSON instead of text (errors too, on stdout).
     #[arg(long, global = true)]
     json: bool,
-    /// Coordinator URL for the commands that talk to one (all but validate, run, study, hands and
-    /// objects); HOST:PORT means http://HOST:PORT.
+    /// Coordinator URL for the commands that talk to one (all but validate, run, study, hands,
+    /// objects and stats on a directory); HOST:PORT means http://HOST:PORT.
     #[arg(long, global = true, env = "VINT_COORDINATOR", default_value = "http://127.0.0.1:7700")]
     coordinator: String,
     #[command(subcommand)]
@@ -159,10 +161,28 @@ enum Command {
         #[arg(last = true)]
         extra: Vec<String>,
     },
+    /// A dataset's statistics: occlusion, camera distance, viewing direction in the object frame,
+    /// active taxels per grasp by hand and region, grasp acceptance per (object, hand) pair — as PNG
+    /// figures, stats.md (tables) and stats.json (the numbers; printed with --json).
+    Stats {
+        /// A dataset directory (native layout, or BOP from `--format bop`), or a finished job's id
+        /// (its dataset is exported from the coordinator to a temporary directory first).
+        dataset: String,
+        /// Directory for the figures, stats.md and stats.json.
+        #[arg(long)]
+        out: PathBuf,
+        /// For a job id: the artifact store its workers wrote to (file:///… or s3://…); default:
+        /// the coordinator's own --store.
+        #[arg(long, env = "VINT_STORE")]
+        store: Option<String>,
+    },
     /// Compare two exported datasets with a tolerance per kind of file (pixels, depth in metres,
     /// poses, touch readings); say which samples differ and by how much. Exit 0: all within
     /// tolerance; 1: some sample differs beyond it or is missing on one side.
     Diff(diff::DiffArgs),
+    /// Score pose estimates (a BOP results CSV) against a BOP dataset: ADD, ADD-S and ADD(S) AUC up
+    /// to 10 cm, ADD(S)-0.1d and -0.05d, overall, per object and per occlusion bucket.
+    Eval(eval::EvalArgs),
     /// List the built-in hands with their DoF and taxel counts per region.
     Hands,
     /// List the built-in objects: mass, material, texture and symmetries (`--json`: in BOP's form).
@@ -252,7 +272,9 @@ async fn dispatch(command: Command, json: bool, coordinator: &str) -> CliResult 
         }
         Command::Convert { dataset, out, format } => commands::convert(&dataset, &out, format.target(), json),
         Command::Study { subject, out, quick, extra } => study::run(&subject, &out, quick, &extra).await,
+        Command::Stats { dataset, out, store } => stats::run(&dataset, &out, store, coordinator, json).await,
         Command::Diff(args) => diff::run(&args, json),
+        Command::Eval(args) => eval::run(&args, json),
         Command::Hands => {
             report::hands(json);
             Ok(())

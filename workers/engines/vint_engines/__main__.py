@@ -1,5 +1,6 @@
 """Command line: `python -m vint_engines serve --stage {grasp|render|noise}`,
-`python -m vint_engines study {grasp|render|touch} --out DIR` (the studies, `vint_engines/study/`), and
+`python -m vint_engines study {grasp|render|touch} --out DIR` (the studies, `vint_engines/study/`),
+`python -m vint_engines stats --dataset DIR --out OUT` (a dataset's statistics, `vint_engines/stats/`), and
 `python -m vint_engines check-params` (parse planned task parameters with each engine's own
 parser, without running anything: a JSON array of `{"stage", "params"}` on stdin, a JSON array of
 `{"ok", "error"}` on stdout).
@@ -117,10 +118,18 @@ def main(argv: list[str] | None = None) -> int:
     study_cmd.add_argument(
         "--work", type=Path, help="touch: dataset and job state (default .vint/study-touch[-quick]; reused)"
     )
+    stats_cmd = commands.add_parser("stats", help="a dataset's statistics: PNG figures, stats.md, stats.json")
+    stats_cmd.add_argument("--dataset", required=True, type=Path, help="a native or BOP dataset directory")
+    stats_cmd.add_argument("--out", required=True, type=Path, help="directory for the figures and tables")
+    stats_cmd.add_argument("--json", action="store_true", help="also print stats.json on stdout")
     commands.add_parser("check-params", help="parse task parameters (JSON on stdin) as the engines do")
     args = parser.parse_args(argv)  # exits 2 on a bad command or stage
     if args.command == "study":
         return run_study(args)
+    if args.command == "stats":
+        from vint_engines import stats
+
+        return stats.main(args.dataset, args.out, args.json)
     if args.command == "check-params":
         return check_params()
 
