@@ -4,7 +4,9 @@
 # bpy 5.2.x wheels exist only for Python 3.13, so the engines need a Python 3.13 interpreter:
 # $VINT_BASE_PYTHON if set, else python3.13 on PATH, else a pyenv 3.13 install, else python3 if it is 3.13.
 # Installs workers/engines/requirements.lock and requirements-dev.lock (exact pins). Idempotent: a
-# stamp in .venv holds the locks' sha256, and a matching stamp skips the install.
+# stamp in .venv holds the locks' sha256, and a matching stamp skips the install. The dev lock holds
+# torch for the WebDataset loader example: PyPI's Linux build, whose CUDA libraries it cannot import
+# without (~2.8 GB to download, ~5.3 GB installed; the example runs on the CPU).
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
@@ -81,7 +83,7 @@ else
         "$PYTHON" -m venv "$VENV"
     fi
     rm -f "$STAMP"
-    log "installing pinned packages (bpy is a ~400 MB download the first time)"
+    log "installing pinned packages (bpy ~400 MB and torch with its CUDA libraries ~2.8 GB to download the first time)"
     "$VENV/bin/python" -m pip install --disable-pip-version-check --quiet \
         -r "$ENGINES/requirements.lock" -r "$ENGINES/requirements-dev.lock"
     lock_hash >"$STAMP"
@@ -94,11 +96,14 @@ import bpy
 import cv2
 import mujoco
 import numpy
+import torch
+import webdataset
 
 print(f"python {platform.python_version()}")
 print(f"bpy    {bpy.app.version_string}")
 print(f"mujoco {mujoco.__version__}")
 print(f"opencv {cv2.__version__}")
 print(f"numpy  {numpy.__version__}")
+print(f"torch  {torch.__version__} (webdataset {webdataset.__version__})")
 EOF
 log "ready: run the engine tests with .venv/bin/python -m pytest workers/engines/tests -q"

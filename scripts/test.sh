@@ -248,8 +248,8 @@ export VINT_REQUIRE_ENGINES=1
 total=$SECONDS
 # Cheap checks first, so a formatting slip fails in seconds rather than after a build.
 step "cargo fmt --check" cargo fmt --all -- --check
-step "ruff check" .venv/bin/ruff check workers/engines benches scripts
-step "ruff format --check" .venv/bin/ruff format --check workers/engines benches scripts
+step "ruff check" .venv/bin/ruff check workers/engines benches scripts examples tests/python
+step "ruff format --check" .venv/bin/ruff format --check workers/engines benches scripts examples tests/python
 step "cargo clippy" cargo clippy --workspace --all-targets -- -D warnings
 step "cargo build --bins" cargo build --workspace --bins
 step "cargo test" cargo test --workspace "$@"

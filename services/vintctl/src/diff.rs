@@ -14,8 +14,8 @@
 //! `<name>` when the name has a directory, else at `<sample_id>/<name>`.
 
 mod json;
-mod npy;
-mod pixels;
+pub(crate) mod npy;
+pub(crate) mod pixels;
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};

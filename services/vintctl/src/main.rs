@@ -46,8 +46,8 @@ struct Cli {
     /// Print machine-readable JSON instead of text (errors too, on stdout).
     #[arg(long, global = true)]
     json: bool,
-    /// Coordinator URL for the commands that talk to one (all but validate, run, study, hands,
-    /// objects and stats on a directory); HOST:PORT means http://HOST:PORT.
+    /// Coordinator URL for the commands that talk to one (all but validate, run, convert, eval,
+    /// diff, study, hands, objects and stats on a directory); HOST:PORT means http://HOST:PORT.
     #[arg(long, global = true, env = "VINT_COORDINATOR", default_value = "http://127.0.0.1:7700")]
     coordinator: String,
     #[command(subcommand)]
