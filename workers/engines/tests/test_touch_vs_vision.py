@@ -192,27 +192,14 @@ def test_taxels_go_from_the_palm_frame_through_the_world_to_the_camera() -> None
     ).shape == (0, 3)
 
 
-def test_add_adds_and_auc_follow_their_definitions() -> None:
-    R, t = axis_angle([0, 0, 1], 10.0), np.array([1.0, 2.0, 3.0])
-    assert pose_scores.add_mm(CORNERS, R, t, R, t) == 0.0
-    shift = np.array([3.0, 4.0, 0.0])
-    assert pose_scores.add_mm(CORNERS, R, t + shift, R, t) == pytest.approx(5.0)
-    assert pose_scores.add_mm(CORNERS, R, t, R_TRUE, T_TRUE) == pytest.approx(
-        add_error(CORNERS, R, t, R_TRUE, T_TRUE)
-    )
-    # A ring turned by one step of its own spacing: ADD sees the turn, ADD-S does not.
-    ring = np.array(
-        [[50 * math.cos(a), 50 * math.sin(a), 0.0] for a in np.linspace(0, 2 * math.pi, 72, endpoint=False)]
-    )
-    turn = axis_angle([0, 0, 1], 5.0)
-    assert pose_scores.adds_mm(ring, turn, np.zeros(3), np.eye(3), np.zeros(3)) == pytest.approx(
-        0.0, abs=1e-6
-    )
-    assert pose_scores.add_mm(ring, turn, np.zeros(3), np.eye(3), np.zeros(3)) == pytest.approx(
-        2 * 50 * math.sin(math.radians(2.5))
-    )
-    assert pose_scores.auc([0.0, 50.0, 200.0]) == pytest.approx((1.0 + 0.5 + 0.0) / 3)
-    assert pose_scores.share_below([1.0, 5.0, 9.0], [2.0, 5.0, 10.0]) == pytest.approx(2 / 3)
+def test_pooled_auc_is_the_step_sum_docs_metrics_md_defines() -> None:
+    # Errors 0, 50, 200 mm (n = 3; d_1 = 0, d_2 = 50 within 100 mm): the curve's steps, each at its
+    # right end, summed by hand: (0 - 0)·1/3 + (50 - 0)·2/3 + (100 - 50)·2/3 = 66.67 mm of 100.
+    assert pose_scores.auc([200.0, 0.0, 50.0]) == pytest.approx(100.0 * (50.0 * 2 / 3 + 50.0 * 2 / 3) / 100.0)
+    assert pose_scores.auc([150.0, 300.0]) == 0.0
+    assert pose_scores.auc([0.0]) == pytest.approx(100.0)
+    assert pose_scores.auc([100.0]) == pytest.approx(100.0)  # an error of exactly T counts as within
+    assert math.isnan(pose_scores.auc([]))
 
 
 def test_buckets_and_the_finding_read_the_occlusion_as_documented() -> None:
@@ -225,20 +212,26 @@ def test_buckets_and_the_finding_read_the_occlusion_as_documented() -> None:
         "90-100",
     ]
 
-    def rows(variant: str, low_err: float, high_err: float) -> list[dict[str, object]]:
-        return [
-            {"variant": variant, "occlusion": 0.2, "err_mm": low_err},
-            {"variant": variant, "occlusion": 0.7, "err_mm": high_err},
+    def rows(variant: str, low: list[float], high: list[float]) -> list[dict[str, object]]:
+        return [{"variant": variant, "occlusion": 0.2, "err_mm": e} for e in low] + [
+            {"variant": variant, "occlusion": 0.7, "err_mm": e} for e in high
         ]
 
-    sentence, numbers = finding(rows(VISION, 0.0, 50.0) + rows(VISION_TOUCH, 0.0, 10.0))
+    # AUCs by the step sum: [0, 0] → 100; [50, 200] → ((100 - 50) + 50) / 2 = 50; [10, 10] → 95.
+    sentence, numbers = finding(
+        rows(VISION, [0.0, 0.0], [50.0, 200.0]) + rows(VISION_TOUCH, [0.0, 0.0], [10.0, 10.0])
+    )
     assert sentence.startswith("The data supports the hypothesis")
     assert numbers[VISION]["drop"] == pytest.approx(50.0) and numbers[VISION_TOUCH]["drop"] == pytest.approx(
-        10.0
+        5.0
     )
-    sentence, _ = finding(rows(VISION, 0.0, 10.0) + rows(VISION_TOUCH, 0.0, 50.0))
+    sentence, _ = finding(
+        rows(VISION, [0.0, 0.0], [10.0, 10.0]) + rows(VISION_TOUCH, [0.0, 0.0], [50.0, 200.0])
+    )
     assert sentence.startswith("The data contradicts the hypothesis")
-    sentence, _ = finding(rows(VISION, 0.0, 10.0) + rows(VISION_TOUCH, 0.0, 10.0))
+    sentence, _ = finding(
+        rows(VISION, [0.0, 0.0], [10.0, 10.0]) + rows(VISION_TOUCH, [0.0, 0.0], [10.0, 10.0])
+    )
     assert sentence.startswith("The data shows no difference")
 
 

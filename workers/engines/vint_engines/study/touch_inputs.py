@@ -117,11 +117,6 @@ def read_views(data: Path, noisy: bool) -> Iterator[View]:
         yield read_view(data, sample_id, noisy, grasps)
 
 
-def scene_ids(views: list[View]) -> dict[str, int]:
-    """BOP scene id of each grasp: its ordinal among the dataset's sorted grasp ids."""
-    return {grasp: i for i, grasp in enumerate(sorted({v.grasp_id for v in views}))}
-
-
 def read_model_mm(data: Path, name: str) -> tuple[Array, npt.NDArray[np.int64]]:
     """The object's model mesh as the dataset ships it (`models/<name>.ply`), in mm."""
     vertices_m, faces = meshio.read_ply_m(data / "models" / f"{name}.ply")
@@ -132,16 +127,6 @@ def object_ids(data: Path) -> dict[str, int]:
     """BOP obj_id per object name (`dataset.json`)."""
     doc = json.loads((data / "dataset.json").read_text(encoding="utf-8"))
     return {entry["name"]: int(entry["obj_id"]) for entry in doc["objects"]}
-
-
-def symmetric_objects(data: Path) -> set[str]:
-    """Objects scored with ADD-S: those with any declared symmetry (`dataset.json`)."""
-    doc = json.loads((data / "dataset.json").read_text(encoding="utf-8"))
-    return {
-        entry["name"]
-        for entry in doc["objects"]
-        if entry.get("symmetries_continuous") or entry.get("symmetries_discrete")
-    }
 
 
 def sample_rng(seed: int, sample_id: str, stream: str) -> np.random.Generator:

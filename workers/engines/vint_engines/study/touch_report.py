@@ -14,8 +14,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from vint_engines.study import pose_scores
 from vint_engines.study.touch_estimate import (
     MIN_POINTS,
@@ -90,80 +88,74 @@ class RunInfo:
     hands: list[str]
     generate_s: float
     total_s: float
-    scorer: str
+    taxel_gap_mm: float  # largest difference from the BOP export's scene_touch.json p_cam_mm
 
 
 def bucket(occlusion: float) -> str:
     return BUCKETS[min(9, max(0, math.floor(occlusion * 10.0 + 1e-9)))]
 
 
-@dataclass(frozen=True)
-class ObjectInfo:
-    """What scoring needs of an object."""
-
-    obj_id: int
-    symmetric: bool  # scored with ADD-S
-    diameter_mm: float
-    vertices: np.ndarray  # (n, 3) mm, object frame
-
-
 def row(
-    view: View, start: tuple[np.ndarray, np.ndarray], est: Estimate, scene_id: int, obj: ObjectInfo
+    view: View, est: Estimate, scene_id: int, scored: dict[str, Any], start: dict[str, Any]
 ) -> dict[str, Any]:
-    """One estimate scored against the view's truth; `_estimate` keeps the pose for the BOP CSV."""
-    metric = pose_scores.adds_mm if obj.symmetric else pose_scores.add_mm
-    add = pose_scores.add_mm(obj.vertices, est.R, est.t, view.R_gt, view.t_gt_mm)
-    adds = pose_scores.adds_mm(obj.vertices, est.R, est.t, view.R_gt, view.t_gt_mm)
-    err = adds if obj.symmetric else add
+    """One estimate with its `vintctl eval` scores (`scored`: its per-estimate entry; `start`: the
+    start pose's entry for the same image)."""
     return {
         "sample_id": view.sample_id,
         "object": view.object,
-        "obj_id": obj.obj_id,
-        "symmetric": int(obj.symmetric),
+        "obj_id": scored["obj_id"],
+        "symmetric": int(scored["symmetric"]),
         "hand": view.hand,
         "scene_id": scene_id,
         "im_id": view.view,
-        "occlusion": round(view.occlusion, 6),
-        "bucket": bucket(view.occlusion),
+        "occlusion": round(float(scored["occlusion"]), 6),
+        "bucket": bucket(float(scored["occlusion"])),
         "variant": est.variant,
         "vision_points": est.vision_points,
         "taxels": est.taxels,
         "guard": est.guard,
-        "start_err_mm": round(metric(obj.vertices, *start, view.R_gt, view.t_gt_mm), 4),
-        "add_mm": round(add, 4),
-        "adds_mm": round(adds, 4),
-        "err_mm": round(err, 4),
-        "below_01d": int(err < 0.1 * obj.diameter_mm),
+        "start_err_mm": round(float(start["add_s_mm"]), 4),
+        "add_mm": round(float(scored["add_mm"]), 4),
+        "adds_mm": round(float(scored["adds_mm"]), 4),
+        "err_mm": float(scored["add_s_mm"]),
+        "below_01d": int(scored["add_s_0.1d"]),
         "iterations": est.iterations,
         "converged": int(est.converged),
         "degenerate": int(est.degenerate),
         "cpu_ms": round(est.cpu_ms, 3),
         "wall_ms": round(est.wall_ms, 3),
-        "_estimate": est,
     }
 
 
-def summarize(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Per variant, one line per occlusion bucket (empty buckets too, n = 0) and one for all."""
+def summarize(rows: Sequence[dict[str, Any]], scored: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per variant, one line per occlusion bucket (empty ones too, n = 0) and one for all: eval's
+    own group scores, with the study's counts beside them. The pooled AUC the report also uses
+    (`pose_scores.auc` over eval's per-estimate errors) must reproduce eval's per bucket."""
     lines = []
     for variant in VARIANTS:
         mine = [r for r in rows if r["variant"] == variant]
-        for name in (*BUCKETS, "all"):
+        groups = [*scored[variant]["occlusion"], scored[variant]["overall"]]
+        starts = [*scored["start"]["occlusion"], scored["start"]["overall"]]
+        for name, group, start in zip((*BUCKETS, "all"), groups, starts, strict=True):
             part = [r for r in mine if name in ("all", r["bucket"])]
-            errors = [r["err_mm"] for r in part]
+            if len(part) != group["n"]:
+                raise RuntimeError(f"{variant} {name}: eval counts {group['n']} views, the study {len(part)}")
+            pooled = pose_scores.auc([r["err_mm"] for r in part])
+            if part and abs(pooled - group["add_s_auc"]) > 1e-6:
+                raise RuntimeError(
+                    f"{variant} {name}: pooled AUC {pooled} differs from eval's {group['add_s_auc']}"
+                )
             lines.append(
                 {
                     "variant": variant,
                     "bucket": name,
-                    "n": len(part),
-                    "auc": _round(pose_scores.auc(errors) * 100.0 if part else math.nan, 2),
-                    "adds_01d_pct": _round(
-                        100.0 * np.mean([r["below_01d"] for r in part]) if part else math.nan, 2
+                    "n": group["n"],
+                    "auc": _round(group["add_s_auc"], 2),
+                    "adds_01d_pct": _round(group["add_s_0.1d"], 2),
+                    "err_mm_median": _round(
+                        statistics.median(r["err_mm"] for r in part) if part else math.nan, 3
                     ),
-                    "err_mm_median": _round(statistics.median(errors) if part else math.nan, 3),
-                    "start_auc": _round(
-                        pose_scores.auc([r["start_err_mm"] for r in part]) * 100.0 if part else math.nan, 2
-                    ),
+                    "start_auc": _round(start["add_s_auc"], 2),
                     "no_taxels": sum(r["guard"] == "no_taxels" for r in part),
                     "too_few_points": sum(r["guard"] == "too_few_points" for r in part),
                     "degenerate": sum(r["degenerate"] for r in part),
@@ -179,8 +171,9 @@ def _median_fitted(rows: Sequence[dict[str, Any]], key: str) -> float:
     return statistics.median(values) if values else math.nan
 
 
-def _round(value: float, digits: int) -> float:
-    return value if math.isnan(value) else round(float(value), digits)
+def _round(value: float | None, digits: int) -> float:
+    """eval gives null for an empty group."""
+    return math.nan if value is None or math.isnan(value) else round(float(value), digits)
 
 
 def in_range(rows: Sequence[dict[str, Any]], variant: str, span: tuple[int, int]) -> list[dict[str, Any]]:
@@ -194,8 +187,8 @@ def finding(rows: Sequence[dict[str, Any]]) -> tuple[str, dict[str, dict[str, fl
     numbers: dict[str, dict[str, float]] = {}
     for variant in VARIANTS:
         low, high = in_range(rows, variant, LOW), in_range(rows, variant, HIGH)
-        a_low = pose_scores.auc([r["err_mm"] for r in low]) * 100.0
-        a_high = pose_scores.auc([r["err_mm"] for r in high]) * 100.0
+        a_low = pose_scores.auc([r["err_mm"] for r in low])
+        a_high = pose_scores.auc([r["err_mm"] for r in high])
         numbers[variant] = {
             "low": a_low,
             "high": a_high,
@@ -221,9 +214,11 @@ def finding(rows: Sequence[dict[str, Any]]) -> tuple[str, dict[str, dict[str, fl
     return f"{verdict}: {measured}.", numbers
 
 
-def write(out: Path, rows: Sequence[dict[str, Any]], run: RunInfo) -> list[Path]:
+def write(
+    out: Path, rows: Sequence[dict[str, Any]], scored: dict[str, dict[str, Any]], run: RunInfo
+) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
-    summary = summarize(rows)
+    summary = summarize(rows, scored)
     paths = [out / ROWS_CSV, out / SUMMARY_CSV, out / PLOT_PNG, out / TABLE_MD]
     write_csv(paths[0], ROW_COLUMNS, rows)
     write_csv(paths[1], SUMMARY_COLUMNS, summary)
@@ -292,7 +287,7 @@ def group_table(rows: Sequence[dict[str, Any]], key: str) -> list[str]:
         for variant in VARIANTS:
             for span in spans:
                 errors = [r["err_mm"] for r in in_range(mine, variant, span)]
-                cells.append(f"{pose_scores.auc(errors) * 100.0:.1f}" if errors else "–")
+                cells.append(f"{pose_scores.auc(errors):.1f}" if errors else "–")
         n = sum(1 for r in mine if r["variant"] == VISION)
         lines.append(f"| {name} | {n} | " + " | ".join(cells) + " |")
     return lines
@@ -350,10 +345,14 @@ def markdown(rows: Sequence[dict[str, Any]], summary: Sequence[dict[str, Any]], 
         "quarter of the cloud's weight. Taxels are never dropped as outliers (they are on the surface "
         f"by construction). Active taxels per view: median {statistics.median(taxels) if taxels else 0:.0f}, "
         f"min {min(taxels) if taxels else 0}, max {max(taxels) if taxels else 0}.",
-        f"- Scoring: {run.scorer}. ADD for objects without declared symmetries, ADD-S for the others "
-        "(mean distance over the model's vertices), AUC of the accuracy–threshold curve up to 10 cm "
-        "(×100), and the share under 0.1 × the object's diameter. Occlusion: the sample's "
-        "`1 - visible_px / full_px`.",
+        "- Scoring: `vintctl eval --json` (docs/metrics.md) of three BOP results CSVs (start poses, "
+        "vision, vision + touch) on the study data's BOP conversion (`vintctl convert --format bop`): "
+        "ADD for objects without declared symmetries, ADD-S for the others, over the model's vertices; "
+        "ADD(S) AUC up to 10 cm and ADD(S) < 0.1 × the object's diameter; occlusion 1 - `visib_fract`. "
+        "The pooled ranges and the per-object and per-hand tables sum eval's per-estimate errors the "
+        "way eval does (`study/pose_scores.py`; the study checks it reproduces eval's bucket AUCs).",
+        f"- The taxel positions the estimator computes from the native record agree with the BOP "
+        f"export's `scene_touch.json` (`p_cam_mm`) within {run.taxel_gap_mm:.1e} mm.",
         "",
         "## Results by occlusion",
         "",
@@ -411,8 +410,8 @@ def markdown(rows: Sequence[dict[str, Any]], summary: Sequence[dict[str, Any]], 
         "ICP leaves most of the start's spin in place and these objects score lowest for both variants.",
         "- Views at 90–100 % occlusion are few, and the occlusion distribution follows the spec's camera "
         "ranges, not the paper's data.",
-        "- AUC is the exact integral of the accuracy–threshold curve (mean of max(0, 1 - e/10 cm)); "
-        "PoseCNN's VOC-style sum over sorted errors differs from it by the curve's discretisation.",
+        "- AUC is eval's VOCap sum, which exceeds the exact area under the curve by at most 100/n points "
+        "(0.3 for a bucket of 300 views, 2 for one of 50).",
         "",
     ]
     return "\n".join(lines)

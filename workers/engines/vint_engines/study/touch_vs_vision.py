@@ -3,16 +3,19 @@ hides more of the object than ICP on depth alone? (VinT-6D's Table 6 direction, 
 classical estimator on our own data.)
 
 The study makes its dataset with vintctl itself (`vintctl run` of the spec below, into
-`WORK/data`), estimates every view twice (`touch_estimate`), writes both as BOP results CSVs,
-scores them (`pose_scores`: ADD for asymmetric objects, ADD-S for those with declared symmetries)
-and reports by occlusion bucket (`touch_report`). The dataset and the job state stay in WORK, so a
-second run reuses the job instead of regenerating it.
+`WORK/data`, then `vintctl convert --format bop` into `WORK/bop`), estimates every view twice
+(`touch_estimate`) from the native files, writes the start poses and both variants as BOP results
+CSVs (`WORK/estimates/`), scores each with `vintctl eval --json` on the BOP conversion (ADD for
+asymmetric objects, ADD-S for those with declared symmetries) and reports by occlusion bucket
+(`touch_report`). The dataset and the job state stay in WORK, so a second run reuses the job
+instead of regenerating it.
 """
 
 from __future__ import annotations
 
 import csv
 import json
+import shutil
 import subprocess
 import sys
 import time
@@ -22,17 +25,10 @@ from typing import Any
 
 import numpy as np
 
-from vint_engines.study import pose_scores, touch_report
+from vint_engines.study import touch_report
 from vint_engines.study.icp import Surface, sample_surface
-from vint_engines.study.touch_estimate import VARIANTS, Estimate, estimate_view
-from vint_engines.study.touch_inputs import (
-    View,
-    object_ids,
-    read_model_mm,
-    read_views,
-    scene_ids,
-    symmetric_objects,
-)
+from vint_engines.study.touch_estimate import VARIANTS, ViewEstimates, estimate_view
+from vint_engines.study.touch_inputs import View, object_ids, read_model_mm, read_views
 
 STUDY_SEED = 20261210
 HANDS = ("trx3", "allegro")
@@ -92,69 +88,93 @@ modalities = ["depth", "depth_noisy", "mask", "pose"]
 """
 
 
-def run_vintctl(vintctl: Path, *args: str | Path) -> subprocess.CompletedProcess[str]:
+def run_vintctl(vintctl: Path, *args: str | Path) -> str:
     command = [str(vintctl), *(str(a) for a in args)]
     done = subprocess.run(command, capture_output=True, text=True, check=False)
     if done.returncode != 0:
         raise RuntimeError(f"{' '.join(command)} failed ({done.returncode}):\n{done.stderr[-4000:]}")
-    return done
+    return done.stdout
 
 
-def make_dataset(vintctl: Path, spec: Path, work: Path) -> Path:
-    data = work / "data"
+def make_dataset(vintctl: Path, spec: Path, work: Path) -> tuple[Path, Path]:
+    """The study's native dataset (`WORK/data`) and its BOP conversion (`WORK/bop`, made afresh)."""
+    data, bop = work / "data", work / "bop"
     print(f"study touch: generating the dataset ({spec}) into {data}", file=sys.stderr, flush=True)
     run_vintctl(vintctl, "run", spec, "--out", data, "--state", work / "state", "--workers", "2")
-    return data
+    if bop.exists():
+        shutil.rmtree(bop)
+    run_vintctl(vintctl, "convert", data, "--out", bop, "--format", "bop")
+    return data, bop
 
 
-def diameters_mm(data: Path) -> dict[str, float]:
-    doc = json.loads((data / "dataset.json").read_text(encoding="utf-8"))
-    return {entry["name"]: float(entry["diameter_mm"]) for entry in doc["objects"]}
+def bop_scenes(bop: Path) -> dict[str, int]:
+    """BOP scene id of each grasp, as the conversion numbered them (its `dataset.json`)."""
+    doc = json.loads((bop / "dataset.json").read_text(encoding="utf-8"))
+    return {scene["grasp_id"]: int(scene["scene_id"]) for scene in doc["bop"]["scenes"]}
 
 
-def write_bop_results(path: Path, rows: list[tuple[int, int, int, Estimate]]) -> None:
-    """A BOP results CSV: scene_id,im_id,obj_id,score,R,t,time (R row-major, t in mm, time in s;
-    BOP: the same time for every estimate of an image)."""
+def check_taxels(views: list[View], bop: Path, scenes: dict[str, int]) -> float:
+    """The estimator's taxel positions (computed from the native record) against the BOP export's
+    `scene_touch.json` `p_cam_mm`, computed by the exporter: two independent transforms of the same
+    taxels must agree. Returns the largest difference (mm); raises beyond 0.01 mm."""
+    where = {
+        int(s["scene_id"]): s["split"]
+        for s in json.loads((bop / "dataset.json").read_text())["bop"]["scenes"]
+    }
+    worst, cache = 0.0, {}
+    for view in views:
+        scene = scenes[view.grasp_id]
+        if scene not in cache:
+            path = bop / where[scene] / f"{scene:06d}" / "scene_touch.json"
+            cache[scene] = json.loads(path.read_text(encoding="utf-8"))
+        exported = np.asarray(
+            [t["p_cam_mm"] for t in cache[scene][str(view.view)]["active"]], dtype=np.float64
+        )
+        if exported.shape != view.touch_mm.shape:
+            raise RuntimeError(
+                f"{view.sample_id}: {len(view.touch_mm)} active taxels, the BOP export has {len(exported)}"
+            )
+        if len(exported):
+            worst = max(worst, float(np.abs(exported - view.touch_mm).max()))
+    if worst > 0.01:
+        raise RuntimeError(f"taxel positions differ from the BOP export's scene_touch.json by {worst:.4f} mm")
+    return worst
+
+
+def surfaces(data: Path, names: set[str], seed: int) -> dict[str, Surface]:
+    """Each object's model-surface samples for ICP (mm), seeded per object."""
+    found = {}
+    for i, name in enumerate(sorted(names)):
+        vertices, faces = read_model_mm(data, name)
+        found[name] = sample_surface(vertices, faces, SURFACE_SAMPLES, np.random.default_rng([seed, i]))
+    return found
+
+
+def fit_all(views: list[View], data: Path, seed: int) -> list[ViewEstimates]:
+    samples = surfaces(data, {v.object for v in views}, seed)
+    fitted = []
+    for i, view in enumerate(views):
+        fitted.append(estimate_view(view, samples[view.object], seed))
+        if (i + 1) % 100 == 0:
+            print(f"study touch: {i + 1}/{len(views)} views estimated", file=sys.stderr, flush=True)
+    return fitted
+
+
+def write_bop_results(path: Path, rows: list[tuple[int, int, int, np.ndarray, np.ndarray, float]]) -> None:
+    """A BOP results CSV: scene_id,im_id,obj_id,score,R,t,time (R row-major, t in mm, time in s)."""
     with path.open("w", newline="", encoding="utf-8") as file:
         out = csv.writer(file)
         out.writerow(["scene_id", "im_id", "obj_id", "score", "R", "t", "time"])
-        for scene, im, obj, est in rows:
-            r = " ".join(f"{v:.9f}" for v in est.R.reshape(-1))
-            t = " ".join(f"{v:.6f}" for v in est.t)
-            out.writerow([scene, im, obj, 1, r, t, f"{est.wall_ms / 1000.0:.6f}"])
+        for scene, im, obj, R, t, seconds in rows:
+            r = " ".join(f"{v:.9f}" for v in R.reshape(-1))
+            out.writerow([scene, im, obj, 1, r, " ".join(f"{v:.6f}" for v in t), f"{seconds:.6f}"])
 
 
-def object_infos(
-    data: Path, names: set[str], seed: int
-) -> tuple[dict[str, Surface], dict[str, touch_report.ObjectInfo]]:
-    """Each object's surface samples (for ICP) and what scoring needs (model vertices in mm, id,
-    symmetry, diameter)."""
-    ids, symmetric, diameters = object_ids(data), symmetric_objects(data), diameters_mm(data)
-    samples, infos = {}, {}
-    for i, name in enumerate(sorted(names)):
-        vertices, faces = read_model_mm(data, name)
-        samples[name] = sample_surface(vertices, faces, SURFACE_SAMPLES, np.random.default_rng([seed, i]))
-        infos[name] = touch_report.ObjectInfo(ids[name], name in symmetric, diameters[name], vertices)
-    return samples, infos
-
-
-def estimate_all(views: list[View], data: Path, seed: int) -> list[dict[str, Any]]:
-    """Both variants for every view, scored; one row per (view, variant)."""
-    samples, infos = object_infos(data, {v.object for v in views}, seed)
-    scenes = scene_ids(views)
-    rows: list[dict[str, Any]] = []
-    for i, view in enumerate(views):
-        found = estimate_view(view, samples[view.object], seed)
-        start = (found.start_R, found.start_t)
-        for variant in VARIANTS:
-            rows.append(
-                touch_report.row(
-                    view, start, found.by_variant[variant], scenes[view.grasp_id], infos[view.object]
-                )
-            )
-        if (i + 1) % 100 == 0:
-            print(f"study touch: {i + 1}/{len(views)} views estimated", file=sys.stderr, flush=True)
-    return rows
+def score(vintctl: Path, bop: Path, results: Path) -> dict[str, Any]:
+    """`vintctl eval --json` of one results file; `by_image` indexes its per-estimate list."""
+    report = json.loads(run_vintctl(vintctl, "eval", "--dataset", bop, "--estimates", results, "--json"))
+    report["by_image"] = {(e["scene_id"], e["im_id"]): e for e in report["per_estimate"]}
+    return report
 
 
 def main(out: Path, quick: bool, vintctl: Path, work: Path | None) -> int:
@@ -166,27 +186,37 @@ def main(out: Path, quick: bool, vintctl: Path, work: Path | None) -> int:
     spec = out / touch_report.SPEC_TOML
     spec.write_text(spec_toml(size), encoding="utf-8")
     generated = time.perf_counter()
-    data = make_dataset(vintctl, spec, work)
+    data, bop = make_dataset(vintctl, spec, work)
     generated = time.perf_counter() - generated
     seed = int(json.loads((data / "dataset.json").read_text(encoding="utf-8"))["seed"])
     views = list(read_views(data, noisy=True))
-    rows = estimate_all(views, data, seed)
+    scenes, ids = bop_scenes(bop), object_ids(data)
+    taxel_gap = check_taxels(views, bop, scenes)
+    fitted = fit_all(views, data, seed)
+
     estimates = work / "estimates"
     estimates.mkdir(exist_ok=True)
+    keys = [(scenes[v.grasp_id], v.view, ids[v.object]) for v in views]
+    poses = {"start": [(f.start_R, f.start_t, -1.0) for f in fitted]}
     for variant in VARIANTS:
-        write_bop_results(
-            estimates / f"{variant}.csv",
-            [
-                (r["scene_id"], r["im_id"], r["obj_id"], r["_estimate"])
-                for r in rows
-                if r["variant"] == variant
-            ],
-        )
+        poses[variant] = [(e.R, e.t, e.wall_ms / 1000.0) for e in (f.by_variant[variant] for f in fitted)]
+    scored = {}
+    for name, found in poses.items():
+        path = estimates / f"{name}.csv"
+        write_bop_results(path, [(*key, *pose) for key, pose in zip(keys, found, strict=True)])
+        scored[name] = score(vintctl, bop, path)
+
+    rows = [
+        touch_report.row(view, f.by_variant[variant], key[0], scored[variant]["by_image"][key[:2]],
+                         scored["start"]["by_image"][key[:2]])
+        for view, f, key in zip(views, fitted, keys, strict=True)
+        for variant in VARIANTS
+    ]  # fmt: skip
     run = touch_report.RunInfo(
         quick=quick, seed=seed, views=len(views), grasps=len({v.grasp_id for v in views}),
         objects=sorted({v.object for v in views}), hands=sorted({v.hand for v in views}),
-        generate_s=generated, total_s=time.perf_counter() - started, scorer=pose_scores.SCORER,
+        generate_s=generated, total_s=time.perf_counter() - started, taxel_gap_mm=taxel_gap,
     )  # fmt: skip
-    written = touch_report.write(out, rows, run)
+    written = touch_report.write(out, rows, scored, run)
     print(f"study done in {time.perf_counter() - started:.1f} s: " + ", ".join(str(p) for p in written))
     return 0
