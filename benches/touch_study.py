@@ -4,7 +4,7 @@ and how its output moves with its resolution knobs (footprint radius, averaged c
 Run: PYTHONPATH=workers/engines .venv/bin/python benches/touch_study.py --out docs [--seeds N] [--reps R]
 
 Writes OUT/touch_response.png (reading against force for several gains and aging values) and
-OUT/studies/touch/{cost,resolution}.csv, and prints the tables docs/touch.md quotes, then one JSON
+OUT/studies/touch_readout/{cost,resolution}.csv, and prints the tables docs/touch.md quotes, then one JSON
 object with every figure.
 
 Each hand grasps each object with N seeds through `run_trial` (default physics); on every accepted
@@ -297,8 +297,8 @@ def main() -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     plot_response(args.out / "touch_response.png")
     cost, resolution = study(args.seeds, args.reps, args.baseline)
-    write_csv(args.out / "studies" / "touch" / "cost.csv", cost)
-    write_csv(args.out / "studies" / "touch" / "resolution.csv", resolution)
+    write_csv(args.out / "studies" / "touch_readout" / "cost.csv", cost)
+    write_csv(args.out / "studies" / "touch_readout" / "resolution.csv", resolution)
     summary = summarise(cost, resolution)
     print_tables(summary)
     print(json.dumps(summary))

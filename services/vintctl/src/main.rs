@@ -147,8 +147,9 @@ enum Command {
     /// Accuracy-versus-cost studies: run the same work at several settings against a fine
     /// reference and write CSV, a log-log plot and a markdown table.
     Study {
-        /// What to study: `grasp` (physics timestep and solver settings) or `render` (Cycles samples
-        /// and denoising against a high-sample reference).
+        /// What to study: `grasp` (physics timestep and solver settings), `render` (Cycles samples
+        /// and denoising against a high-sample reference) or `touch` (ICP pose accuracy with and
+        /// without the taxels, by occlusion; makes its own dataset with this binary).
         subject: String,
         /// Directory for the CSV, PNG and markdown outputs.
         #[arg(long)]

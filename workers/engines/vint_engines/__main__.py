@@ -1,5 +1,5 @@
 """Command line: `python -m vint_engines serve --stage {grasp|render|noise}`,
-`python -m vint_engines study {grasp|render} --out DIR` (the studies, `vint_engines/study/`),
+`python -m vint_engines study {grasp|render|touch} --out DIR` (the studies, `vint_engines/study/`),
 `python -m vint_engines stats --dataset DIR --out OUT` (a dataset's statistics, `vint_engines/stats/`), and
 `python -m vint_engines check-params` (parse planned task parameters with each engine's own
 parser, without running anything: a JSON array of `{"stage", "params"}` on stdin, a JSON array of
@@ -81,6 +81,16 @@ def run_study(args: argparse.Namespace) -> int:
         from vint_engines.study import render
 
         return render.main(args.out, args.quick)
+    if args.study == "touch":
+        from vint_engines.study import touch_vs_vision
+
+        if args.vintctl is None:
+            print(
+                "study touch: --vintctl is required (vintctl study touch passes its own path)",
+                file=sys.stderr,
+            )
+            return 2
+        return touch_vs_vision.main(args.out, args.quick, args.vintctl, args.work)
     from vint_engines.study import grasp
 
     quick_objects = ("tomato_soup_can",) if args.quick else grasp.OBJECTS
@@ -96,12 +106,18 @@ def main(argv: list[str] | None = None) -> int:
     serve_cmd = commands.add_parser("serve", help="serve tasks over stdin/stdout (PROTOCOL.md)")
     serve_cmd.add_argument("--stage", required=True, choices=STAGES)
     study_cmd = commands.add_parser("study", help="run a numerics study and write its report")
-    study_cmd.add_argument("study", choices=("grasp", "render"))
+    study_cmd.add_argument("study", choices=("grasp", "render", "touch"))
     study_cmd.add_argument("--out", required=True, type=Path, help="directory for the CSVs, plot and table")
     study_cmd.add_argument("--quick", action="store_true", help="few seeds and configurations (< 60 s)")
     study_cmd.add_argument("--hands", type=names, help="comma-separated hands (default: trx3,allegro)")
     study_cmd.add_argument("--objects", type=names, help="comma-separated catalog objects")
     study_cmd.add_argument("--seeds", type=int, help="trials per hand and object (default 8, quick 2)")
+    study_cmd.add_argument(
+        "--vintctl", type=Path, help="touch: the vintctl binary that makes the study's dataset"
+    )
+    study_cmd.add_argument(
+        "--work", type=Path, help="touch: dataset and job state (default .vint/study-touch[-quick]; reused)"
+    )
     stats_cmd = commands.add_parser("stats", help="a dataset's statistics: PNG figures, stats.md, stats.json")
     stats_cmd.add_argument("--dataset", required=True, type=Path, help="a native or BOP dataset directory")
     stats_cmd.add_argument("--out", required=True, type=Path, help="directory for the figures and tables")
