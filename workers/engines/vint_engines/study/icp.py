@@ -140,6 +140,7 @@ def icp(
             conditioning=0.0,
         )
     degenerate, inliers, rms, iteration, conditioning = True, 0, math.nan, 0, 0.0
+    converged = False
     while iteration < max_iterations:
         iteration += 1
         p = points @ A.T + b
@@ -184,21 +185,13 @@ def icp(
         # must not keep the loop going, nor the correspondences' flicker between neighbours.
         change = jac @ (step * shrink)
         if math.sqrt(float(np.sum(w * change**2) / np.sum(w))) < tol_mm:
-            return IcpResult(
-                R=A.T,
-                t=-A.T @ b,
-                iterations=iteration,
-                converged=True,
-                degenerate=degenerate,
-                inliers=inliers,
-                rms_mm=rms,
-                conditioning=conditioning,
-            )
+            converged = True
+            break
     return IcpResult(
         R=A.T,
         t=-A.T @ b,
         iterations=iteration,
-        converged=False,
+        converged=converged,
         degenerate=degenerate,
         inliers=inliers,
         rms_mm=rms,
