@@ -52,21 +52,46 @@ pub fn write(native: &Path, out: &Path) -> anyhow::Result<Converted> {
 
     write_models(native, &objects, &mut sink)?;
     let mut scenes = Vec::new();
-    let mut samples = 0;
+    let mut work = Vec::new();
     for (scene_id, (grasp_id, views)) in grasps.iter().enumerate() {
         let split = split[grasp_id.as_str()]
             .as_str()
             .filter(|s| ["train", "val", "test"].contains(s))
             .ok_or_else(|| anyhow!("dataset.json: split.grasps has no train/val/test entry for grasp {grasp_id}"))?;
-        let dir = format!("{split}/{scene_id:06}");
-        write_scene(native, &dir, grasp_id, views, &objects, &mut sink).with_context(|| format!("grasp {grasp_id}"))?;
-        samples += views.len();
+        work.push((format!("{split}/{scene_id:06}"), grasp_id, views));
         scenes.push(json!({
             "scene_id": scene_id,
             "split": split,
             "grasp_id": grasp_id,
             "im_ids": views.keys().collect::<Vec<_>>(),
         }));
+    }
+    let samples = grasps.values().map(BTreeMap::len).sum();
+    // Scenes are independent (each writes only its own folder), so they are written on every core;
+    // which thread writes a scene changes nothing in its bytes.
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get()).clamp(1, work.len().max(1));
+    let written = std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..threads)
+            .map(|t| {
+                let (work, objects) = (&work, &objects);
+                scope.spawn(move || -> anyhow::Result<(usize, u64)> {
+                    let mut sink = Sink { root: out.to_path_buf(), files: 0, bytes: 0 };
+                    for (dir, grasp_id, views) in work.iter().skip(t).step_by(threads) {
+                        write_scene(native, dir, grasp_id, views, objects, &mut sink)
+                            .with_context(|| format!("grasp {grasp_id}"))?;
+                    }
+                    Ok((sink.files, sink.bytes))
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| h.join().map_err(|_| anyhow!("a BOP writer thread panicked"))?)
+            .collect::<anyhow::Result<Vec<_>>>()
+    })?;
+    for (files, bytes) in written {
+        sink.files += files;
+        sink.bytes += bytes;
     }
 
     let mut described = dataset.clone();
