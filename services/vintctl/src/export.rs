@@ -116,6 +116,7 @@ pub async fn export(
 pub fn convert_dir(native: &Path, out: &Path, target: Target) -> Result<ExportSummary, Failure> {
     let format = target.format;
     check_destination(out)?;
+    refuse_overlap(native, out)?;
     if !native.join(DATASET_FILE).is_file() {
         return Err(bad_input(anyhow!(
             "{}: not a vint dataset in the native layout (no {DATASET_FILE}; `vintctl run` and `vintctl \
@@ -145,6 +146,24 @@ pub fn convert_dir(native: &Path, out: &Path, target: Target) -> Result<ExportSu
         bytes: converted.bytes,
         manifest_sha256: hex::encode(Sha256::digest(&manifest)),
     })
+}
+
+/// Refuses an output that is the input, or holds it, or lies in it: replacing it would delete the
+/// dataset being converted.
+fn refuse_overlap(native: &Path, out: &Path) -> Result<(), Failure> {
+    let resolve = |p: &Path| {
+        let absolute = std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+        absolute.canonicalize().unwrap_or(absolute)
+    };
+    let (native, out) = (resolve(native), resolve(out));
+    if native.starts_with(&out) || out.starts_with(&native) {
+        return Err(bad_input(anyhow!(
+            "--out {}: overlaps the dataset being converted ({}); write the conversion elsewhere",
+            out.display(),
+            native.display()
+        )));
+    }
+    Ok(())
 }
 
 /// A fresh sibling of `out` to assemble a dataset in, so that a reader never sees half of one.

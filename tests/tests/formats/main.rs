@@ -104,3 +104,16 @@ fn native_export_has_models_and_a_split_of_every_grasp() {
         assert_eq!(p["trials"].as_u64(), Some(p["accepted"].as_u64().unwrap_or(0) + rejected), "{p}");
     }
 }
+
+/// Converting a dataset into itself (or into a folder inside it) would replace the input: refused
+/// as bad input, and the dataset stays whole.
+#[test]
+fn converting_into_the_dataset_itself_is_refused_and_loses_nothing() {
+    let dir = tiny();
+    for out in [dir.to_path_buf(), dir.join("bop")] {
+        let run = vintctl(&["convert", path_str(dir), "--out", path_str(&out), "--format", "bop"]);
+        assert_eq!(run.status.code(), Some(2), "{}", String::from_utf8_lossy(&run.stderr));
+        assert!(String::from_utf8_lossy(&run.stderr).contains("overlaps the dataset being converted"));
+    }
+    vint_tests::verify_dataset(dir);
+}
