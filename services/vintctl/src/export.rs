@@ -28,6 +28,8 @@ use crate::{Failure, bad_input};
 
 /// The dataset's own record, at its root.
 pub const DATASET_FILE: &str = "dataset.json";
+/// `dataset.json`'s `format` in the native layout (the converters write their own).
+const NATIVE_FORMAT: &str = "vint-native";
 /// BOP object ids of objects that are not in the catalog start here (catalog objects keep their
 /// catalog position, so the 21 YCB-Video objects have BOP's ycbv ids 1–21).
 const USER_OBJECT_IDS: u32 = 1001;
@@ -117,10 +119,16 @@ pub fn convert_dir(native: &Path, out: &Path, target: Target) -> Result<ExportSu
     let format = target.format;
     check_destination(out)?;
     refuse_overlap(native, out)?;
-    if !native.join(DATASET_FILE).is_file() {
+    let layout = std::fs::read(native.join(DATASET_FILE))
+        .ok()
+        .and_then(|bytes| serde_json::from_slice::<Value>(&bytes).ok())
+        .and_then(|record| record["format"].as_str().map(str::to_string));
+    if layout.as_deref() != Some(NATIVE_FORMAT) {
+        let found =
+            layout.map_or_else(|| format!("no readable {DATASET_FILE}"), |f| format!("its {DATASET_FILE} says {f:?}"));
         return Err(bad_input(anyhow!(
-            "{}: not a vint dataset in the native layout (no {DATASET_FILE}; `vintctl run` and `vintctl \
-             export` write one)",
+            "{}: not a vint dataset in the native layout ({found}; `vintctl run` and `vintctl export` write one \
+             without --format)",
             native.display()
         )));
     }
@@ -350,7 +358,7 @@ fn dataset_record(
     let assigned = split::assign(grasps, info.seed, info.split);
     let by_grasp: BTreeMap<String, &str> = assigned.iter().map(|(g, s)| (g.to_string(), s.as_str())).collect();
     Ok(json!({
-        "format": "vint-native",
+        "format": NATIVE_FORMAT,
         "version": 1,
         "name": info.name,
         "seed": info.seed,

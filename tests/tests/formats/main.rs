@@ -116,4 +116,14 @@ fn converting_into_the_dataset_itself_is_refused_and_loses_nothing() {
         assert!(String::from_utf8_lossy(&run.stderr).contains("overlaps the dataset being converted"));
     }
     vint_tests::verify_dataset(dir);
+    // Only the native layout converts: a BOP export is no input for WebDataset shards.
+    let out = dir.with_file_name("out-from-bop");
+    let run = vintctl(&["convert", path_str(bop()), "--out", path_str(&out), "--format", "webdataset"]);
+    assert_eq!(run.status.code(), Some(2), "{}", String::from_utf8_lossy(&run.stderr));
+    assert!(
+        String::from_utf8_lossy(&run.stderr).contains("says \"vint-bop\""),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    assert!(!out.exists());
 }
