@@ -31,6 +31,8 @@ pub enum Split {
 
 impl Split {
     pub const ALL: [Split; 3] = [Split::Train, Split::Val, Split::Test];
+    /// Their names, as datasets write them (`dataset.json`, BOP's split folders, shard folders).
+    pub const NAMES: [&'static str; 3] = ["train", "val", "test"];
 
     pub fn as_str(self) -> &'static str {
         match self {
@@ -140,6 +142,11 @@ mod tests {
             t[*s as usize] += 1;
         }
         t
+    }
+
+    #[test]
+    fn names_are_the_splits_as_str() {
+        assert_eq!(Split::ALL.map(Split::as_str), Split::NAMES);
     }
 
     #[test]

@@ -56,7 +56,7 @@ pub fn write(native: &Path, out: &Path) -> anyhow::Result<Converted> {
     for (scene_id, (grasp_id, views)) in grasps.iter().enumerate() {
         let split = split[grasp_id.as_str()]
             .as_str()
-            .filter(|s| ["train", "val", "test"].contains(s))
+            .filter(|s| vint_core::split::Split::NAMES.contains(s))
             .ok_or_else(|| anyhow!("dataset.json: split.grasps has no train/val/test entry for grasp {grasp_id}"))?;
         work.push((format!("{split}/{scene_id:06}"), grasp_id, views));
         scenes.push(json!({

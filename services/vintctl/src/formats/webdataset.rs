@@ -37,7 +37,7 @@ pub const INDEX_FILE: &str = "shards.json";
 /// The member naming the sample (its real id, grasp, view and split).
 pub const SAMPLE_RECORD: &str = "sample.json";
 /// The splits a dataset's grasps are assigned to (`dataset.json`'s `split.grasps`).
-const SPLITS: [&str; 3] = ["train", "val", "test"];
+const SPLITS: [&str; 3] = vint_core::split::Split::NAMES;
 
 /// The shard key of a sample: its id with dots turned into slashes.
 pub fn sample_key(id: &SampleId) -> String {
