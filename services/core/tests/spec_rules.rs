@@ -515,3 +515,14 @@ fn split_fractions_must_sum_to_one_and_held_out_names_must_be_the_specs() {
     .expect("a valid split");
     assert_eq!((spec.split.train, spec.split.held_out_hands.as_slice()), (0.6, ["trx3".to_string()].as_slice()));
 }
+
+/// The paper's recipe (issue 11 plans and costs it): 26 objects × 2 hands × 2,500 accepted grasps
+/// × 4 environments × 3 views.
+#[test]
+fn the_vint_sim_recipe_is_valid_and_asks_for_one_and_a_half_million_samples() {
+    let spec = DatasetSpec::parse(include_str!("../../../examples/vint-sim.toml")).expect("vint-sim.toml is valid");
+    assert_eq!((spec.objects.len(), spec.hands.len()), (26, 2));
+    assert_eq!(spec.objects.len(), vint_core::catalog::objects().len(), "every built-in object");
+    assert_eq!(spec.grasp.accepted_per_pair, Some(2500));
+    assert_eq!(spec.max_samples(), 26 * 2 * 2500 * 4 * 3);
+}
