@@ -11,7 +11,7 @@ mod dataset;
 mod estimates;
 mod kdtree;
 mod metrics;
-mod ply;
+pub(crate) mod ply;
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;

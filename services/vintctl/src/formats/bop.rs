@@ -29,7 +29,7 @@ use super::Converted;
 use frames::{Mat3, Rigid, Vec3, row_major};
 pub use images::DEPTH_SCALE_MM;
 use images::{Mask, depth_units, encode_depth};
-use model::{ModelGeometry, ply_vertices};
+use model::ModelGeometry;
 
 /// Lengths are written in mm to 1 nm and unitless numbers (rotations, normals) to 1e-9: far below
 /// anything measured, short and stable text.
@@ -197,7 +197,7 @@ fn write_models(native: &Path, objects: &Objects, sink: &mut Sink) -> anyhow::Re
         let file = o["model"].as_str().ok_or_else(|| anyhow!("dataset.json: object {name} has no model file"))?;
         let path = native.join(file);
         let bytes = fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
-        let vertices = ply_vertices(&bytes).with_context(|| format!("{}", path.display()))?;
+        let vertices = crate::eval::ply::vertices(&bytes).with_context(|| format!("{}", path.display()))?;
         let geometry = ModelGeometry::of(&vertices).with_context(|| format!("{}", path.display()))?;
         check_declared(name, &geometry, o)?;
         sink.put(&format!("models/obj_{id:06}.ply"), &bytes)?;

@@ -1,7 +1,8 @@
 //! The object models' `models_info.json` entries: extents and diameter measured on the model PLY
-//! itself (millimetres), so they describe exactly the file the export ships.
+//! itself (millimetres, read with `eval::ply`, the one PLY reader), so they describe exactly the file
+//! the export ships.
 
-use anyhow::{Context, anyhow, bail};
+use anyhow::anyhow;
 
 use super::frames::Vec3;
 
@@ -55,91 +56,9 @@ fn distance(a: &Vec3, b: &Vec3) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
 
-/// The vertex positions of a binary little-endian PLY whose first element is `vertex` with
-/// fixed-size properties including x, y and z (what the engines write, and what the BOP toolkit's
-/// `load_ply` reads).
-pub fn ply_vertices(bytes: &[u8]) -> anyhow::Result<Vec<Vec3>> {
-    const END: &[u8] = b"end_header\n";
-    let end = bytes.windows(END.len()).position(|w| w == END).ok_or_else(|| anyhow!("PLY has no end_header"))?;
-    let header = std::str::from_utf8(&bytes[..end]).context("PLY header is not text")?;
-    let body = &bytes[end + END.len()..];
-    let mut lines = header.lines().map(str::trim);
-    if lines.next() != Some("ply") {
-        bail!("not a PLY file");
-    }
-    let (mut format, mut count, mut offsets, mut stride) = (None, None, [None; 3], 0usize);
-    let mut in_vertex = false;
-    for line in lines {
-        let words: Vec<&str> = line.split_whitespace().collect();
-        match words.as_slice() {
-            ["format", f, _] => format = Some(*f),
-            ["element", "vertex", n] if count.is_none() => {
-                count = Some(n.parse::<usize>().context("PLY vertex count")?);
-                in_vertex = true;
-            }
-            ["element", ..] if count.is_none() => bail!("PLY: the first element must be vertex"),
-            ["element", ..] => in_vertex = false,
-            ["property", "list", ..] if in_vertex => bail!("PLY: a list property in the vertex element"),
-            ["property", kind, name] if in_vertex => {
-                let size = scalar_size(kind)?;
-                if let Some(k) = ["x", "y", "z"].iter().position(|axis| axis == name) {
-                    if !matches!(*kind, "float" | "float32") {
-                        bail!("PLY: vertex {name} is {kind}, expected float");
-                    }
-                    offsets[k] = Some(stride);
-                }
-                stride += size;
-            }
-            _ => {}
-        }
-    }
-    if format != Some("binary_little_endian") {
-        bail!("PLY format {format:?}: only binary_little_endian is read");
-    }
-    let count = count.ok_or_else(|| anyhow!("PLY has no vertex element"))?;
-    let [Some(ox), Some(oy), Some(oz)] = offsets else { bail!("PLY vertex lacks x, y or z") };
-    if body.len() < count * stride {
-        bail!("PLY: {count} vertices need {} bytes, the file has {}", count * stride, body.len());
-    }
-    let f = |record: &[u8], at: usize| {
-        f64::from(f32::from_le_bytes([record[at], record[at + 1], record[at + 2], record[at + 3]]))
-    };
-    Ok(body[..count * stride].chunks_exact(stride).map(|r| [f(r, ox), f(r, oy), f(r, oz)]).collect())
-}
-
-fn scalar_size(kind: &str) -> anyhow::Result<usize> {
-    Ok(match kind {
-        "char" | "uchar" | "int8" | "uint8" => 1,
-        "short" | "ushort" | "int16" | "uint16" => 2,
-        "int" | "uint" | "int32" | "uint32" | "float" | "float32" => 4,
-        "double" | "float64" => 8,
-        other => bail!("PLY: unknown property type {other:?}"),
-    })
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn ply(vertices: &[Vec3], extra_property: bool) -> Vec<u8> {
-        let mut header = String::from("ply\nformat binary_little_endian 1.0\ncomment units: mm\n");
-        header += &format!("element vertex {}\nproperty float x\n", vertices.len());
-        if extra_property {
-            header += "property uchar flag\n";
-        }
-        header +=
-            "property float y\nproperty float z\nelement face 0\nproperty list uchar int vertex_indices\nend_header\n";
-        let mut bytes = header.into_bytes();
-        for v in vertices {
-            bytes.extend((v[0] as f32).to_le_bytes());
-            if extra_property {
-                bytes.push(7);
-            }
-            bytes.extend((v[1] as f32).to_le_bytes());
-            bytes.extend((v[2] as f32).to_le_bytes());
-        }
-        bytes
-    }
 
     /// Every pair, the definition itself.
     fn brute_force(vertices: &[Vec3]) -> f64 {
@@ -183,18 +102,5 @@ mod tests {
         let line: Vec<Vec3> = (0..50).map(|i| [f64::from(i), 0.0, 0.0]).collect();
         assert_eq!(diameter(&line), 49.0);
         assert_eq!(diameter(&[[1.0, 2.0, 3.0], [1.0, 2.0, 3.0]]), 0.0);
-    }
-
-    #[test]
-    fn reads_vertices_of_a_binary_ply_skipping_other_properties() {
-        let vertices = [[1.5, -2.0, 3.25], [0.0, 10.0, -7.5]];
-        assert_eq!(ply_vertices(&ply(&vertices, false)).expect("plain"), vertices);
-        assert_eq!(ply_vertices(&ply(&vertices, true)).expect("with a flag"), vertices);
-        let ascii = b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 3\n";
-        assert!(format!("{:#}", ply_vertices(ascii).expect_err("ascii")).contains("binary_little_endian"));
-        let short = ply(&vertices, false);
-        assert!(
-            format!("{:#}", ply_vertices(&short[..short.len() - 1]).expect_err("truncated")).contains("need 24 bytes")
-        );
     }
 }
