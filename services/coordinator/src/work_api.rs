@@ -4,12 +4,16 @@
 //! worker reports (artifact keys must be the content keys of their hashes, names must be plain
 //! relative paths) and asks the planner what a completion unlocks.
 
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+
 use tonic::{Request, Response, Status};
-use tracing::Instrument;
 use vint_core::Stage;
+use vint_core::plan::{JobPlan, NewTask};
 use vint_proto::v1 as pb;
+use vint_proto::v1::completion_result::Outcome;
 use vint_proto::v1::work_service_server::WorkService;
-use vint_store::{Completion, Fence, NewArtifact, Store};
+use vint_store::{Completion, Fence, NewArtifact, Store, TaskRecord};
 
 use crate::convert::{self, status};
 use crate::planner;
@@ -19,24 +23,136 @@ use crate::{CoordinatorConfig, now_ms};
 pub struct WorkApi {
     store: Store,
     config: CoordinatorConfig,
+    plans: Arc<Mutex<HashMap<String, Arc<JobPlan>>>>,
 }
 
 impl WorkApi {
     pub fn new(store: Store, config: CoordinatorConfig) -> WorkApi {
-        WorkApi { store, config }
+        WorkApi { store, config, plans: Arc::default() }
     }
 
     fn lease_ms(&self, asked: u32) -> i64 {
         if asked == 0 { self.config.default_lease_ms } else { i64::from(asked).clamp(1_000, 600_000) }
+    }
+
+    /// A job's plan, read once per coordinator: plans are fixed at submit.
+    async fn plan_of(&self, job_id: &str) -> Result<Arc<JobPlan>, Status> {
+        if let Some(plan) = self.plans.lock().map_err(|_| Status::internal("plan cache poisoned"))?.get(job_id) {
+            return Ok(plan.clone());
+        }
+        let job = self
+            .store
+            .job(job_id)
+            .await
+            .map_err(status)?
+            .ok_or_else(|| Status::not_found(format!("job {job_id} not found")))?;
+        let plan = Arc::new(planner::job_plan(&self.store, &job).await?);
+        let mut plans = self.plans.lock().map_err(|_| Status::internal("plan cache poisoned"))?;
+        if plans.len() >= PLAN_CACHE_JOBS {
+            plans.clear();
+        }
+        plans.insert(job_id.to_string(), plan.clone());
+        Ok(plan)
+    }
+
+    /// Checks and plans each completion, then records all that passed in one store call (one
+    /// transaction). The answer has one result per request, in order: a bad report or a lost
+    /// lease refuses that task alone.
+    async fn complete_many(&self, reqs: Vec<pb::CompleteTaskRequest>) -> Result<Vec<pb::CompletionResult>, Status> {
+        let ids: Vec<String> = reqs.iter().map(|r| r.task_id.clone()).collect();
+        let tasks: HashMap<String, TaskRecord> =
+            self.store.tasks(&ids).await.map_err(status)?.into_iter().map(|t| (t.id.clone(), t)).collect();
+        let mut results: Vec<pb::CompletionResult> = reqs
+            .iter()
+            .map(|r| pb::CompletionResult {
+                task_id: r.task_id.clone(),
+                attempt: r.attempt,
+                outcome: Outcome::Completed as i32,
+                message: String::new(),
+            })
+            .collect();
+        let mut batch = Vec::with_capacity(reqs.len());
+        let mut batch_index = Vec::with_capacity(reqs.len());
+        for (i, req) in reqs.into_iter().enumerate() {
+            let Some(task) = tasks.get(&req.task_id) else {
+                results[i].outcome = Outcome::NotFound as i32;
+                results[i].message = format!("task {} not found", req.task_id);
+                continue;
+            };
+            match self.prepare(task, req).await {
+                Ok(item) => {
+                    batch.push(item);
+                    batch_index.push(i);
+                }
+                Err(message) => {
+                    results[i].outcome = Outcome::Invalid as i32;
+                    results[i].message = message;
+                }
+            }
+        }
+        let stored = self.store.complete_batch(&batch, now_ms()).await.map_err(status)?;
+        for ((i, outcome), (completion, children)) in batch_index.into_iter().zip(stored).zip(&batch) {
+            let task = &tasks[&completion.fence.task_id];
+            match outcome {
+                Ok(()) => tracing::info!(
+                    job = %task.job_id, task = %task.key, stage = %task.stage, attempt = completion.fence.attempt,
+                    worker = %completion.fence.worker_id, children = children.len(), "completed"
+                ),
+                Err(e) => {
+                    tracing::warn!(job = %task.job_id, task = %task.key, error = %e, "completion refused");
+                    results[i].outcome = Outcome::LeaseLost as i32;
+                    results[i].message = e.to_string();
+                }
+            }
+        }
+        Ok(results)
+    }
+
+    /// A worker's report checked and turned into a store completion plus the tasks it unlocks;
+    /// `Err` says what is wrong with the report.
+    async fn prepare(
+        &self,
+        task: &TaskRecord,
+        req: pb::CompleteTaskRequest,
+    ) -> Result<(Completion, Vec<NewTask>), String> {
+        if req.outputs.len() > MAX_OUTPUTS {
+            return Err(format!("at most {MAX_OUTPUTS} outputs per task"));
+        }
+        let outputs = req.outputs.iter().map(validate_output).collect::<Result<Vec<_>, _>>()?;
+        // Only a grasp chunk unlocks tasks, planned from the job's plan: no other completion
+        // reads the job.
+        let plan = if task.stage == Stage::Grasp {
+            Some(self.plan_of(&task.job_id).await.map_err(|s| s.message().to_string())?)
+        } else {
+            None
+        };
+        let unlocked =
+            planner::on_complete(plan.as_deref(), task, &req.result_json, &outputs).map_err(|e| e.to_string())?;
+        let timings = req.timings.map(|t| {
+            serde_json::json!({"fetch_ms": t.fetch_ms, "engine_ms": t.engine_ms, "upload_ms": t.upload_ms, "total_ms": t.total_ms})
+        });
+        let completion = Completion {
+            fence: Fence { task_id: req.task_id, worker_id: req.worker_id, attempt: req.attempt },
+            outputs,
+            engine_json: req.engine_json,
+            timings_json: serde_json::to_string(&timings).unwrap_or_default(),
+            result_json: req.result_json,
+            samples: unlocked.samples,
+        };
+        Ok((completion, unlocked.children))
     }
 }
 
 /// Longest accepted artifact name, and most outputs per task.
 const MAX_NAME_LEN: usize = 256;
 const MAX_OUTPUTS: usize = 10_000;
+/// Most completions in one `CompleteTasks` call.
+const MAX_BATCH: usize = 1_024;
+/// Jobs whose plans the coordinator keeps in memory; past it the cache starts over.
+const PLAN_CACHE_JOBS: usize = 256;
 
-fn validate_output(a: &pb::ArtifactRef) -> Result<NewArtifact, Status> {
-    let bad = |why: &str| Status::invalid_argument(format!("output {:?}: {why}", a.name));
+fn validate_output(a: &pb::ArtifactRef) -> Result<NewArtifact, String> {
+    let bad = |why: &str| format!("output {:?}: {why}", a.name);
     if a.name.is_empty()
         || a.name.len() > MAX_NAME_LEN
         || a.name.starts_with('/')
@@ -113,51 +229,29 @@ impl WorkService for WorkApi {
         &self,
         request: Request<pb::CompleteTaskRequest>,
     ) -> Result<Response<pb::CompleteTaskResponse>, Status> {
-        let req = request.into_inner();
-        if req.outputs.len() > MAX_OUTPUTS {
-            return Err(Status::invalid_argument(format!("at most {MAX_OUTPUTS} outputs per task")));
+        let mut results = self.complete_many(vec![request.into_inner()]).await?;
+        let r = results.pop().ok_or_else(|| Status::internal("a completion went unanswered"))?;
+        match pb::completion_result::Outcome::try_from(r.outcome) {
+            Ok(Outcome::Completed) => Ok(Response::new(pb::CompleteTaskResponse {})),
+            Ok(Outcome::LeaseLost) => Err(Status::failed_precondition(r.message)),
+            Ok(Outcome::NotFound) => Err(Status::not_found(r.message)),
+            _ => Err(Status::invalid_argument(r.message)),
         }
-        let outputs = req.outputs.iter().map(validate_output).collect::<Result<Vec<_>, _>>()?;
-        let task = self
-            .store
-            .task(&req.task_id)
-            .await
-            .map_err(status)?
-            .ok_or_else(|| Status::not_found(format!("task {} not found", req.task_id)))?;
-        let span = tracing::info_span!("complete", job = %task.job_id, task = %task.key, stage = %task.stage, attempt = req.attempt);
-        async {
-            // Only a grasp chunk unlocks tasks, planned from the job's plan: no other completion
-            // reads the job.
-            let plan = if task.stage == Stage::Grasp {
-                let job = self
-                    .store
-                    .job(&task.job_id)
-                    .await
-                    .map_err(status)?
-                    .ok_or_else(|| Status::not_found(format!("job {} not found", task.job_id)))?;
-                Some(planner::job_plan(&self.store, &job).await?)
-            } else {
-                None
-            };
-            let unlocked = planner::on_complete(plan.as_ref(), &task, &req.result_json, &outputs)
-                .map_err(|e| Status::invalid_argument(e.to_string()))?;
-            let completion = Completion {
-                fence: Fence { task_id: req.task_id.clone(), worker_id: req.worker_id.clone(), attempt: req.attempt },
-                outputs,
-                engine_json: req.engine_json.clone(),
-                timings_json: serde_json::to_string(&req.timings.map(|t| {
-                    serde_json::json!({"fetch_ms": t.fetch_ms, "engine_ms": t.engine_ms, "upload_ms": t.upload_ms, "total_ms": t.total_ms})
-                }))
-                .unwrap_or_default(),
-                result_json: req.result_json.clone(),
-                samples: unlocked.samples,
-            };
-            self.store.complete(&completion, &unlocked.children, now_ms()).await.map_err(status)?;
-            tracing::info!(children = unlocked.children.len(), worker = %req.worker_id, "completed");
-            Ok(Response::new(pb::CompleteTaskResponse {}))
+    }
+
+    async fn complete_tasks(
+        &self,
+        request: Request<pb::CompleteTasksRequest>,
+    ) -> Result<Response<pb::CompleteTasksResponse>, Status> {
+        let tasks = request.into_inner().tasks;
+        if tasks.len() > MAX_BATCH {
+            return Err(Status::invalid_argument(format!(
+                "tasks: {} completions in one call, at most {MAX_BATCH}",
+                tasks.len()
+            )));
         }
-        .instrument(span)
-        .await
+        let results = self.complete_many(tasks).await?;
+        Ok(Response::new(pb::CompleteTasksResponse { results }))
     }
 
     async fn fail_task(&self, request: Request<pb::FailTaskRequest>) -> Result<Response<pb::FailTaskResponse>, Status> {

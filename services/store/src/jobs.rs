@@ -245,6 +245,17 @@ impl Store {
         row.as_ref().map(task_from_row).transpose()
     }
 
+    /// The tasks among `ids` that exist, in no particular order: one query for a batch.
+    pub async fn tasks(&self, ids: &[String]) -> Result<Vec<TaskRecord>> {
+        if ids.is_empty() {
+            return Ok(Vec::new());
+        }
+        let list = serde_json::to_string(ids).map_err(|e| StoreError::Corrupt(e.to_string()))?;
+        let sql = format!("SELECT {TASK_COLUMNS} FROM tasks WHERE id IN ({})", self.backend.json_text_array("$1"));
+        let rows = sqlx::query(trusted(sql)).bind(list).fetch_all(&self.pool).await?;
+        rows.iter().map(task_from_row).collect()
+    }
+
     pub async fn tasks_of_job(&self, job_id: &str) -> Result<Vec<TaskRecord>> {
         let sql = format!("SELECT {TASK_COLUMNS} FROM tasks WHERE job_id = $1 ORDER BY key");
         let rows = sqlx::query(trusted(sql)).bind(job_id).fetch_all(&self.pool).await?;

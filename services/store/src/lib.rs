@@ -45,6 +45,15 @@ impl Backend {
         }
     }
 
+    /// A set of text values from a JSON array of strings bound as `param`, for `x IN (…)`: one
+    /// statement for a batch, where sqlx's `Any` driver cannot bind arrays.
+    fn json_text_array(self, param: &str) -> String {
+        match self {
+            Backend::Postgres => format!("SELECT jsonb_array_elements_text({param}::jsonb)"),
+            Backend::Sqlite => format!("SELECT value FROM json_each({param})"),
+        }
+    }
+
     /// The clause that locks a row read before it is updated in the same transaction.
     fn lock_row(self) -> &'static str {
         match self {

@@ -183,6 +183,25 @@ impl Store {
         Ok(())
     }
 
+    /// Completes many tasks in one call. Fenced per task: the result for a completion whose lease
+    /// was lost is `Err(LeaseLost)` and the others still complete. An error of the database itself
+    /// fails the whole call (and changes nothing).
+    pub async fn complete_batch(
+        &self,
+        items: &[(Completion, Vec<NewTask>)],
+        now_ms: i64,
+    ) -> Result<Vec<std::result::Result<(), StoreError>>> {
+        let mut results = Vec::with_capacity(items.len());
+        for (c, children) in items {
+            match self.complete(c, children, now_ms).await {
+                Ok(()) => results.push(Ok(())),
+                Err(e @ StoreError::LeaseLost { .. }) => results.push(Err(e)),
+                Err(e) => return Err(e),
+            }
+        }
+        Ok(results)
+    }
+
     /// Fails an attempt. A retryable failure with attempts left requeues the task after a backoff
     /// and returns `true`; otherwise the task fails permanently (keeping `message`), its waiting
     /// dependents fail with it, and this returns `false`.
