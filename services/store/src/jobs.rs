@@ -1,5 +1,8 @@
 //! Jobs: submit (idempotent), read, progress, cancel, finalize; and inserting planned tasks.
 
+use std::collections::BTreeSet;
+
+use serde_json::{Value, json};
 use sqlx::any::AnyRow;
 use sqlx::{Any, Row, Transaction};
 use vint_core::plan::NewTask;
@@ -206,19 +209,38 @@ impl Store {
     /// Called after every completion and periodically: two completions committing at once can
     /// each see the other's task still running, so the periodic call is what guarantees it.
     pub async fn finalize_jobs(&self, now_ms: i64) -> Result<Vec<String>> {
-        let rows = sqlx::query(
+        self.finalize(None, now_ms).await
+    }
+
+    /// `finalize_jobs` for the jobs among `job_ids` only: what a batch of completions may finish.
+    pub(crate) async fn finalize_jobs_among(&self, job_ids: &BTreeSet<&str>, now_ms: i64) -> Result<Vec<String>> {
+        if job_ids.is_empty() {
+            return Ok(Vec::new());
+        }
+        self.finalize(Some(json_text(job_ids)?), now_ms).await
+    }
+
+    async fn finalize(&self, among: Option<String>, now_ms: i64) -> Result<Vec<String>> {
+        let restrict = match among {
+            Some(_) => format!(" AND j.id IN ({})", self.backend.json_text_array("$6")),
+            None => String::new(),
+        };
+        let sql = format!(
             "SELECT j.id, \
                (SELECT COUNT(*) FROM tasks t WHERE t.job_id = j.id AND t.state = $1) AS failed \
-             FROM jobs j WHERE j.state = $2 AND NOT EXISTS \
-               (SELECT 1 FROM tasks t WHERE t.job_id = j.id AND t.state IN ($3, $4, $5))",
-        )
-        .bind(TaskState::Failed.as_str())
-        .bind(JobState::Running.as_str())
-        .bind(TaskState::Waiting.as_str())
-        .bind(TaskState::Queued.as_str())
-        .bind(TaskState::Running.as_str())
-        .fetch_all(&self.pool)
-        .await?;
+             FROM jobs j WHERE j.state = $2{restrict} AND NOT EXISTS \
+               (SELECT 1 FROM tasks t WHERE t.job_id = j.id AND t.state IN ($3, $4, $5))"
+        );
+        let mut query = sqlx::query(trusted(sql))
+            .bind(TaskState::Failed.as_str())
+            .bind(JobState::Running.as_str())
+            .bind(TaskState::Waiting.as_str())
+            .bind(TaskState::Queued.as_str())
+            .bind(TaskState::Running.as_str());
+        if let Some(among) = among {
+            query = query.bind(among);
+        }
+        let rows = query.fetch_all(&self.pool).await?;
         let mut done = Vec::new();
         for row in rows {
             let id: String = row.try_get("id")?;
@@ -250,7 +272,7 @@ impl Store {
         if ids.is_empty() {
             return Ok(Vec::new());
         }
-        let list = serde_json::to_string(ids).map_err(|e| StoreError::Corrupt(e.to_string()))?;
+        let list = json_text(ids)?;
         let sql = format!("SELECT {TASK_COLUMNS} FROM tasks WHERE id IN ({})", self.backend.json_text_array("$1"));
         let rows = sqlx::query(trusted(sql)).bind(list).fetch_all(&self.pool).await?;
         rows.iter().map(task_from_row).collect()
@@ -262,8 +284,9 @@ impl Store {
         rows.iter().map(task_from_row).collect()
     }
 
-    /// Inserts planned tasks with their dependency edges. A task whose dependencies have all
-    /// succeeded starts queued; otherwise it waits. Keys already present are skipped, so
+    /// Inserts planned tasks with their dependency edges, a batch in three statements. A task
+    /// whose dependencies have all succeeded starts queued; otherwise it waits, counting those
+    /// that have not (a dependency in this batch has not). Keys already present are skipped, so
     /// re-planning is harmless.
     pub(crate) async fn insert_tasks(
         &self,
@@ -272,51 +295,84 @@ impl Store {
         tasks: &[NewTask],
         now_ms: i64,
     ) -> Result<()> {
-        for t in tasks {
-            let id = task_id(job_id, &t.key);
-            let inserted = sqlx::query(
-                "INSERT INTO tasks (id, job_id, key, stage, priority, params_json, state, deps_pending, \
-                 max_attempts, created_ms, updated_ms) VALUES ($1, $2, $3, $4, $5, $6, $7, 0, $8, $9, $9) \
-                 ON CONFLICT (id) DO NOTHING",
-            )
-            .bind(&id)
+        if tasks.is_empty() {
+            return Ok(());
+        }
+        let deps: BTreeSet<String> = tasks.iter().flat_map(|t| t.deps.iter().map(|d| task_id(job_id, d))).collect();
+        let mut succeeded = BTreeSet::new();
+        if !deps.is_empty() {
+            let sql =
+                format!("SELECT id FROM tasks WHERE state = $1 AND id IN ({})", self.backend.json_text_array("$2"));
+            let rows = sqlx::query(trusted(sql))
+                .bind(TaskState::Succeeded.as_str())
+                .bind(json_text(&deps)?)
+                .fetch_all(&mut **tx)
+                .await?;
+            for row in rows {
+                succeeded.insert(row.try_get::<String, _>("id")?);
+            }
+        }
+        let rows: Vec<Value> = tasks
+            .iter()
+            .map(|t| {
+                let pending = t.deps.iter().filter(|d| !succeeded.contains(&task_id(job_id, d))).count();
+                let state = if pending == 0 { TaskState::Queued } else { TaskState::Waiting };
+                json!({
+                    "id": task_id(job_id, &t.key), "key": t.key, "stage": t.stage.as_str(),
+                    "priority": t.stage.lease_priority(), "params": t.params.to_string(),
+                    "state": state.as_str(), "pending": pending,
+                })
+            })
+            .collect();
+        let sql = format!(
+            "INSERT INTO tasks (id, job_id, key, stage, priority, params_json, state, deps_pending, max_attempts, \
+             created_ms, updated_ms) SELECT n.id, $1, n.key, n.stage, n.priority, n.params, n.state, n.pending, $2, $3, $3 \
+             FROM {rows} WHERE true ON CONFLICT (id) DO NOTHING RETURNING id",
+            rows = self.backend.json_rows(
+                "$4",
+                "n",
+                &[
+                    ("id", "text"),
+                    ("key", "text"),
+                    ("stage", "text"),
+                    ("priority", "bigint"),
+                    ("params", "text"),
+                    ("state", "text"),
+                    ("pending", "bigint")
+                ],
+            ),
+        );
+        let inserted: BTreeSet<String> = sqlx::query(trusted(sql))
             .bind(job_id)
-            .bind(&t.key)
-            .bind(t.stage.as_str())
-            .bind(t.stage.lease_priority())
-            .bind(t.params.to_string())
-            .bind(TaskState::Waiting.as_str())
             .bind(i64::from(self.retry.max_attempts))
             .bind(now_ms)
-            .execute(&mut **tx)
+            .bind(json_text(&rows)?)
+            .fetch_all(&mut **tx)
             .await?
-            .rows_affected();
-            if inserted == 0 {
-                continue;
-            }
-            for dep in &t.deps {
-                sqlx::query("INSERT INTO task_deps (task_id, depends_on) VALUES ($1, $2)")
-                    .bind(&id)
-                    .bind(task_id(job_id, dep))
-                    .execute(&mut **tx)
-                    .await?;
-            }
-            sqlx::query(
-                "UPDATE tasks SET deps_pending = (SELECT COUNT(*) FROM task_deps d JOIN tasks p ON p.id = d.depends_on \
-                 WHERE d.task_id = $1 AND p.state <> $2) WHERE id = $1",
-            )
-            .bind(&id)
-            .bind(TaskState::Succeeded.as_str())
-            .execute(&mut **tx)
-            .await?;
-            sqlx::query("UPDATE tasks SET state = $1 WHERE id = $2 AND deps_pending = 0")
-                .bind(TaskState::Queued.as_str())
-                .bind(&id)
-                .execute(&mut **tx)
-                .await?;
+            .iter()
+            .map(|row| row.try_get::<String, _>("id"))
+            .collect::<Result<_, _>>()?;
+        let edges: Vec<Value> = tasks
+            .iter()
+            .map(|t| (task_id(job_id, &t.key), t))
+            .filter(|(id, _)| inserted.contains(id))
+            .flat_map(|(id, t)| t.deps.iter().map(move |d| json!({"task": id, "dep": task_id(job_id, d)})))
+            .collect();
+        if !edges.is_empty() {
+            let sql = format!(
+                "INSERT INTO task_deps (task_id, depends_on) SELECT e.task, e.dep FROM {} WHERE true \
+                 ON CONFLICT DO NOTHING",
+                self.backend.json_rows("$1", "e", &[("task", "text"), ("dep", "text")]),
+            );
+            sqlx::query(trusted(sql)).bind(json_text(&edges)?).execute(&mut **tx).await?;
         }
         Ok(())
     }
+}
+
+/// A value as JSON text, to bind as one parameter.
+pub(crate) fn json_text<T: serde::Serialize + ?Sized>(value: &T) -> Result<String> {
+    serde_json::to_string(value).map_err(|e| StoreError::Corrupt(format!("unencodable batch: {e}")))
 }
 
 /// A `job_assets` row (path, sha256, size, media_type, object_key).

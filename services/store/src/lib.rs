@@ -54,6 +54,22 @@ impl Backend {
         }
     }
 
+    /// A derived table `alias` with one row per object of the JSON array bound as `param`, with
+    /// columns `cols` (name, SQL type `text` or `bigint`): how one statement takes a whole batch.
+    fn json_rows(self, param: &str, alias: &str, cols: &[(&str, &str)]) -> String {
+        match self {
+            Backend::Postgres => {
+                let cols: Vec<String> = cols.iter().map(|(name, ty)| format!("{name} {ty}")).collect();
+                format!("jsonb_to_recordset({param}::jsonb) AS {alias}({})", cols.join(", "))
+            }
+            Backend::Sqlite => {
+                let cols: Vec<String> =
+                    cols.iter().map(|(name, _)| format!("json_extract(value, '$.{name}') AS {name}")).collect();
+                format!("(SELECT {} FROM json_each({param})) AS {alias}", cols.join(", "))
+            }
+        }
+    }
+
     /// The clause that locks a row read before it is updated in the same transaction.
     fn lock_row(self) -> &'static str {
         match self {

@@ -5,14 +5,16 @@
 //! they change a task only while it is `running`, leased by the caller, at the caller's attempt
 //! and (for completion and heartbeats) before the lease deadline.
 
+use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};
+
 use sqlx::{Any, Row, Transaction};
 use vint_core::plan::NewTask;
 use vint_core::state::retry_backoff_ms;
 use vint_core::{AttemptOutcome, Stage, TaskState};
 
-use crate::jobs::task_from_row;
+use crate::jobs::{json_text, task_from_row};
 use crate::{
-    ArtifactRecord, Completion, Fence, LeasedTask, Result, Store, StoreError, literal, parse, to_u32, trusted,
+    ArtifactRecord, Backend, Completion, Fence, LeasedTask, Result, Store, StoreError, literal, parse, to_u32, trusted,
 };
 
 /// Why an attempt ends without success.
@@ -56,30 +58,37 @@ impl Store {
             .bind(i64::from(capacity))
             .fetch_all(&mut *tx)
             .await?;
+        if rows.is_empty() {
+            tx.rollback().await?;
+            return Ok(Vec::new());
+        }
         let mut leased = Vec::with_capacity(rows.len());
         for row in rows {
-            let id: String = row.try_get("id")?;
-            let attempt = to_u32("attempt", row.try_get("attempt")?)?;
-            sqlx::query("INSERT INTO attempts (task_id, attempt, worker_id, started_ms) VALUES ($1, $2, $3, $4)")
-                .bind(&id)
-                .bind(i64::from(attempt))
-                .bind(worker_id)
-                .bind(now_ms)
-                .execute(&mut *tx)
-                .await?;
-            let inputs = dependency_outputs(&mut tx, &id).await?;
             leased.push(LeasedTask {
+                id: row.try_get("id")?,
                 job_id: row.try_get("job_id")?,
                 key: row.try_get("key")?,
                 stage: parse("stage", &row.try_get::<String, _>("stage")?)?,
-                attempt,
+                attempt: to_u32("attempt", row.try_get("attempt")?)?,
                 params_json: row.try_get("params_json")?,
-                inputs,
+                inputs: Vec::new(),
                 lease_deadline_ms: row.try_get("lease_deadline_ms")?,
-                id,
             });
         }
+        let attempts: Vec<serde_json::Value> =
+            leased.iter().map(|t| serde_json::json!({"id": t.id, "attempt": t.attempt})).collect();
+        let sql = format!(
+            "INSERT INTO attempts (task_id, attempt, worker_id, started_ms) SELECT a.id, a.attempt, $1, $2 FROM {}",
+            self.backend.json_rows("$3", "a", &[("id", "text"), ("attempt", "bigint")]),
+        );
+        sqlx::query(trusted(sql)).bind(worker_id).bind(now_ms).bind(json_text(&attempts)?).execute(&mut *tx).await?;
         tx.commit().await?;
+        // Inputs are outputs of succeeded tasks, which never change: read after the commit.
+        let ids: Vec<&str> = leased.iter().map(|t| t.id.as_str()).collect();
+        let mut inputs = self.dependency_outputs(&ids).await?;
+        for t in &mut leased {
+            t.inputs = inputs.remove(&t.id).unwrap_or_default();
+        }
         leased.sort_by(|a, b| a.id.cmp(&b.id));
         Ok(leased)
     }
@@ -118,88 +127,168 @@ impl Store {
     /// inserts the tasks the planner derived from it, all in one transaction. Refused with
     /// `LeaseLost` unless the caller holds an unexpired lease on this attempt.
     pub async fn complete(&self, c: &Completion, children: &[NewTask], now_ms: i64) -> Result<()> {
-        let f = &c.fence;
-        let mut tx = self.pool.begin().await?;
-        let row = sqlx::query(
-            "UPDATE tasks SET state = $1, lease_owner = NULL, lease_deadline_ms = NULL, engine_json = $3, \
-             result_json = $4, updated_ms = $5 WHERE id = $6 AND state = $2 AND lease_owner = $7 \
-             AND attempt = $8 AND lease_deadline_ms >= $5 RETURNING job_id",
-        )
-        .bind(TaskState::Succeeded.as_str())
-        .bind(TaskState::Running.as_str())
-        .bind(&c.engine_json)
-        .bind(&c.result_json)
-        .bind(now_ms)
-        .bind(&f.task_id)
-        .bind(&f.worker_id)
-        .bind(i64::from(f.attempt))
-        .fetch_optional(&mut *tx)
-        .await?;
-        let Some(row) = row else {
-            tx.rollback().await?;
-            return Err(lease_lost(f));
-        };
-        let job_id: String = row.try_get("job_id")?;
-        for a in &c.outputs {
-            sqlx::query(
-                "INSERT INTO artifacts (task_id, name, sha256, size, media_type, object_key, created_ms) \
-                 VALUES ($1, $2, $3, $4, $5, $6, $7)",
-            )
-            .bind(&f.task_id)
-            .bind(&a.name)
-            .bind(&a.sha256)
-            .bind(a.size as i64)
-            .bind(&a.media_type)
-            .bind(&a.object_key)
-            .bind(now_ms)
-            .execute(&mut *tx)
-            .await?;
-        }
-        sqlx::query(
-            "INSERT INTO lineage_edges (task_id, input_task_id, input_name, input_sha256) \
-             SELECT d.task_id, a.task_id, a.name, a.sha256 FROM task_deps d JOIN artifacts a ON a.task_id = d.depends_on \
-             WHERE d.task_id = $1",
-        )
-        .bind(&f.task_id)
-        .execute(&mut *tx)
-        .await?;
-        let timings = Some((c.engine_json.as_str(), c.timings_json.as_str()));
-        end_attempt(&mut tx, f, now_ms, AttemptOutcome::Succeeded, None, timings).await?;
-        unblock_dependents(&mut tx, &f.task_id, now_ms).await?;
-        self.insert_tasks(&mut tx, &job_id, children, now_ms).await?;
-        for sample in &c.samples {
-            sqlx::query(
-                "INSERT INTO samples (job_id, sample_id, package_task_id) VALUES ($1, $2, $3) \
-                 ON CONFLICT (job_id, sample_id) DO NOTHING",
-            )
-            .bind(&job_id)
-            .bind(sample)
-            .bind(&f.task_id)
-            .execute(&mut *tx)
-            .await?;
-        }
-        tx.commit().await?;
-        self.finalize_jobs(now_ms).await?;
-        Ok(())
+        let item = [(c.clone(), children.to_vec())];
+        let mut results = self.complete_batch(&item, now_ms).await?;
+        results.pop().unwrap_or_else(|| Err(lease_lost(&c.fence)))
     }
 
-    /// Completes many tasks in one call. Fenced per task: the result for a completion whose lease
-    /// was lost is `Err(LeaseLost)` and the others still complete. An error of the database itself
-    /// fails the whole call (and changes nothing).
+    /// Completes many tasks in one transaction of a few set-based statements, whatever the batch's
+    /// size. Fenced per task: the result for a completion whose lease was lost (or that repeats a
+    /// task earlier in the batch) is `Err(LeaseLost)`, and the others still complete. An error of
+    /// the database itself fails the whole call and changes nothing.
     pub async fn complete_batch(
         &self,
         items: &[(Completion, Vec<NewTask>)],
         now_ms: i64,
     ) -> Result<Vec<std::result::Result<(), StoreError>>> {
-        let mut results = Vec::with_capacity(items.len());
-        for (c, children) in items {
-            match self.complete(c, children, now_ms).await {
-                Ok(()) => results.push(Ok(())),
-                Err(e @ StoreError::LeaseLost { .. }) => results.push(Err(e)),
-                Err(e) => return Err(e),
-            }
+        let mut seen = HashSet::new();
+        let first: Vec<bool> = items.iter().map(|(c, _)| seen.insert(c.fence.task_id.as_str())).collect();
+        let fences: Vec<serde_json::Value> = items
+            .iter()
+            .zip(&first)
+            .filter(|(_, first)| **first)
+            .map(|((c, _), _)| {
+                serde_json::json!({
+                    "id": c.fence.task_id, "worker": c.fence.worker_id, "attempt": c.fence.attempt,
+                    "engine": c.engine_json, "result": c.result_json, "timings": c.timings_json,
+                })
+            })
+            .collect();
+        if fences.is_empty() {
+            return Ok(items.iter().map(|(c, _)| Err(lease_lost(&c.fence))).collect());
         }
-        Ok(results)
+        let mut tx = self.pool.begin().await?;
+        // The fence: only running tasks leased to the caller, at this attempt, before the deadline.
+        let sql = format!(
+            "UPDATE tasks SET state = $1, lease_owner = NULL, lease_deadline_ms = NULL, engine_json = c.engine, \
+             result_json = c.result, updated_ms = $3 FROM {rows} WHERE tasks.id = c.id AND tasks.state = $2 \
+             AND tasks.lease_owner = c.worker AND tasks.attempt = c.attempt AND tasks.lease_deadline_ms >= $3 \
+             RETURNING tasks.id, tasks.job_id",
+            rows = self.backend.json_rows(
+                "$4",
+                "c",
+                &[("id", "text"), ("worker", "text"), ("attempt", "bigint"), ("engine", "text"), ("result", "text")],
+            ),
+        );
+        let done: HashMap<String, String> = sqlx::query(trusted(sql))
+            .bind(TaskState::Succeeded.as_str())
+            .bind(TaskState::Running.as_str())
+            .bind(now_ms)
+            .bind(json_text(&fences)?)
+            .fetch_all(&mut *tx)
+            .await?
+            .iter()
+            .map(|row| Ok((row.try_get::<String, _>("id")?, row.try_get::<String, _>("job_id")?)))
+            .collect::<Result<_>>()?;
+        if done.is_empty() {
+            tx.rollback().await?;
+            return Ok(items.iter().map(|(c, _)| Err(lease_lost(&c.fence))).collect());
+        }
+        let accepted: Vec<&(Completion, Vec<NewTask>)> = items
+            .iter()
+            .zip(&first)
+            .filter(|((c, _), first)| **first && done.contains_key(&c.fence.task_id))
+            .map(|(i, _)| i)
+            .collect();
+        let ids: Vec<&str> = accepted.iter().map(|(c, _)| c.fence.task_id.as_str()).collect();
+        let ids_json = json_text(&ids)?;
+
+        let outputs: Vec<serde_json::Value> = accepted
+            .iter()
+            .flat_map(|(c, _)| {
+                c.outputs.iter().map(|a| {
+                    serde_json::json!({
+                        "task": c.fence.task_id, "name": a.name, "sha": a.sha256, "size": a.size,
+                        "media": a.media_type, "key": a.object_key,
+                    })
+                })
+            })
+            .collect();
+        if !outputs.is_empty() {
+            let sql = format!(
+                "INSERT INTO artifacts (task_id, name, sha256, size, media_type, object_key, created_ms) \
+                 SELECT o.task, o.name, o.sha, o.size, o.media, o.key, $1 FROM {}",
+                self.backend.json_rows(
+                    "$2",
+                    "o",
+                    &[
+                        ("task", "text"),
+                        ("name", "text"),
+                        ("sha", "text"),
+                        ("size", "bigint"),
+                        ("media", "text"),
+                        ("key", "text")
+                    ],
+                ),
+            );
+            sqlx::query(trusted(sql)).bind(now_ms).bind(json_text(&outputs)?).execute(&mut *tx).await?;
+        }
+        let sql = format!(
+            "INSERT INTO lineage_edges (task_id, input_task_id, input_name, input_sha256) \
+             SELECT d.task_id, a.task_id, a.name, a.sha256 FROM task_deps d JOIN artifacts a ON a.task_id = d.depends_on \
+             WHERE d.task_id IN ({})",
+            self.backend.json_text_array("$1"),
+        );
+        sqlx::query(trusted(sql)).bind(&ids_json).execute(&mut *tx).await?;
+
+        let ended: Vec<serde_json::Value> = accepted
+            .iter()
+            .map(|(c, _)| {
+                serde_json::json!({
+                    "id": c.fence.task_id, "attempt": c.fence.attempt, "engine": c.engine_json,
+                    "timings": c.timings_json,
+                })
+            })
+            .collect();
+        let sql = format!(
+            "UPDATE attempts SET ended_ms = $1, outcome = $2, error = NULL, engine_json = e.engine, \
+             timings_json = e.timings FROM {} WHERE attempts.task_id = e.id AND attempts.attempt = e.attempt",
+            self.backend.json_rows(
+                "$3",
+                "e",
+                &[("id", "text"), ("attempt", "bigint"), ("engine", "text"), ("timings", "text")],
+            ),
+        );
+        sqlx::query(trusted(sql))
+            .bind(now_ms)
+            .bind(AttemptOutcome::Succeeded.as_str())
+            .bind(json_text(&ended)?)
+            .execute(&mut *tx)
+            .await?;
+        unblock_dependents(&mut tx, self.backend, &ids_json, now_ms).await?;
+
+        let mut children_by_job: BTreeMap<&str, Vec<NewTask>> = BTreeMap::new();
+        let mut samples = Vec::new();
+        for (c, children) in &accepted {
+            let job_id = done[&c.fence.task_id].as_str();
+            children_by_job.entry(job_id).or_default().extend(children.iter().cloned());
+            samples.extend(
+                c.samples.iter().map(|s| serde_json::json!({"job": job_id, "sample": s, "task": c.fence.task_id})),
+            );
+        }
+        for (job_id, children) in &children_by_job {
+            self.insert_tasks(&mut tx, job_id, children, now_ms).await?;
+        }
+        if !samples.is_empty() {
+            let sql = format!(
+                "INSERT INTO samples (job_id, sample_id, package_task_id) SELECT s.job, s.sample, s.task FROM {} \
+                 WHERE true ON CONFLICT (job_id, sample_id) DO NOTHING",
+                self.backend.json_rows("$1", "s", &[("job", "text"), ("sample", "text"), ("task", "text")]),
+            );
+            sqlx::query(trusted(sql)).bind(json_text(&samples)?).execute(&mut *tx).await?;
+        }
+        tx.commit().await?;
+        let jobs: BTreeSet<&str> = done.values().map(String::as_str).collect();
+        self.finalize_jobs_among(&jobs, now_ms).await?;
+        Ok(items
+            .iter()
+            .zip(&first)
+            .map(
+                |((c, _), first)| {
+                    if *first && done.contains_key(&c.fence.task_id) { Ok(()) } else { Err(lease_lost(&c.fence)) }
+                },
+            )
+            .collect())
     }
 
     /// Fails an attempt. A retryable failure with attempts left requeues the task after a backoff
@@ -372,25 +461,28 @@ async fn end_attempt(
     Ok(())
 }
 
-/// Counts the success of `task_id` in its dependents and queues those with no dependency left.
-async fn unblock_dependents(tx: &mut Transaction<'static, Any>, task_id: &str, now_ms: i64) -> Result<()> {
-    sqlx::query(
-        "UPDATE tasks SET deps_pending = deps_pending - 1 \
-         WHERE id IN (SELECT task_id FROM task_deps WHERE depends_on = $1)",
-    )
-    .bind(task_id)
-    .execute(&mut **tx)
-    .await?;
-    sqlx::query(
-        "UPDATE tasks SET state = $1, updated_ms = $2 WHERE state = $3 AND deps_pending = 0 \
-         AND id IN (SELECT task_id FROM task_deps WHERE depends_on = $4)",
-    )
-    .bind(TaskState::Queued.as_str())
-    .bind(now_ms)
-    .bind(TaskState::Waiting.as_str())
-    .bind(task_id)
-    .execute(&mut **tx)
-    .await?;
+/// Counts the success of the tasks in `ids_json` (a JSON array of ids) in their dependents, and
+/// queues those with no dependency left: one statement for a batch.
+async fn unblock_dependents(
+    tx: &mut Transaction<'static, Any>,
+    backend: Backend,
+    ids_json: &str,
+    now_ms: i64,
+) -> Result<()> {
+    let sql = format!(
+        "UPDATE tasks SET deps_pending = deps_pending - n.done, \
+         state = CASE WHEN state = $1 AND deps_pending - n.done = 0 THEN $2 ELSE state END, updated_ms = $3 \
+         FROM (SELECT task_id, COUNT(*) AS done FROM task_deps WHERE depends_on IN ({}) GROUP BY task_id) AS n \
+         WHERE tasks.id = n.task_id",
+        backend.json_text_array("$4"),
+    );
+    sqlx::query(trusted(sql))
+        .bind(TaskState::Waiting.as_str())
+        .bind(TaskState::Queued.as_str())
+        .bind(now_ms)
+        .bind(ids_json)
+        .execute(&mut **tx)
+        .await?;
     Ok(())
 }
 
@@ -416,15 +508,21 @@ async fn fail_dependents(tx: &mut Transaction<'static, Any>, task_id: &str, now_
     Ok(())
 }
 
-/// The artifacts produced by the dependencies of `task_id`: the task's inputs.
-async fn dependency_outputs(tx: &mut Transaction<'static, Any>, task_id: &str) -> Result<Vec<ArtifactRecord>> {
-    let rows = sqlx::query(
-        "SELECT a.task_id, t.key, a.name, a.sha256, a.size, a.media_type, a.object_key FROM task_deps d \
-         JOIN artifacts a ON a.task_id = d.depends_on JOIN tasks t ON t.id = a.task_id \
-         WHERE d.task_id = $1 ORDER BY t.key, a.name",
-    )
-    .bind(task_id)
-    .fetch_all(&mut **tx)
-    .await?;
-    rows.iter().map(crate::lineage::artifact_from_row).collect()
+impl Store {
+    /// The artifacts produced by the dependencies of each of `task_ids`: their inputs, by task.
+    async fn dependency_outputs(&self, task_ids: &[&str]) -> Result<HashMap<String, Vec<ArtifactRecord>>> {
+        let sql = format!(
+            "SELECT d.task_id AS consumer, a.task_id, t.key, a.name, a.sha256, a.size, a.media_type, a.object_key \
+             FROM task_deps d JOIN artifacts a ON a.task_id = d.depends_on JOIN tasks t ON t.id = a.task_id \
+             WHERE d.task_id IN ({}) ORDER BY d.task_id, t.key, a.name",
+            self.backend.json_text_array("$1"),
+        );
+        let rows = sqlx::query(trusted(sql)).bind(json_text(task_ids)?).fetch_all(&self.pool).await?;
+        let mut by_task: HashMap<String, Vec<ArtifactRecord>> = HashMap::new();
+        for row in &rows {
+            let consumer: String = row.try_get("consumer")?;
+            by_task.entry(consumer).or_default().push(crate::lineage::artifact_from_row(row)?);
+        }
+        Ok(by_task)
+    }
 }

@@ -244,3 +244,124 @@ store_test!(a_jobs_assets_are_recorded_and_shown_as_inputs_of_the_tasks_naming_t
     assert!(store.user_files_with(&sha, Some("other")).await.unwrap().is_empty());
     assert!(store.user_files_with(&"0".repeat(64), None).await.unwrap().is_empty());
 });
+
+// ---------------------------------------------------------------------------------------------
+// Batched completion: one transaction, fenced per task.
+
+/// Three grasp tasks leased by `w` at time 0 (deadline 1,000) and their fences.
+async fn three_leased(store: &Store) -> Vec<vint_store::Fence> {
+    let tasks =
+        [task("grasp/a", Stage::Grasp, &[]), task("grasp/b", Stage::Grasp, &[]), task("grasp/c", Stage::Grasp, &[])];
+    store.submit_job(&job("j"), &tasks, 0).await.unwrap();
+    let leased = store.lease("w", &[Stage::Grasp], 3, 1_000, 0).await.unwrap();
+    assert_eq!(leased.len(), 3);
+    leased.iter().map(|t| fence(t, "w")).collect()
+}
+
+store_test!(a_lost_lease_in_a_batch_refuses_that_task_alone, |store: Store| async move {
+    let fences = three_leased(&store).await;
+    let mut stranger = fences[1].clone();
+    stranger.worker_id = "x".into();
+    let batch = vec![
+        (completion(fences[0].clone(), &["grasps.json"]), vec![]),
+        (completion(stranger, &["grasps.json"]), vec![]),
+        (completion(fences[2].clone(), &["grasps.json", "touch.json"]), vec![]),
+    ];
+    let results = store.complete_batch(&batch, 10).await.unwrap();
+    assert!(results[0].is_ok() && results[2].is_ok(), "{results:?}");
+    assert!(matches!(results[1], Err(StoreError::LeaseLost { .. })), "{results:?}");
+    assert_eq!(state_of(&store, "j/grasp/a").await, TaskState::Succeeded);
+    assert_eq!(state_of(&store, "j/grasp/b").await, TaskState::Running, "the refused task keeps its lease");
+    assert_eq!(state_of(&store, "j/grasp/c").await, TaskState::Succeeded);
+    assert_eq!(store.artifacts_of_task("j/grasp/a").await.unwrap().len(), 1);
+    assert!(store.artifacts_of_task("j/grasp/b").await.unwrap().is_empty(), "no outputs for a refused task");
+    assert_eq!(store.artifacts_of_task("j/grasp/c").await.unwrap().len(), 2);
+    let outcomes = |id: &'static str| {
+        let store = store.clone();
+        async move { store.attempts(id).await.unwrap().iter().map(|a| a.outcome).collect::<Vec<_>>() }
+    };
+    assert_eq!(outcomes("j/grasp/a").await, [Some(AttemptOutcome::Succeeded)]);
+    assert_eq!(outcomes("j/grasp/b").await, [None], "still running");
+    // The holder of b's lease still completes it, and the job ends.
+    store.complete_batch(&[(completion(fences[1].clone(), &[]), vec![])], 20).await.unwrap()[0].as_ref().unwrap();
+    assert_eq!(store.job("j").await.unwrap().unwrap().state, JobState::Succeeded);
+});
+
+store_test!(an_expired_lease_in_a_batch_is_refused_alone, |store: Store| async move {
+    let tasks = [task("grasp/a", Stage::Grasp, &[]), task("grasp/b", Stage::Grasp, &[])];
+    store.submit_job(&job("j"), &tasks, 0).await.unwrap();
+    let early = store.lease("w", &[Stage::Grasp], 1, 1_000, 0).await.unwrap(); // deadline 1,000
+    let late = store.lease("w", &[Stage::Grasp], 1, 1_000, 500).await.unwrap(); // deadline 1,500
+    let batch = vec![
+        (completion(fence(&early[0], "w"), &["grasps.json"]), vec![]),
+        (completion(fence(&late[0], "w"), &["grasps.json"]), vec![]),
+    ];
+    let results = store.complete_batch(&batch, 1_200).await.unwrap();
+    assert!(matches!(results[0], Err(StoreError::LeaseLost { .. })), "{results:?}");
+    assert!(results[1].is_ok(), "{results:?}");
+    assert_eq!(state_of(&store, &early[0].id).await, TaskState::Running);
+    assert_eq!(state_of(&store, &late[0].id).await, TaskState::Succeeded);
+});
+
+store_test!(a_task_twice_in_one_batch_completes_once, |store: Store| async move {
+    let fences = three_leased(&store).await;
+    let batch = vec![
+        (completion(fences[0].clone(), &["grasps.json"]), vec![]),
+        (completion(fences[0].clone(), &["other.json"]), vec![]),
+    ];
+    let results = store.complete_batch(&batch, 10).await.unwrap();
+    assert!(results[0].is_ok());
+    assert!(matches!(results[1], Err(StoreError::LeaseLost { .. })), "{results:?}");
+    let outputs = store.artifacts_of_task("j/grasp/a").await.unwrap();
+    assert_eq!(outputs.iter().map(|a| a.name.as_str()).collect::<Vec<_>>(), ["grasps.json"]);
+});
+
+store_test!(a_batch_unlocks_dependents_and_inserts_children_like_single_completions, |store: Store| async move {
+    // Two jobs, each a grasp chunk whose completion plans a render task and a package task that
+    // waits for the chunk and the render; plus a waiting task that depends on both chunks of job j.
+    let j_tasks = [
+        task("grasp/a", Stage::Grasp, &[]),
+        task("grasp/b", Stage::Grasp, &[]),
+        task("package/ab", Stage::Package, &["grasp/a", "grasp/b"]),
+    ];
+    store.submit_job(&job("j"), &j_tasks, 0).await.unwrap();
+    store.submit_job(&job("k"), &[task("grasp/a", Stage::Grasp, &[])], 0).await.unwrap();
+    let leased = store.lease("w", &[Stage::Grasp], 10, 1_000, 1).await.unwrap();
+    assert_eq!(leased.len(), 3);
+    let children = |g: &str| {
+        vec![
+            task(&format!("render/{g}"), Stage::Render, &[&format!("grasp/{g}")]),
+            task(&format!("package/{g}"), Stage::Package, &[&format!("grasp/{g}"), &format!("render/{g}")]),
+        ]
+    };
+    let batch: Vec<_> = leased
+        .iter()
+        .map(|t| {
+            let g = t.key.rsplit('/').next().unwrap().to_string();
+            (completion(fence(t, "w"), &["grasps.json"]), children(&g))
+        })
+        .collect();
+    let results = store.complete_batch(&batch, 2).await.unwrap();
+    assert!(results.iter().all(|r| r.is_ok()), "{results:?}");
+    for (job, g) in [("j", "a"), ("j", "b"), ("k", "a")] {
+        assert_eq!(state_of(&store, &format!("{job}/render/{g}")).await, TaskState::Queued, "{job}/render/{g}");
+        let package = store.task(&format!("{job}/package/{g}")).await.unwrap().unwrap();
+        assert_eq!(package.state, TaskState::Waiting, "{job}/package/{g} waits for its render");
+    }
+    assert_eq!(state_of(&store, "j/package/ab").await, TaskState::Queued, "both chunks of one batch counted");
+    // Renders carry their inputs; completing them in a batch queues their packages with lineage.
+    let renders = store.lease("w", &[Stage::Render], 10, 1_000, 3).await.unwrap();
+    assert_eq!(renders.len(), 3);
+    assert!(renders.iter().all(|r| r.inputs.len() == 1 && r.inputs[0].name == "grasps.json"));
+    let batch: Vec<_> = renders.iter().map(|t| (completion(fence(t, "w"), &["v00_rgb.png"]), vec![])).collect();
+    assert!(store.complete_batch(&batch, 4).await.unwrap().iter().all(|r| r.is_ok()));
+    let packages = store.lease("w", &[Stage::Package], 10, 1_000, 5).await.unwrap();
+    assert_eq!(packages.len(), 4);
+    for p in packages.iter().filter(|p| p.key != "package/ab") {
+        let names: BTreeSet<&str> = p.inputs.iter().map(|a| a.name.as_str()).collect();
+        assert_eq!(names, BTreeSet::from(["grasps.json", "v00_rgb.png"]), "{}", p.id);
+    }
+    let lineage = store.lineage("k/render/a").await.unwrap();
+    let inputs: Vec<(&str, &str)> = lineage[0].inputs.iter().map(|a| (a.task_key.as_str(), a.name.as_str())).collect();
+    assert_eq!(inputs, [("grasp/a", "grasps.json")], "lineage edges recorded in the batch");
+});
