@@ -1,4 +1,9 @@
-//! The lineage store: jobs, tasks, dependencies, attempts, artifacts, lineage edges and samples.
+//! The lineage store: jobs, tasks, dependencies, attempts, artifacts and samples.
+//!
+//! Lineage is the graph of tasks (`task_deps`) with the artifacts each made: a task's inputs are
+//! exactly its dependencies' outputs, because a task is queued only once every dependency has
+//! succeeded and a succeeded task's outputs never change (completion is fenced and happens once).
+//! So the edges are derived (`task_deps ⋈ artifacts`), never stored twice.
 //!
 //! This crate is the only place in vint that speaks SQL. One `Store` type serves both backends
 //! through sqlx's `Any` driver: **Postgres** for clusters (many coordinators and workers, leasing

@@ -47,9 +47,9 @@ impl Store {
                     .map(|r| r.try_get("depends_on"))
                     .collect::<Result<_, _>>()?;
             let mut inputs = sqlx::query(
-                "SELECT a.task_id, t.key, a.name, a.sha256, a.size, a.media_type, a.object_key FROM lineage_edges e \
-                 JOIN artifacts a ON a.task_id = e.input_task_id AND a.name = e.input_name \
-                 JOIN tasks t ON t.id = a.task_id WHERE e.task_id = $1 ORDER BY t.key, a.name",
+                "SELECT a.task_id, t.key, a.name, a.sha256, a.size, a.media_type, a.object_key FROM task_deps d \
+                 JOIN artifacts a ON a.task_id = d.depends_on JOIN tasks t ON t.id = a.task_id \
+                 WHERE d.task_id = $1 ORDER BY t.key, a.name",
             )
             .bind(&id)
             .fetch_all(&self.pool)

@@ -40,7 +40,7 @@ impl Store {
             return Ok(Vec::new());
         }
         let stage_list = stages.iter().map(|s| literal(s.as_str())).collect::<Vec<_>>().join(", ");
-        let sql = format!(
+        let update = format!(
             "UPDATE tasks SET state = $1, attempt = attempt + 1, lease_owner = $2, lease_deadline_ms = $3, \
              updated_ms = $4 WHERE id IN (SELECT id FROM tasks WHERE state = {queued} AND not_before_ms <= $4 \
              AND stage IN ({stage_list}) ORDER BY priority, created_ms, id LIMIT $5 {skip_locked}) \
@@ -49,46 +49,74 @@ impl Store {
             skip_locked = self.backend.skip_locked(),
         );
         let deadline = now_ms + lease_ms;
-        let mut tx = self.pool.begin().await?;
-        let rows = sqlx::query(trusted(sql))
-            .bind(TaskState::Running.as_str())
-            .bind(worker_id)
-            .bind(deadline)
-            .bind(now_ms)
-            .bind(i64::from(capacity))
-            .fetch_all(&mut *tx)
-            .await?;
-        if rows.is_empty() {
-            tx.rollback().await?;
-            return Ok(Vec::new());
-        }
-        let mut leased = Vec::with_capacity(rows.len());
-        for row in rows {
-            leased.push(LeasedTask {
-                id: row.try_get("id")?,
-                job_id: row.try_get("job_id")?,
-                key: row.try_get("key")?,
-                stage: parse("stage", &row.try_get::<String, _>("stage")?)?,
-                attempt: to_u32("attempt", row.try_get("attempt")?)?,
-                params_json: row.try_get("params_json")?,
-                inputs: Vec::new(),
-                lease_deadline_ms: row.try_get("lease_deadline_ms")?,
-            });
-        }
-        let attempts: Vec<serde_json::Value> =
-            leased.iter().map(|t| serde_json::json!({"id": t.id, "attempt": t.attempt})).collect();
-        let sql = format!(
-            "INSERT INTO attempts (task_id, attempt, worker_id, started_ms) SELECT a.id, a.attempt, $1, $2 FROM {}",
-            self.backend.json_rows("$3", "a", &[("id", "text"), ("attempt", "bigint")]),
-        );
-        sqlx::query(trusted(sql)).bind(worker_id).bind(now_ms).bind(json_text(&attempts)?).execute(&mut *tx).await?;
-        tx.commit().await?;
-        // Inputs are outputs of succeeded tasks, which never change: read after the commit.
-        let ids: Vec<&str> = leased.iter().map(|t| t.id.as_str()).collect();
-        let mut inputs = self.dependency_outputs(&ids).await?;
-        for t in &mut leased {
-            t.inputs = inputs.remove(&t.id).unwrap_or_default();
-        }
+        let mut leased = match self.backend {
+            // One statement: the lease, its attempts and every leased task's inputs.
+            Backend::Postgres => {
+                let sql = format!(
+                    "WITH leased AS ({update}), started AS (INSERT INTO attempts (task_id, attempt, worker_id, \
+                     started_ms) SELECT id, attempt, $2, $4 FROM leased) \
+                     SELECT leased.*, (SELECT COALESCE(json_agg(json_build_object('task_id', a.task_id, \
+                     'key', t.key, 'name', a.name, 'sha256', a.sha256, 'size', a.size, 'media_type', a.media_type, \
+                     'object_key', a.object_key) ORDER BY t.key, a.name), '[]')::text FROM task_deps d \
+                     JOIN artifacts a ON a.task_id = d.depends_on JOIN tasks t ON t.id = a.task_id \
+                     WHERE d.task_id = leased.id) AS inputs_json FROM leased"
+                );
+                let rows = sqlx::query(trusted(sql))
+                    .bind(TaskState::Running.as_str())
+                    .bind(worker_id)
+                    .bind(deadline)
+                    .bind(now_ms)
+                    .bind(i64::from(capacity))
+                    .fetch_all(&self.pool)
+                    .await?;
+                let mut leased = Vec::with_capacity(rows.len());
+                for row in &rows {
+                    let mut task = leased_from_row(row)?;
+                    let inputs: Vec<InputRow> = serde_json::from_str(&row.try_get::<String, _>("inputs_json")?)
+                        .map_err(|e| StoreError::Corrupt(format!("inputs of task {}: {e}", task.id)))?;
+                    task.inputs = inputs.into_iter().map(InputRow::into_record).collect();
+                    leased.push(task);
+                }
+                leased
+            }
+            Backend::Sqlite => {
+                let mut tx = self.pool.begin().await?;
+                let rows = sqlx::query(trusted(update))
+                    .bind(TaskState::Running.as_str())
+                    .bind(worker_id)
+                    .bind(deadline)
+                    .bind(now_ms)
+                    .bind(i64::from(capacity))
+                    .fetch_all(&mut *tx)
+                    .await?;
+                if rows.is_empty() {
+                    tx.rollback().await?;
+                    return Ok(Vec::new());
+                }
+                let mut leased = rows.iter().map(leased_from_row).collect::<Result<Vec<_>>>()?;
+                let attempts: Vec<serde_json::Value> =
+                    leased.iter().map(|t| serde_json::json!({"id": t.id, "attempt": t.attempt})).collect();
+                let sql = format!(
+                    "INSERT INTO attempts (task_id, attempt, worker_id, started_ms) SELECT a.id, a.attempt, $1, $2 \
+                     FROM {}",
+                    self.backend.json_rows("$3", "a", &[("id", "text"), ("attempt", "bigint")]),
+                );
+                sqlx::query(trusted(sql))
+                    .bind(worker_id)
+                    .bind(now_ms)
+                    .bind(json_text(&attempts)?)
+                    .execute(&mut *tx)
+                    .await?;
+                tx.commit().await?;
+                // Inputs are outputs of succeeded tasks, which never change: read after the commit.
+                let ids: Vec<&str> = leased.iter().map(|t| t.id.as_str()).collect();
+                let mut inputs = self.dependency_outputs(&ids).await?;
+                for t in &mut leased {
+                    t.inputs = inputs.remove(&t.id).unwrap_or_default();
+                }
+                leased
+            }
+        };
         leased.sort_by(|a, b| a.id.cmp(&b.id));
         Ok(leased)
     }
@@ -123,7 +151,7 @@ impl Store {
         Ok(lost)
     }
 
-    /// Completes a task: records its outputs, lineage and attempt, unblocks its dependents and
+    /// Completes a task: records its outputs and attempt, unblocks its dependents and
     /// inserts the tasks the planner derived from it, all in one transaction. Refused with
     /// `LeaseLost` unless the caller holds an unexpired lease on this attempt.
     pub async fn complete(&self, c: &Completion, children: &[NewTask], now_ms: i64) -> Result<()> {
@@ -143,139 +171,26 @@ impl Store {
     ) -> Result<Vec<std::result::Result<(), StoreError>>> {
         let mut seen = HashSet::new();
         let first: Vec<bool> = items.iter().map(|(c, _)| seen.insert(c.fence.task_id.as_str())).collect();
-        let fences: Vec<serde_json::Value> = items
-            .iter()
-            .zip(&first)
-            .filter(|(_, first)| **first)
-            .map(|((c, _), _)| {
-                serde_json::json!({
-                    "id": c.fence.task_id, "worker": c.fence.worker_id, "attempt": c.fence.attempt,
-                    "engine": c.engine_json, "result": c.result_json, "timings": c.timings_json,
-                })
-            })
-            .collect();
-        if fences.is_empty() {
-            return Ok(items.iter().map(|(c, _)| Err(lease_lost(&c.fence))).collect());
+        let candidates: Vec<&(Completion, Vec<NewTask>)> =
+            items.iter().zip(&first).filter(|(_, first)| **first).map(|(item, _)| item).collect();
+        if candidates.is_empty() {
+            return Ok(Vec::new());
         }
         let mut tx = self.pool.begin().await?;
-        // The fence: only running tasks leased to the caller, at this attempt, before the deadline.
-        let sql = format!(
-            "UPDATE tasks SET state = $1, lease_owner = NULL, lease_deadline_ms = NULL, engine_json = c.engine, \
-             result_json = c.result, updated_ms = $3 FROM {rows} WHERE tasks.id = c.id AND tasks.state = $2 \
-             AND tasks.lease_owner = c.worker AND tasks.attempt = c.attempt AND tasks.lease_deadline_ms >= $3 \
-             RETURNING tasks.id, tasks.job_id",
-            rows = self.backend.json_rows(
-                "$4",
-                "c",
-                &[("id", "text"), ("worker", "text"), ("attempt", "bigint"), ("engine", "text"), ("result", "text")],
-            ),
-        );
-        let done: HashMap<String, String> = sqlx::query(trusted(sql))
-            .bind(TaskState::Succeeded.as_str())
-            .bind(TaskState::Running.as_str())
-            .bind(now_ms)
-            .bind(json_text(&fences)?)
-            .fetch_all(&mut *tx)
-            .await?
-            .iter()
-            .map(|row| Ok((row.try_get::<String, _>("id")?, row.try_get::<String, _>("job_id")?)))
-            .collect::<Result<_>>()?;
+        let done = match self.backend {
+            Backend::Postgres => record_completions_pg(&mut tx, &candidates, now_ms).await?,
+            Backend::Sqlite => record_completions(&mut tx, self.backend, &candidates, now_ms).await?,
+        };
         if done.is_empty() {
             tx.rollback().await?;
             return Ok(items.iter().map(|(c, _)| Err(lease_lost(&c.fence))).collect());
         }
-        let accepted: Vec<&(Completion, Vec<NewTask>)> = items
-            .iter()
-            .zip(&first)
-            .filter(|((c, _), first)| **first && done.contains_key(&c.fence.task_id))
-            .map(|(i, _)| i)
-            .collect();
-        let ids: Vec<&str> = accepted.iter().map(|(c, _)| c.fence.task_id.as_str()).collect();
-        let ids_json = json_text(&ids)?;
-
-        let outputs: Vec<serde_json::Value> = accepted
-            .iter()
-            .flat_map(|(c, _)| {
-                c.outputs.iter().map(|a| {
-                    serde_json::json!({
-                        "task": c.fence.task_id, "name": a.name, "sha": a.sha256, "size": a.size,
-                        "media": a.media_type, "key": a.object_key,
-                    })
-                })
-            })
-            .collect();
-        if !outputs.is_empty() {
-            let sql = format!(
-                "INSERT INTO artifacts (task_id, name, sha256, size, media_type, object_key, created_ms) \
-                 SELECT o.task, o.name, o.sha, o.size, o.media, o.key, $1 FROM {}",
-                self.backend.json_rows(
-                    "$2",
-                    "o",
-                    &[
-                        ("task", "text"),
-                        ("name", "text"),
-                        ("sha", "text"),
-                        ("size", "bigint"),
-                        ("media", "text"),
-                        ("key", "text")
-                    ],
-                ),
-            );
-            sqlx::query(trusted(sql)).bind(now_ms).bind(json_text(&outputs)?).execute(&mut *tx).await?;
-        }
-        let sql = format!(
-            "INSERT INTO lineage_edges (task_id, input_task_id, input_name, input_sha256) \
-             SELECT d.task_id, a.task_id, a.name, a.sha256 FROM task_deps d JOIN artifacts a ON a.task_id = d.depends_on \
-             WHERE d.task_id IN ({})",
-            self.backend.json_text_array("$1"),
-        );
-        sqlx::query(trusted(sql)).bind(&ids_json).execute(&mut *tx).await?;
-
-        let ended: Vec<serde_json::Value> = accepted
-            .iter()
-            .map(|(c, _)| {
-                serde_json::json!({
-                    "id": c.fence.task_id, "attempt": c.fence.attempt, "engine": c.engine_json,
-                    "timings": c.timings_json,
-                })
-            })
-            .collect();
-        let sql = format!(
-            "UPDATE attempts SET ended_ms = $1, outcome = $2, error = NULL, engine_json = e.engine, \
-             timings_json = e.timings FROM {} WHERE attempts.task_id = e.id AND attempts.attempt = e.attempt",
-            self.backend.json_rows(
-                "$3",
-                "e",
-                &[("id", "text"), ("attempt", "bigint"), ("engine", "text"), ("timings", "text")],
-            ),
-        );
-        sqlx::query(trusted(sql))
-            .bind(now_ms)
-            .bind(AttemptOutcome::Succeeded.as_str())
-            .bind(json_text(&ended)?)
-            .execute(&mut *tx)
-            .await?;
-        unblock_dependents(&mut tx, self.backend, &ids_json, now_ms).await?;
-
         let mut children_by_job: BTreeMap<&str, Vec<NewTask>> = BTreeMap::new();
-        let mut samples = Vec::new();
-        for (c, children) in &accepted {
-            let job_id = done[&c.fence.task_id].as_str();
-            children_by_job.entry(job_id).or_default().extend(children.iter().cloned());
-            samples.extend(
-                c.samples.iter().map(|s| serde_json::json!({"job": job_id, "sample": s, "task": c.fence.task_id})),
-            );
+        for (c, children) in candidates.iter().filter(|(c, _)| done.contains_key(&c.fence.task_id)) {
+            children_by_job.entry(done[&c.fence.task_id].as_str()).or_default().extend(children.iter().cloned());
         }
         for (job_id, children) in &children_by_job {
             self.insert_tasks(&mut tx, job_id, children, now_ms).await?;
-        }
-        if !samples.is_empty() {
-            let sql = format!(
-                "INSERT INTO samples (job_id, sample_id, package_task_id) SELECT s.job, s.sample, s.task FROM {} \
-                 WHERE true ON CONFLICT (job_id, sample_id) DO NOTHING",
-                self.backend.json_rows("$1", "s", &[("job", "text"), ("sample", "text"), ("task", "text")]),
-            );
-            sqlx::query(trusted(sql)).bind(json_text(&samples)?).execute(&mut *tx).await?;
         }
         tx.commit().await?;
         let jobs: BTreeSet<&str> = done.values().map(String::as_str).collect();
@@ -432,6 +347,46 @@ impl Store {
     }
 }
 
+/// A leased task as the lease statement returns it, without its inputs.
+fn leased_from_row(row: &sqlx::any::AnyRow) -> Result<LeasedTask> {
+    Ok(LeasedTask {
+        id: row.try_get("id")?,
+        job_id: row.try_get("job_id")?,
+        key: row.try_get("key")?,
+        stage: parse("stage", &row.try_get::<String, _>("stage")?)?,
+        attempt: to_u32("attempt", row.try_get("attempt")?)?,
+        params_json: row.try_get("params_json")?,
+        inputs: Vec::new(),
+        lease_deadline_ms: row.try_get("lease_deadline_ms")?,
+    })
+}
+
+/// An input artifact as Postgres's lease statement aggregates it (`json_build_object`).
+#[derive(serde::Deserialize)]
+struct InputRow {
+    task_id: String,
+    key: String,
+    name: String,
+    sha256: String,
+    size: u64,
+    media_type: String,
+    object_key: String,
+}
+
+impl InputRow {
+    fn into_record(self) -> ArtifactRecord {
+        ArtifactRecord {
+            task_id: self.task_id,
+            task_key: self.key,
+            name: self.name,
+            sha256: self.sha256,
+            size: self.size,
+            media_type: self.media_type,
+            object_key: self.object_key,
+        }
+    }
+}
+
 fn lease_lost(f: &Fence) -> StoreError {
     StoreError::LeaseLost { task_id: f.task_id.clone(), attempt: f.attempt, worker_id: f.worker_id.clone() }
 }
@@ -459,6 +414,169 @@ async fn end_attempt(
     .execute(&mut **tx)
     .await?;
     Ok(())
+}
+
+/// The fence of each completion (`id`, `worker`, `attempt`) with what it records on the task and
+/// its attempt, as JSON rows.
+fn fence_rows(candidates: &[&(Completion, Vec<NewTask>)]) -> Result<String> {
+    let rows: Vec<serde_json::Value> = candidates
+        .iter()
+        .map(|(c, _)| {
+            serde_json::json!({
+                "id": c.fence.task_id, "worker": c.fence.worker_id, "attempt": c.fence.attempt,
+                "engine": c.engine_json, "result": c.result_json, "timings": c.timings_json,
+            })
+        })
+        .collect();
+    json_text(&rows)
+}
+
+/// The outputs of the completions, as JSON rows.
+fn output_rows<'a>(completions: impl Iterator<Item = &'a Completion>) -> Result<String> {
+    let rows: Vec<serde_json::Value> = completions
+        .flat_map(|c| {
+            c.outputs.iter().map(|a| {
+                serde_json::json!({
+                    "task": c.fence.task_id, "name": a.name, "sha": a.sha256, "size": a.size,
+                    "media": a.media_type, "key": a.object_key,
+                })
+            })
+        })
+        .collect();
+    json_text(&rows)
+}
+
+const FENCE_COLUMNS: &[(&str, &str)] = &[
+    ("id", "text"),
+    ("worker", "text"),
+    ("attempt", "bigint"),
+    ("engine", "text"),
+    ("result", "text"),
+    ("timings", "text"),
+];
+const OUTPUT_COLUMNS: &[(&str, &str)] =
+    &[("task", "text"), ("name", "text"), ("sha", "text"), ("size", "bigint"), ("media", "text"), ("key", "text")];
+
+/// Postgres: fences the completions and records what every accepted one made — task, attempt,
+/// outputs, unblocked dependents, samples — in ONE statement of data-modifying
+/// CTEs keyed on the fenced rows. Returns the accepted tasks' ids with their jobs.
+async fn record_completions_pg(
+    tx: &mut Transaction<'static, Any>,
+    candidates: &[&(Completion, Vec<NewTask>)],
+    now_ms: i64,
+) -> Result<HashMap<String, String>> {
+    let samples: Vec<serde_json::Value> = candidates
+        .iter()
+        .flat_map(|(c, _)| c.samples.iter().map(|s| serde_json::json!({"sample": s, "task": c.fence.task_id})))
+        .collect();
+    let pg = Backend::Postgres;
+    let sql = format!(
+        "WITH c AS (SELECT * FROM {fences}), \
+         done AS (UPDATE tasks SET state = $1, lease_owner = NULL, lease_deadline_ms = NULL, engine_json = c.engine, \
+           result_json = c.result, updated_ms = $3 FROM c WHERE tasks.id = c.id AND tasks.state = $2 \
+           AND tasks.lease_owner = c.worker AND tasks.attempt = c.attempt AND tasks.lease_deadline_ms >= $3 \
+           RETURNING tasks.id, tasks.job_id, tasks.attempt), \
+         ended AS (UPDATE attempts SET ended_ms = $3, outcome = $5, error = NULL, engine_json = c.engine, \
+           timings_json = c.timings FROM done JOIN c ON c.id = done.id \
+           WHERE attempts.task_id = done.id AND attempts.attempt = done.attempt), \
+         outputs AS (INSERT INTO artifacts (task_id, name, sha256, size, media_type, object_key, created_ms) \
+           SELECT o.task, o.name, o.sha, o.size, o.media, o.key, $3 FROM {outputs} JOIN done ON done.id = o.task), \
+         unblocked AS (UPDATE tasks SET deps_pending = tasks.deps_pending - n.done, \
+           state = CASE WHEN tasks.state = $7 AND tasks.deps_pending - n.done = 0 THEN $8 ELSE tasks.state END, \
+           updated_ms = $3 FROM (SELECT d.task_id, COUNT(*) AS done FROM done JOIN task_deps d \
+           ON d.depends_on = done.id GROUP BY d.task_id) AS n WHERE tasks.id = n.task_id), \
+         made AS (INSERT INTO samples (job_id, sample_id, package_task_id) SELECT done.job_id, s.sample, s.task \
+           FROM {samples} JOIN done ON done.id = s.task ON CONFLICT (job_id, sample_id) DO NOTHING) \
+         SELECT id, job_id FROM done",
+        fences = pg.json_rows("$4", "c", FENCE_COLUMNS),
+        outputs = pg.json_rows("$6", "o", OUTPUT_COLUMNS),
+        samples = pg.json_rows("$9", "s", &[("sample", "text"), ("task", "text")]),
+    );
+    let rows = sqlx::query(trusted(sql))
+        .bind(TaskState::Succeeded.as_str())
+        .bind(TaskState::Running.as_str())
+        .bind(now_ms)
+        .bind(fence_rows(candidates)?)
+        .bind(AttemptOutcome::Succeeded.as_str())
+        .bind(output_rows(candidates.iter().map(|(c, _)| c))?)
+        .bind(TaskState::Waiting.as_str())
+        .bind(TaskState::Queued.as_str())
+        .bind(json_text(&samples)?)
+        .fetch_all(&mut **tx)
+        .await?;
+    rows.iter().map(|row| Ok((row.try_get::<String, _>("id")?, row.try_get::<String, _>("job_id")?))).collect()
+}
+
+/// SQLite (no data-modifying CTEs): the same records as `record_completions_pg`, one set-based
+/// statement each.
+async fn record_completions(
+    tx: &mut Transaction<'static, Any>,
+    backend: Backend,
+    candidates: &[&(Completion, Vec<NewTask>)],
+    now_ms: i64,
+) -> Result<HashMap<String, String>> {
+    // The fence: only running tasks leased to the caller, at this attempt, before the deadline.
+    let sql = format!(
+        "UPDATE tasks SET state = $1, lease_owner = NULL, lease_deadline_ms = NULL, engine_json = c.engine, \
+         result_json = c.result, updated_ms = $3 FROM {rows} WHERE tasks.id = c.id AND tasks.state = $2 \
+         AND tasks.lease_owner = c.worker AND tasks.attempt = c.attempt AND tasks.lease_deadline_ms >= $3 \
+         RETURNING tasks.id, tasks.job_id",
+        rows = backend.json_rows("$4", "c", FENCE_COLUMNS),
+    );
+    let done: HashMap<String, String> = sqlx::query(trusted(sql))
+        .bind(TaskState::Succeeded.as_str())
+        .bind(TaskState::Running.as_str())
+        .bind(now_ms)
+        .bind(fence_rows(candidates)?)
+        .fetch_all(&mut **tx)
+        .await?
+        .iter()
+        .map(|row| Ok((row.try_get::<String, _>("id")?, row.try_get::<String, _>("job_id")?)))
+        .collect::<Result<_>>()?;
+    if done.is_empty() {
+        return Ok(done);
+    }
+    let accepted: Vec<&(Completion, Vec<NewTask>)> =
+        candidates.iter().copied().filter(|(c, _)| done.contains_key(&c.fence.task_id)).collect();
+    let ids: Vec<&str> = accepted.iter().map(|(c, _)| c.fence.task_id.as_str()).collect();
+    let ids_json = json_text(&ids)?;
+    if accepted.iter().any(|(c, _)| !c.outputs.is_empty()) {
+        let sql = format!(
+            "INSERT INTO artifacts (task_id, name, sha256, size, media_type, object_key, created_ms) \
+             SELECT o.task, o.name, o.sha, o.size, o.media, o.key, $1 FROM {}",
+            backend.json_rows("$2", "o", OUTPUT_COLUMNS),
+        );
+        let outputs = output_rows(accepted.iter().map(|(c, _)| c))?;
+        sqlx::query(trusted(sql)).bind(now_ms).bind(outputs).execute(&mut **tx).await?;
+    }
+    let sql = format!(
+        "UPDATE attempts SET ended_ms = $1, outcome = $2, error = NULL, engine_json = e.engine, \
+         timings_json = e.timings FROM {} WHERE attempts.task_id = e.id AND attempts.attempt = e.attempt",
+        backend.json_rows("$3", "e", FENCE_COLUMNS),
+    );
+    sqlx::query(trusted(sql))
+        .bind(now_ms)
+        .bind(AttemptOutcome::Succeeded.as_str())
+        .bind(fence_rows(&accepted)?)
+        .execute(&mut **tx)
+        .await?;
+    unblock_dependents(tx, backend, &ids_json, now_ms).await?;
+    let samples: Vec<serde_json::Value> = accepted
+        .iter()
+        .flat_map(|(c, _)| {
+            let job = &done[&c.fence.task_id];
+            c.samples.iter().map(move |s| serde_json::json!({"job": job, "sample": s, "task": c.fence.task_id}))
+        })
+        .collect();
+    if !samples.is_empty() {
+        let sql = format!(
+            "INSERT INTO samples (job_id, sample_id, package_task_id) SELECT s.job, s.sample, s.task FROM {} \
+             WHERE true ON CONFLICT (job_id, sample_id) DO NOTHING",
+            backend.json_rows("$1", "s", &[("job", "text"), ("sample", "text"), ("task", "text")]),
+        );
+        sqlx::query(trusted(sql)).bind(json_text(&samples)?).execute(&mut **tx).await?;
+    }
+    Ok(done)
 }
 
 /// Counts the success of the tasks in `ids_json` (a JSON array of ids) in their dependents, and

@@ -363,5 +363,5 @@ store_test!(a_batch_unlocks_dependents_and_inserts_children_like_single_completi
     }
     let lineage = store.lineage("k/render/a").await.unwrap();
     let inputs: Vec<(&str, &str)> = lineage[0].inputs.iter().map(|a| (a.task_key.as_str(), a.name.as_str())).collect();
-    assert_eq!(inputs, [("grasp/a", "grasps.json")], "lineage edges recorded in the batch");
+    assert_eq!(inputs, [("grasp/a", "grasps.json")], "lineage: the dependency's outputs");
 });
