@@ -199,6 +199,21 @@ impl RenderOutput {
     pub fn all() -> Vec<RenderOutput> {
         RenderOutput::ALL.to_vec()
     }
+
+    /// The files this output adds to each view.
+    pub fn view_files(self) -> &'static [ViewFile] {
+        match self {
+            RenderOutput::Rgb => &[ViewFile::Rgb],
+            RenderOutput::Depth => &[ViewFile::Depth],
+            RenderOutput::Mask => &[ViewFile::Mask, ViewFile::MaskFull],
+            RenderOutput::Segmentation => &[ViewFile::Segmentation],
+        }
+    }
+}
+
+/// The files a render task asked for `outputs` writes per view: theirs and the camera record.
+pub fn view_files(outputs: &[RenderOutput]) -> Vec<ViewFile> {
+    std::iter::once(ViewFile::Camera).chain(outputs.iter().flat_map(|o| o.view_files().iter().copied())).collect()
 }
 
 /// A file a render task writes for each view `v`: `v{NN}_{suffix}`.
