@@ -1,5 +1,7 @@
 //! What a spec would cost, roughly: tasks per stage, samples, CPU time and output size, so that
-//! `vintctl validate` can warn before an absurd spec is run.
+//! `vintctl validate` can warn before an absurd spec is run. `vintctl plan` (`plan.rs`) costs a
+//! spec from the same model (`Workload`, `cpu_seconds`, `object_store_bytes`, `dataset_bytes`)
+//! and adds the database's rows and bytes.
 //!
 //! It is an upper bound (every grasp trial accepted) made from per-unit figures measured on the
 //! project machine (2 vCPUs, AMD EPYC; one render thread per engine); another CPU, a GPU or a
@@ -342,6 +344,26 @@ mod tests {
         assert!((15.0..25.0).contains(&e.cpu_seconds.total), "{:?}", e.cpu_seconds);
         assert!((9.6e6..16e6).contains(&e.output_bytes), "{}", e.output_bytes);
         assert!(e.warnings.is_empty(), "{:?}", e.warnings);
+    }
+
+    /// The object store of a real `vintctl run examples/tiny.toml` (2026-11-25, commit `687edb3`:
+    /// 12 trials, 10 accepted grasps, 60 samples), distinct objects' bytes by the stage that first
+    /// wrote them (`scripts/measure_db_bytes.py`'s run): grasp 233 747, render 5 861 717, noise
+    /// 3 939 840, package 597 582.
+    #[test]
+    fn object_store_bytes_reproduce_a_real_tiny_run_per_stage() {
+        let spec = DatasetSpec::parse(TINY).unwrap();
+        let w = Workload { grasps: 10, samples: 60, ..Workload::of(&spec) };
+        let plan = vint_core::plan::JobPlan::new(&spec, &[]).unwrap();
+        let b = object_store_bytes(&w, &plan.render_outputs);
+        for (stage, model, measured) in [
+            ("grasp", b.grasp, 233_747.0),
+            ("render", b.render, 5_861_717.0),
+            ("noise", b.noise, 3_939_840.0),
+            ("package", b.package, 597_582.0),
+        ] {
+            assert!((model / measured - 1.0).abs() < 0.1, "{stage}: {model} against {measured} measured");
+        }
     }
 
     #[test]
