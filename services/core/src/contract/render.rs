@@ -261,3 +261,18 @@ pub struct RenderResult {
     /// The device Cycles rendered on (`CPU`, `OPTIX`, `CUDA`).
     pub device: String,
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_view_writes_its_camera_record_and_the_files_of_each_output() {
+        assert_eq!(view_files(&[]), [ViewFile::Camera]);
+        assert_eq!(
+            view_files(&[RenderOutput::Rgb, RenderOutput::Mask]),
+            [ViewFile::Camera, ViewFile::Rgb, ViewFile::Mask, ViewFile::MaskFull]
+        );
+        assert_eq!(view_files(&RenderOutput::all()).len(), 6, "what the tiny run's render tasks write per view");
+    }
+}
