@@ -405,4 +405,26 @@ fn a_quota_keeps_the_first_accepted_grasps_of_the_same_trials() {
         );
     }
     assert_eq!(quota.keys().collect::<Vec<_>>(), all.keys().collect::<Vec<_>>());
+
+    // `vintctl plan` predicted the quota run's database, table by table: exactly when every pair
+    // filled its quota (the plan's counts are then exact), never fewer rows otherwise.
+    let dir = tmp.path().join("quota");
+    let o = vintctl(&["--json", "plan", dir.join("spec.toml").to_str().unwrap()]);
+    assert!(o.status.success(), "{}\n{}", stdout(&o), stderr(&o));
+    let plan: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    assert_eq!(plan["exact"], true);
+    let written = tokio::runtime::Runtime::new().unwrap().block_on(async {
+        let url = format!("sqlite://{}", dir.join("state/vint.db").display());
+        let store = vint_store::Store::open(&url, vint_store::RetryPolicy::default()).await.unwrap();
+        let rows = store.table_rows().await.unwrap();
+        store.close().await;
+        rows
+    });
+    let planned: Vec<u64> =
+        plan["database"]["tables"].as_array().unwrap().iter().map(|t| t["rows"].as_u64().unwrap()).collect();
+    if quota.len() as u64 == plan["counts"]["pairs"].as_u64().unwrap() {
+        assert_eq!(planned, written.counts(), "every pair filled its quota: the plan is exact");
+    } else {
+        assert!(planned.iter().zip(written.counts()).all(|(p, w)| *p >= w), "{planned:?} < {written:?}");
+    }
 }

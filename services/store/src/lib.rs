@@ -19,6 +19,7 @@
 //! from a clock, which keeps the queue logic testable.
 
 mod failures;
+pub mod footprint;
 mod jobs;
 mod lineage;
 mod queue;

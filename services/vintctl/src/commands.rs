@@ -42,6 +42,19 @@ pub fn validate(path: &Path, json: bool) -> CliResult {
     Ok(())
 }
 
+/// `vintctl plan`: the spec's cost before anything runs. An invalid spec fails as `validate`'s
+/// does (exit 2, every problem named).
+pub fn plan(path: &Path, json: bool) -> CliResult {
+    let loaded = load_spec(path)?;
+    let plan = crate::plan::Plan::of(&loaded.spec).map_err(|e| bad_input(anyhow!("{}: {e}", path.display())))?;
+    if json {
+        report::print_json(&json!(plan));
+    } else {
+        print!("{}", crate::plan::text(&plan));
+    }
+    Ok(())
+}
+
 pub async fn submit(url: &str, path: &Path, key: Option<String>, json: bool) -> CliResult {
     let loaded = load_spec(path)?;
     let mut coordinator = Coordinator::connect(url).await?;

@@ -1,5 +1,7 @@
 //! What a spec would cost, roughly: tasks per stage, samples, CPU time and output size, so that
-//! `vintctl validate` can warn before an absurd spec is run.
+//! `vintctl validate` can warn before an absurd spec is run. `vintctl plan` (`plan.rs`) costs a
+//! spec from the same model (`Workload`, `cpu_seconds`, `object_store_bytes`, `dataset_bytes`)
+//! and adds the database's rows and bytes.
 //!
 //! It is an upper bound (every grasp trial accepted) made from per-unit figures measured on the
 //! project machine (2 vCPUs, AMD EPYC; one render thread per engine); another CPU, a GPU or a
@@ -9,6 +11,7 @@
 use serde::Serialize;
 use vint_core::DatasetSpec;
 use vint_core::contract::package::Modality;
+use vint_core::contract::render::RenderOutput;
 
 /// Grasp: CPU seconds per trial at the default 2 ms timestep with 2.25 s simulated (a 1 s hold).
 /// docs/benchmarks.md, "Grasp engine": "a trial costs ~60–80 ms of CPU (2.25 s of simulated time
@@ -47,6 +50,17 @@ const MASKS_BYTES_PER_PIXEL: f64 = 0.05; // mask.png + mask_full.png, 383 + 398 
 const SEGMENTATION_BYTES_PER_PIXEL: f64 = 0.045; // segmentation.png, 707 B
 const META_JSON_BYTES: f64 = 4_417.0; // meta.json, median (4.1–4.7 KB): the view alone
 const GRASP_RECORD_BYTES: f64 = 37_053.0; // <grasp_id>/grasp.json, median (26–50 KB), once per grasp
+
+/// The grasp and render stages' JSON and model files, from the artifacts of a real `vintctl run
+/// examples/tiny.toml` job (2026-11-25, commit `687edb3`; `scripts/measure_db_bytes.py` prints
+/// them): `grasps.json` and `touch.json` per trial the chunk ran (medians over its 6 chunks of 2
+/// trials; rejected trials write less), `object.ply` per object (content-addressed: one object
+/// for every chunk and hand; median of tiny's 3 objects, 5–18 KB), a view's `camera.json`
+/// (median of 60).
+const GRASPS_JSON_BYTES_PER_TRIAL: f64 = 8_505.0;
+const TOUCH_JSON_BYTES_PER_TRIAL: f64 = 7_279.0;
+const OBJECT_PLY_BYTES: f64 = 11_306.0;
+const CAMERA_JSON_BYTES: f64 = 1_612.0;
 
 /// Above these a spec earns a warning.
 pub const LARGE_CPU_S: f64 = 86_400.0; // one CPU-day
@@ -88,50 +102,154 @@ pub struct Estimate {
     pub warnings: Vec<String>,
 }
 
+/// What a spec asks for, counted: the ground both `validate`'s estimate and `plan` stand on.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Workload {
+    /// (object, hand) pairs.
+    pub pairs: u64,
+    pub objects: u64,
+    /// Grasp tasks: exact, fixed at submit.
+    pub chunks: u64,
+    /// Trials the grasp tasks may run: the spec's bound.
+    pub trials: u64,
+    /// Accepted grasps: the quota's target (`grasp.accepted_per_pair`), reached when every chunk
+    /// fills its quota within its trials; without a quota, every trial (an upper bound).
+    pub grasps: u64,
+    /// Whether the spec fixes `grasps` with a quota.
+    pub quota: bool,
+    pub views_per_grasp: u64,
+    /// `grasps × views_per_grasp`.
+    pub samples: u64,
+    /// Pixels per view.
+    pub pixels: f64,
+    /// Whether noisy depth is requested (one noise task per render task).
+    pub noisy: bool,
+}
+
+impl Workload {
+    pub fn of(spec: &DatasetSpec) -> Workload {
+        let pairs = (spec.hands.len() * spec.objects.len()) as u64;
+        let budget = spec.grasp.budget();
+        let views_per_grasp = u64::from(spec.render.views_per_grasp());
+        let grasps = pairs * u64::from(budget.grasps());
+        let r = &spec.render;
+        Workload {
+            pairs,
+            objects: spec.objects.len() as u64,
+            chunks: pairs * u64::from(budget.chunks()),
+            trials: pairs * u64::from(spec.grasp.trials_per_pair),
+            grasps,
+            quota: spec.grasp.accepted_per_pair.is_some(),
+            views_per_grasp,
+            samples: grasps * views_per_grasp,
+            pixels: f64::from(r.resolution[0]) * f64::from(r.resolution[1]),
+            noisy: spec.outputs.wants(Modality::DepthNoisy),
+        }
+    }
+}
+
+/// A figure for each stage.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct PerStage {
+    pub grasp: f64,
+    pub render: f64,
+    pub noise: f64,
+    pub package: f64,
+}
+
+impl PerStage {
+    pub fn total(&self) -> f64 {
+        self.grasp + self.render + self.noise + self.package
+    }
+}
+
+/// CPU seconds per grasp trial at the spec's physics: the measured trial scaled by simulated
+/// time and timestep.
+fn grasp_s_per_trial(spec: &DatasetSpec) -> f64 {
+    let g = &spec.grasp;
+    let shake_s = if g.shake_accel_mps2 > 0.0 { g.shake_duration_s } else { 0.0 };
+    let simulated = GRASP_REFERENCE_SIM_S - GRASP_REFERENCE_HOLD_S + g.hold_s + shake_s;
+    GRASP_S_PER_TRIAL * (simulated / GRASP_REFERENCE_SIM_S) * (GRASP_REFERENCE_TIMESTEP_S / g.timestep_s)
+}
+
+/// CPU seconds one view costs the render engine.
+fn render_s_per_view(spec: &DatasetSpec, pixels: f64) -> f64 {
+    let r = &spec.render;
+    let mut per_view = RENDER_S_PER_VIEW + RENDER_S_PER_PIXEL * pixels;
+    if spec.outputs.wants(Modality::Rgb) {
+        per_view += RENDER_S_PER_PIXEL_SAMPLE * pixels * f64::from(r.samples);
+        if r.denoise {
+            per_view += DENOISE_S_PER_PIXEL * pixels;
+        }
+    }
+    per_view
+}
+
+/// CPU seconds per stage on one core of the measured machine: every trial of the bound run
+/// (grasp), every view of `w.grasps` rendered, made noisy and packaged.
+pub fn cpu_seconds(spec: &DatasetSpec, w: &Workload) -> PerStage {
+    let views = w.samples as f64;
+    PerStage {
+        grasp: grasp_s_per_trial(spec) * w.trials as f64,
+        render: render_s_per_view(spec, w.pixels) * views,
+        noise: if w.noisy { NOISE_S_PER_PIXEL * w.pixels * views } else { 0.0 },
+        package: PACKAGE_S_PER_SAMPLE * views,
+    }
+}
+
+/// Bytes per pixel of the image files one view of `spec` carries in a sample.
+fn sample_bytes_per_pixel(spec: &DatasetSpec) -> f64 {
+    [
+        (Modality::Rgb, RGB_BYTES_PER_PIXEL),
+        (Modality::Depth, DEPTH_BYTES_PER_PIXEL),
+        (Modality::DepthNoisy, DEPTH_BYTES_PER_PIXEL),
+        (Modality::Mask, MASKS_BYTES_PER_PIXEL),
+        (Modality::Segmentation, SEGMENTATION_BYTES_PER_PIXEL),
+    ]
+    .into_iter()
+    .filter(|(m, _)| spec.outputs.wants(*m))
+    .map(|(_, bpp)| bpp)
+    .sum()
+}
+
+/// Bytes of the exported dataset (native layout): every sample's files and `meta.json`, one
+/// record per grasp.
+pub fn dataset_bytes(spec: &DatasetSpec, w: &Workload) -> f64 {
+    let views = w.samples as f64;
+    views * (sample_bytes_per_pixel(spec) * w.pixels + META_JSON_BYTES) + w.grasps as f64 * GRASP_RECORD_BYTES
+}
+
+/// Bytes each stage adds to the object store. Content addressing stores a packaged image once:
+/// it is the render's or noise's object under the same hash, so the package stage adds only its
+/// JSON (`meta.json` per sample, a record per grasp). Render tasks write what the noise stage
+/// reads even when the sample does not carry it (the segmentation the noise model needs).
+pub fn object_store_bytes(w: &Workload, render_outputs: &[RenderOutput]) -> PerStage {
+    let views = w.samples as f64;
+    let render_bpp: f64 = render_outputs
+        .iter()
+        .map(|o| match o {
+            RenderOutput::Rgb => RGB_BYTES_PER_PIXEL,
+            RenderOutput::Depth => DEPTH_BYTES_PER_PIXEL,
+            RenderOutput::Mask => MASKS_BYTES_PER_PIXEL,
+            RenderOutput::Segmentation => SEGMENTATION_BYTES_PER_PIXEL,
+        })
+        .sum();
+    PerStage {
+        grasp: w.trials as f64 * (GRASPS_JSON_BYTES_PER_TRIAL + TOUCH_JSON_BYTES_PER_TRIAL)
+            + w.objects as f64 * OBJECT_PLY_BYTES,
+        render: views * (render_bpp * w.pixels + CAMERA_JSON_BYTES),
+        noise: if w.noisy { views * DEPTH_BYTES_PER_PIXEL * w.pixels } else { 0.0 },
+        package: views * META_JSON_BYTES + w.grasps as f64 * GRASP_RECORD_BYTES,
+    }
+}
+
 impl Estimate {
     pub fn of(spec: &DatasetSpec) -> Estimate {
-        let pairs = (spec.hands.len() * spec.objects.len()) as u64;
-        let trials = pairs * u64::from(spec.grasp.trials_per_pair);
-        let chunks = pairs * u64::from(spec.chunks_per_pair());
-        let samples = spec.max_samples();
-        let wants = |m: Modality| spec.outputs.wants(m);
-        let r = &spec.render;
-        let pixels = f64::from(r.resolution[0]) * f64::from(r.resolution[1]);
-        let views = samples as f64;
-
+        let w = Workload::of(spec);
+        let cpu = cpu_seconds(spec, &w);
+        let output_bytes = dataset_bytes(spec, &w);
+        let total = cpu.total();
         let g = &spec.grasp;
-        let shake_s = if g.shake_accel_mps2 > 0.0 { g.shake_duration_s } else { 0.0 };
-        let simulated = GRASP_REFERENCE_SIM_S - GRASP_REFERENCE_HOLD_S + g.hold_s + shake_s;
-        let per_trial =
-            GRASP_S_PER_TRIAL * (simulated / GRASP_REFERENCE_SIM_S) * (GRASP_REFERENCE_TIMESTEP_S / g.timestep_s);
-        let mut per_view = RENDER_S_PER_VIEW + RENDER_S_PER_PIXEL * pixels;
-        if wants(Modality::Rgb) {
-            per_view += RENDER_S_PER_PIXEL_SAMPLE * pixels * f64::from(r.samples);
-            if r.denoise {
-                per_view += DENOISE_S_PER_PIXEL * pixels;
-            }
-        }
-        let noisy = wants(Modality::DepthNoisy);
-        let grasp = per_trial * trials as f64;
-        let render = per_view * views;
-        let noise = if noisy { NOISE_S_PER_PIXEL * pixels * views } else { 0.0 };
-        let package = PACKAGE_S_PER_SAMPLE * views;
-
-        let mut bytes_per_pixel = 0.0;
-        for (modality, bpp) in [
-            (Modality::Rgb, RGB_BYTES_PER_PIXEL),
-            (Modality::Depth, DEPTH_BYTES_PER_PIXEL),
-            (Modality::DepthNoisy, DEPTH_BYTES_PER_PIXEL),
-            (Modality::Mask, MASKS_BYTES_PER_PIXEL),
-            (Modality::Segmentation, SEGMENTATION_BYTES_PER_PIXEL),
-        ] {
-            if wants(modality) {
-                bytes_per_pixel += bpp;
-            }
-        }
-        let grasps = views / f64::from(r.views_per_grasp().max(1));
-        let output_bytes = views * (bytes_per_pixel * pixels + META_JSON_BYTES) + grasps * GRASP_RECORD_BYTES;
-        let total = grasp + render + noise + package;
 
         let mut warnings = Vec::new();
         if let Some(n) = g.accepted_per_pair.filter(|&n| n > g.trials_per_pair) {
@@ -158,13 +276,19 @@ impl Estimate {
         Estimate {
             basis: BASIS,
             tasks: Tasks {
-                grasp: chunks,
-                render_max: grasps as u64,
-                noise_max: if noisy { grasps as u64 } else { 0 },
-                package_max: chunks,
+                grasp: w.chunks,
+                render_max: w.grasps,
+                noise_max: if w.noisy { w.grasps } else { 0 },
+                package_max: w.chunks,
             },
-            samples_max: samples,
-            cpu_seconds: CpuSeconds { grasp, render, noise, package, total },
+            samples_max: w.samples,
+            cpu_seconds: CpuSeconds {
+                grasp: cpu.grasp,
+                render: cpu.render,
+                noise: cpu.noise,
+                package: cpu.package,
+                total,
+            },
             output_bytes,
             warnings,
         }
@@ -220,6 +344,26 @@ mod tests {
         assert!((15.0..25.0).contains(&e.cpu_seconds.total), "{:?}", e.cpu_seconds);
         assert!((9.6e6..16e6).contains(&e.output_bytes), "{}", e.output_bytes);
         assert!(e.warnings.is_empty(), "{:?}", e.warnings);
+    }
+
+    /// The object store of a real `vintctl run examples/tiny.toml` (2026-11-25, commit `687edb3`:
+    /// 12 trials, 10 accepted grasps, 60 samples), distinct objects' bytes by the stage that first
+    /// wrote them (`scripts/measure_db_bytes.py`'s run): grasp 233 747, render 5 861 717, noise
+    /// 3 939 840, package 597 582.
+    #[test]
+    fn object_store_bytes_reproduce_a_real_tiny_run_per_stage() {
+        let spec = DatasetSpec::parse(TINY).unwrap();
+        let w = Workload { grasps: 10, samples: 60, ..Workload::of(&spec) };
+        let plan = vint_core::plan::JobPlan::new(&spec, &[]).unwrap();
+        let b = object_store_bytes(&w, &plan.render_outputs);
+        for (stage, model, measured) in [
+            ("grasp", b.grasp, 233_747.0),
+            ("render", b.render, 5_861_717.0),
+            ("noise", b.noise, 3_939_840.0),
+            ("package", b.package, 597_582.0),
+        ] {
+            assert!((model / measured - 1.0).abs() < 0.1, "{stage}: {model} against {measured} measured");
+        }
     }
 
     #[test]

@@ -15,6 +15,7 @@ mod eval;
 mod export;
 mod failure;
 mod formats;
+mod plan;
 mod report;
 mod spec_file;
 mod stats;
@@ -32,6 +33,7 @@ pub use failure::{CliResult, Failure, InvalidSpec, bad_input};
 const GETTING_STARTED: &str = "\
 Getting started:
   vintctl validate examples/tiny.toml                  check a spec: every problem, and what it would cost
+  vintctl plan examples/vint-sim.toml                  a spec's tasks, database rows and bytes, CPU-hours
   vintctl run examples/tiny.toml --out out/tiny        make its dataset on this machine (no server needed)
   vintctl hands; vintctl objects                       what a spec can name
 
@@ -46,7 +48,7 @@ struct Cli {
     /// Print machine-readable JSON instead of text (errors too, on stdout).
     #[arg(long, global = true)]
     json: bool,
-    /// Coordinator URL for the commands that talk to one (all but validate, run, convert, eval,
+    /// Coordinator URL for the commands that talk to one (all but validate, plan, run, convert, eval,
     /// diff, study, hands, objects and stats on a directory); HOST:PORT means http://HOST:PORT.
     #[arg(long, global = true, env = "VINT_COORDINATOR", default_value = "http://127.0.0.1:7700")]
     coordinator: String,
@@ -59,6 +61,12 @@ enum Command {
     /// Check a dataset spec and report every problem.
     Validate {
         /// The spec file (TOML; see examples/tiny.toml).
+        spec: PathBuf,
+    },
+    /// What a spec will cost before anything runs: tasks per stage, database rows and bytes, object
+    /// store bytes and CPU-hours per stage (no server needed).
+    Plan {
+        /// The spec file (TOML; see examples/vint-sim.toml).
         spec: PathBuf,
     },
     /// Run a spec on this machine: embedded coordinator, SQLite, local object store and workers.
@@ -256,6 +264,7 @@ fn getting_started(json: bool) -> ExitCode {
 async fn dispatch(command: Command, json: bool, coordinator: &str) -> CliResult {
     match command {
         Command::Validate { spec } => commands::validate(&spec, json),
+        Command::Plan { spec } => commands::plan(&spec, json),
         Command::Run { spec, out, state, workers, format } => {
             embedded::run(&spec, &out, format.target(), &state, workers, json).await
         }

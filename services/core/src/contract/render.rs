@@ -199,6 +199,21 @@ impl RenderOutput {
     pub fn all() -> Vec<RenderOutput> {
         RenderOutput::ALL.to_vec()
     }
+
+    /// The files this output adds to each view.
+    pub fn view_files(self) -> &'static [ViewFile] {
+        match self {
+            RenderOutput::Rgb => &[ViewFile::Rgb],
+            RenderOutput::Depth => &[ViewFile::Depth],
+            RenderOutput::Mask => &[ViewFile::Mask, ViewFile::MaskFull],
+            RenderOutput::Segmentation => &[ViewFile::Segmentation],
+        }
+    }
+}
+
+/// The files a render task asked for `outputs` writes per view: theirs and the camera record.
+pub fn view_files(outputs: &[RenderOutput]) -> Vec<ViewFile> {
+    std::iter::once(ViewFile::Camera).chain(outputs.iter().flat_map(|o| o.view_files().iter().copied())).collect()
 }
 
 /// A file a render task writes for each view `v`: `v{NN}_{suffix}`.
@@ -245,4 +260,19 @@ pub struct RenderResult {
     pub views: u32,
     /// The device Cycles rendered on (`CPU`, `OPTIX`, `CUDA`).
     pub device: String,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_view_writes_its_camera_record_and_the_files_of_each_output() {
+        assert_eq!(view_files(&[]), [ViewFile::Camera]);
+        assert_eq!(
+            view_files(&[RenderOutput::Rgb, RenderOutput::Mask]),
+            [ViewFile::Camera, ViewFile::Rgb, ViewFile::Mask, ViewFile::MaskFull]
+        );
+        assert_eq!(view_files(&RenderOutput::all()).len(), 6, "what the tiny run's render tasks write per view");
+    }
 }

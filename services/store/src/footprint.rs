@@ -1,0 +1,263 @@
+//! The store's footprint: how many rows of each table a job writes, and what a row costs on
+//! Postgres. It mirrors what `submit_job` and `complete` insert, so that `vintctl plan` can size a
+//! job's database before it runs; `Store::table_rows` counts what was written, and
+//! `tests/footprint.rs` holds the two to each other on both backends.
+//!
+//! Counted for the tasks of a job that succeed at their first attempt: each retry adds one
+//! `attempts` row, and nothing else.
+
+use std::ops::{Add, AddAssign};
+
+use serde::Serialize;
+use sqlx::Row;
+
+use vint_core::contract::render;
+use vint_core::plan::JobPlan;
+
+use crate::{Result, Store, trusted};
+
+/// Rows per table (or bytes per table, in `TableBytes`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct TableRows {
+    pub jobs: u64,
+    pub job_assets: u64,
+    pub tasks: u64,
+    pub task_deps: u64,
+    pub attempts: u64,
+    pub artifacts: u64,
+    pub lineage_edges: u64,
+    pub samples: u64,
+}
+
+impl TableRows {
+    /// The tables in schema order, with their names.
+    pub const TABLES: [&'static str; 8] =
+        ["jobs", "job_assets", "tasks", "task_deps", "attempts", "artifacts", "lineage_edges", "samples"];
+
+    /// What a submission writes besides its tasks: the job and the user files its spec names.
+    pub fn submit(user_files: u64) -> TableRows {
+        TableRows { jobs: 1, job_assets: user_files, ..TableRows::default() }
+    }
+
+    /// What one task writes over its life, succeeding at its first attempt: its row and one
+    /// `task_deps` row per dependency (inserted by the completion that planned it), its attempt,
+    /// its `outputs` artifacts, one lineage edge per artifact of each dependency (`complete` links
+    /// every output of every dependency, read or not: `dependency_outputs[i]` is dependency `i`'s
+    /// artifact count) and the `samples` it packaged.
+    pub fn task(dependency_outputs: &[u64], outputs: u64, samples: u64) -> TableRows {
+        TableRows {
+            tasks: 1,
+            task_deps: dependency_outputs.len() as u64,
+            attempts: 1,
+            artifacts: outputs,
+            lineage_edges: dependency_outputs.iter().sum(),
+            samples,
+            ..TableRows::default()
+        }
+    }
+
+    /// Every table's count, in `TABLES` order.
+    pub fn counts(&self) -> [u64; 8] {
+        [
+            self.jobs,
+            self.job_assets,
+            self.tasks,
+            self.task_deps,
+            self.attempts,
+            self.artifacts,
+            self.lineage_edges,
+            self.samples,
+        ]
+    }
+
+    pub fn total(&self) -> u64 {
+        self.counts().iter().sum()
+    }
+
+    /// `n` times these rows.
+    pub fn times(&self, n: u64) -> TableRows {
+        let c = self.counts().map(|v| v.saturating_mul(n));
+        TableRows::from_counts(c)
+    }
+
+    fn from_counts(c: [u64; 8]) -> TableRows {
+        TableRows {
+            jobs: c[0],
+            job_assets: c[1],
+            tasks: c[2],
+            task_deps: c[3],
+            attempts: c[4],
+            artifacts: c[5],
+            lineage_edges: c[6],
+            samples: c[7],
+        }
+    }
+}
+
+impl Add for TableRows {
+    type Output = TableRows;
+
+    fn add(self, other: TableRows) -> TableRows {
+        let (a, b) = (self.counts(), other.counts());
+        TableRows::from_counts(std::array::from_fn(|i| a[i].saturating_add(b[i])))
+    }
+}
+
+impl AddAssign for TableRows {
+    fn add_assign(&mut self, other: TableRows) {
+        *self = *self + other;
+    }
+}
+
+/// Files a grasp task writes: `grasps.json`, `touch.json` and `object.ply`
+/// (`vint_core::contract::grasp`), whatever it accepted.
+pub const GRASP_TASK_OUTPUTS: u64 = 3;
+
+/// Files one render task of `plan` writes: the view files of its outputs, for every view.
+pub fn render_task_outputs(plan: &JobPlan) -> u64 {
+    u64::from(plan.views_per_grasp()) * render::view_files(&plan.render_outputs).len() as u64
+}
+
+/// Files a package task writes per sample: `meta.json` and the files of the requested modalities.
+pub fn package_files_per_sample(plan: &JobPlan) -> u64 {
+    1 + plan.modalities.iter().map(|m| m.sample_files().len() as u64).sum::<u64>()
+}
+
+/// The rows of one grasp chunk of `plan` that accepted `grasps` grasps, planned by
+/// `vint_core::plan::after_grasp`: its grasp task, then per grasp a render task and (with noisy
+/// depth) a noise task, and one package task waiting for all of them that packages every view
+/// of every grasp and one record per grasp.
+pub fn chunk_rows(plan: &JobPlan, grasps: u32) -> TableRows {
+    let mut rows = TableRows::task(&[], GRASP_TASK_OUTPUTS, 0);
+    if grasps == 0 {
+        return rows;
+    }
+    let g = u64::from(grasps);
+    let views = u64::from(plan.views_per_grasp());
+    let render_outputs = render_task_outputs(plan);
+    rows += TableRows::task(&[GRASP_TASK_OUTPUTS], render_outputs, 0).times(g);
+    let mut package_deps = vec![GRASP_TASK_OUTPUTS];
+    package_deps.extend(std::iter::repeat_n(render_outputs, grasps as usize));
+    if plan.noise.is_some() {
+        rows += TableRows::task(&[render_outputs], views, 0).times(g);
+        package_deps.extend(std::iter::repeat_n(views, grasps as usize));
+    }
+    let samples = g * views;
+    rows += TableRows::task(&package_deps, samples * package_files_per_sample(plan) + g, samples);
+    rows
+}
+
+/// Bytes one row of each table takes on Postgres with its indexes and TOAST
+/// (`pg_total_relation_size` over the row count), measured by `scripts/measure_db_bytes.py` on
+/// the rows of a real `vintctl run examples/tiny.toml` job (32 tasks, 60 samples) copied 400
+/// times under fresh job ids into a scratch database with `migrations/postgres` applied, after
+/// `VACUUM ANALYZE` (2026-11-25, commit `687edb3`'s schema, Postgres 15.20, this machine).
+/// `tasks` is tiny's mix of stages; a task row is mostly its parameters, so `vintctl plan` sizes
+/// it as `POSTGRES_TASK_BYTES_BEYOND_PARAMS` plus the parameters the planner makes for the spec.
+/// `job_assets` is not measured (tiny names no user file): an artifact row's figure stands in
+/// (the same columns). Re-measure when the schema changes; the script prints this table.
+pub const POSTGRES_BYTES_PER_ROW: PerRow = PerRow {
+    jobs: 2_990.0,
+    job_assets: 446.0,
+    tasks: 1_539.0,
+    task_deps: 296.0,
+    attempts: 532.0,
+    artifacts: 446.0,
+    lineage_edges: 450.0,
+    samples: 203.0,
+};
+
+/// A `tasks` row on Postgres beyond its `params_json`: 1 539 bytes per row less tiny's 839-byte
+/// mean parameters (`scripts/measure_db_bytes.py`, as above).
+pub const POSTGRES_TASK_BYTES_BEYOND_PARAMS: f64 = 700.0;
+
+/// A figure per table (bytes per row).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct PerRow {
+    pub jobs: f64,
+    pub job_assets: f64,
+    pub tasks: f64,
+    pub task_deps: f64,
+    pub attempts: f64,
+    pub artifacts: f64,
+    pub lineage_edges: f64,
+    pub samples: f64,
+}
+
+impl PerRow {
+    /// Every table's figure, in `TableRows::TABLES` order.
+    pub fn figures(&self) -> [f64; 8] {
+        [
+            self.jobs,
+            self.job_assets,
+            self.tasks,
+            self.task_deps,
+            self.attempts,
+            self.artifacts,
+            self.lineage_edges,
+            self.samples,
+        ]
+    }
+
+    /// Bytes of `rows`, table by table, in `TableRows::TABLES` order.
+    pub fn bytes(&self, rows: &TableRows) -> [f64; 8] {
+        let (per_row, counts) = (self.figures(), rows.counts());
+        std::array::from_fn(|i| per_row[i] * counts[i] as f64)
+    }
+}
+
+impl Store {
+    /// Rows in each table, over every job: what `TableRows::submit` and `TableRows::task` predict.
+    pub async fn table_rows(&self) -> Result<TableRows> {
+        let mut counts = [0u64; 8];
+        for (count, table) in counts.iter_mut().zip(TableRows::TABLES) {
+            let n: i64 = sqlx::query(trusted(format!("SELECT COUNT(*) AS n FROM {table}")))
+                .fetch_one(&self.pool)
+                .await?
+                .try_get("n")?;
+            *count = n.max(0) as u64;
+        }
+        Ok(TableRows::from_counts(counts))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_task_writes_its_row_deps_attempt_outputs_and_an_edge_per_dependency_output() {
+        let package = TableRows::task(&[3, 12, 2], 15, 2);
+        assert_eq!(
+            package,
+            TableRows {
+                tasks: 1,
+                task_deps: 3,
+                attempts: 1,
+                artifacts: 15,
+                lineage_edges: 17,
+                samples: 2,
+                ..TableRows::default()
+            }
+        );
+        let job = TableRows::submit(2) + package.times(3);
+        assert_eq!((job.jobs, job.job_assets, job.tasks, job.lineage_edges), (1, 2, 3, 51));
+        assert_eq!(job.total(), 1 + 2 + 3 * (1 + 3 + 1 + 15 + 17 + 2));
+    }
+
+    #[test]
+    fn bytes_are_rows_times_the_figure_of_their_table() {
+        let per_row = PerRow {
+            jobs: 1.0,
+            job_assets: 2.0,
+            tasks: 3.0,
+            task_deps: 4.0,
+            attempts: 5.0,
+            artifacts: 6.0,
+            lineage_edges: 7.0,
+            samples: 8.0,
+        };
+        let rows = TableRows::task(&[1, 1], 2, 1);
+        assert_eq!(per_row.bytes(&rows), [0.0, 0.0, 3.0, 8.0, 5.0, 12.0, 14.0, 8.0]);
+    }
+}
