@@ -9,7 +9,7 @@ of one half-empty 8 KiB page per table) into a scratch Postgres database with
 `migrations/postgres/*.sql` applied, runs `VACUUM ANALYZE`, and prints per table: rows,
 `pg_total_relation_size` (heap + indexes + TOAST) and its parts, and bytes per row — the figures
 `vint_store::footprint::POSTGRES_BYTES_PER_ROW` holds. It also prints what the job's tasks wrote
-(artifacts and lineage edges per task by stage) and the artifact sizes by file kind, which
+(artifacts and dependencies per task by stage) and the artifact sizes by file kind, which
 `services/vintctl/src/estimate.rs` uses for the object store. The scratch database
 (`measure_db_bytes_<pid>`) is dropped at the end unless `--keep`.
 
@@ -26,7 +26,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-TABLES = ["jobs", "job_assets", "tasks", "task_deps", "attempts", "artifacts", "lineage_edges", "samples"]
+TABLES = ["jobs", "job_assets", "tasks", "task_deps", "attempts", "artifacts", "samples"]
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -55,7 +55,10 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("sqlite", type=Path, help="a vintctl run state's vint.db")
     ap.add_argument("--copies", type=int, default=400, help="copies of the job's rows (default 400)")
-    ap.add_argument("--pg", default=os.environ.get("VINT_TEST_POSTGRES_URL", "postgres://postgres@127.0.0.1:5432/postgres"))
+    ap.add_argument(
+        "--pg",
+        default=os.environ.get("VINT_TEST_POSTGRES_URL", "postgres://postgres@127.0.0.1:5432/postgres"),
+    )
     ap.add_argument("--keep", action="store_true", help="keep the scratch database")
     args = ap.parse_args()
 
@@ -118,7 +121,9 @@ def main():
             psql(args.pg, "-c", f"DROP DATABASE IF EXISTS {db}")
 
     print(f"Postgres {version}; one job's rows ({args.sqlite}) copied {args.copies} times\n")
-    print(f"{'table':<14} {'rows':>10} {'total B':>12} {'heap':>12} {'indexes':>12} {'toast':>10} {'B/row':>8}")
+    print(
+        f"{'table':<14} {'rows':>10} {'total B':>12} {'heap':>12} {'indexes':>12} {'toast':>10} {'B/row':>8}"
+    )
     for t in TABLES:
         s = sizes[t]
         per_row = "—" if s["bytes_per_row"] is None else f"{s['bytes_per_row']:.0f}"
@@ -133,25 +138,30 @@ def main():
     if params and sizes["tasks"]["rows"]:
         mean_params = sum(params) / len(params)
         beyond = sizes["tasks"]["total_bytes"] / sizes["tasks"]["rows"] - mean_params
-        print(f"\ntasks: params_json {mean_params:.0f} B per row on average; {beyond:.0f} B per row beyond it")
-        for stage, n, mean in src.execute("SELECT stage, COUNT(*), AVG(length(params_json)) FROM tasks GROUP BY stage"):
+        print(
+            f"\ntasks: params_json {mean_params:.0f} B per row on average; {beyond:.0f} B per row beyond it"
+        )
+        for stage, n, mean in src.execute(
+            "SELECT stage, COUNT(*), AVG(length(params_json)) FROM tasks GROUP BY stage"
+        ):
             print(f"  {stage:<8} {n:>4} tasks, params_json {mean:.0f} B")
 
     # What each task wrote, by stage: the footprint model's inputs, checked against a real run.
     stage_of = {r[0]: r[1] for r in src.execute("SELECT id, stage FROM tasks")}
     trials_of = {
-        r[0]: len(json.loads(r[1]).get("trials", [])) for r in src.execute("SELECT id, params_json FROM tasks WHERE stage = 'grasp'")
+        r[0]: len(json.loads(r[1]).get("trials", []))
+        for r in src.execute("SELECT id, params_json FROM tasks WHERE stage = 'grasp'")
     }
     per_stage = {}
     for task_id, stage in stage_of.items():
         a = src.execute("SELECT COUNT(*) FROM artifacts WHERE task_id = ?", (task_id,)).fetchone()[0]
-        e = src.execute("SELECT COUNT(*) FROM lineage_edges WHERE task_id = ?", (task_id,)).fetchone()[0]
         d = src.execute("SELECT COUNT(*) FROM task_deps WHERE task_id = ?", (task_id,)).fetchone()[0]
-        per_stage.setdefault(stage, []).append((a, e, d))
-    print("\nper task, by stage: tasks; artifacts, lineage edges, dependencies (min–max)")
+        per_stage.setdefault(stage, []).append((a, d))
+    print("\nper task, by stage: tasks; artifacts, dependencies (min–max)")
     for stage, v in sorted(per_stage.items()):
-        span = lambda i: f"{min(x[i] for x in v)}–{max(x[i] for x in v)}"
-        print(f"  {stage:<8} {len(v):>4} tasks; artifacts {span(0)}, edges {span(1)}, deps {span(2)}")
+        artifacts = f"{min(x[0] for x in v)}–{max(x[0] for x in v)}"
+        deps = f"{min(x[1] for x in v)}–{max(x[1] for x in v)}"
+        print(f"  {stage:<8} {len(v):>4} tasks; artifacts {artifacts}, deps {deps}")
 
     # Object store: sizes by file kind (the name past the sample, grasp or view prefix).
     kinds = {}
@@ -163,7 +173,8 @@ def main():
             grasp_per_trial.setdefault(kind, []).append(size / trials_of[task_id])
     print("\nartifact bytes by stage and file kind: count, median (min–max)")
     for (stage, kind), sizes_ in sorted(kinds.items()):
-        print(f"  {stage:<8} {kind:<18} {len(sizes_):>5}  {statistics.median(sizes_):>10.0f}  ({min(sizes_)}–{max(sizes_)})")
+        median = statistics.median(sizes_)
+        print(f"  {stage:<8} {kind:<18} {len(sizes_):>5}  {median:>10.0f}  ({min(sizes_)}–{max(sizes_)})")
     print("grasp files per trial the chunk ran: median (min–max)")
     for kind, v in sorted(grasp_per_trial.items()):
         print(f"  {kind:<18} {statistics.median(v):>10.0f}  ({min(v):.0f}–{max(v):.0f})")

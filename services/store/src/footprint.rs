@@ -25,14 +25,12 @@ pub struct TableRows {
     pub task_deps: u64,
     pub attempts: u64,
     pub artifacts: u64,
-    pub lineage_edges: u64,
     pub samples: u64,
 }
 
 impl TableRows {
     /// The tables in schema order, with their names.
-    pub const TABLES: [&'static str; 8] =
-        ["jobs", "job_assets", "tasks", "task_deps", "attempts", "artifacts", "lineage_edges", "samples"];
+    pub const TABLES: [&'static str; 7] = ["jobs", "job_assets", "tasks", "task_deps", "attempts", "artifacts", "samples"];
 
     /// What a submission writes besides its tasks: the job and the user files its spec names.
     pub fn submit(user_files: u64) -> TableRows {
@@ -41,23 +39,22 @@ impl TableRows {
 
     /// What one task writes over its life, succeeding at its first attempt: its row and one
     /// `task_deps` row per dependency (inserted by the completion that planned it), its attempt,
-    /// its `outputs` artifacts, one lineage edge per artifact of each dependency (`complete` links
-    /// every output of every dependency, read or not: `dependency_outputs[i]` is dependency `i`'s
-    /// artifact count) and the `samples` it packaged.
+    /// its `outputs` artifacts and the `samples` it packaged. Its inputs are derived (its
+    /// dependencies' outputs), not stored: `dependency_outputs[i]` is dependency `i`'s artifact
+    /// count, which only the number of dependencies matters for.
     pub fn task(dependency_outputs: &[u64], outputs: u64, samples: u64) -> TableRows {
         TableRows {
             tasks: 1,
             task_deps: dependency_outputs.len() as u64,
             attempts: 1,
             artifacts: outputs,
-            lineage_edges: dependency_outputs.iter().sum(),
             samples,
             ..TableRows::default()
         }
     }
 
     /// Every table's count, in `TABLES` order.
-    pub fn counts(&self) -> [u64; 8] {
+    pub fn counts(&self) -> [u64; 7] {
         [
             self.jobs,
             self.job_assets,
@@ -65,7 +62,6 @@ impl TableRows {
             self.task_deps,
             self.attempts,
             self.artifacts,
-            self.lineage_edges,
             self.samples,
         ]
     }
@@ -80,7 +76,7 @@ impl TableRows {
         TableRows::from_counts(c)
     }
 
-    fn from_counts(c: [u64; 8]) -> TableRows {
+    fn from_counts(c: [u64; 7]) -> TableRows {
         TableRows {
             jobs: c[0],
             job_assets: c[1],
@@ -88,8 +84,7 @@ impl TableRows {
             task_deps: c[3],
             attempts: c[4],
             artifacts: c[5],
-            lineage_edges: c[6],
-            samples: c[7],
+            samples: c[6],
         }
     }
 }
@@ -151,7 +146,9 @@ pub fn chunk_rows(plan: &JobPlan, grasps: u32) -> TableRows {
 /// (`pg_total_relation_size` over the row count), measured by `scripts/measure_db_bytes.py` on
 /// the rows of a real `vintctl run examples/tiny.toml` job (32 tasks, 60 samples) copied 400
 /// times under fresh job ids into a scratch database with `migrations/postgres` applied, after
-/// `VACUUM ANALYZE` (2026-11-25, commit `687edb3`'s schema, Postgres 15.20, this machine).
+/// `VACUUM ANALYZE` (2026-11-25, commit `687edb3`'s schema, Postgres 15.20, this machine; `lineage_edges`, 450 bytes
+/// a row then, is gone since migration 0006; the other tables' rows are unchanged but for the
+/// `tasks` index it dropped, so `tasks` is slightly over).
 /// `tasks` is tiny's mix of stages; a task row is mostly its parameters, so `vintctl plan` sizes
 /// it as `POSTGRES_TASK_BYTES_BEYOND_PARAMS` plus the parameters the planner makes for the spec.
 /// `job_assets` is not measured (tiny names no user file): an artifact row's figure stands in
@@ -163,7 +160,6 @@ pub const POSTGRES_BYTES_PER_ROW: PerRow = PerRow {
     task_deps: 296.0,
     attempts: 532.0,
     artifacts: 446.0,
-    lineage_edges: 450.0,
     samples: 203.0,
 };
 
@@ -180,13 +176,12 @@ pub struct PerRow {
     pub task_deps: f64,
     pub attempts: f64,
     pub artifacts: f64,
-    pub lineage_edges: f64,
     pub samples: f64,
 }
 
 impl PerRow {
     /// Every table's figure, in `TableRows::TABLES` order.
-    pub fn figures(&self) -> [f64; 8] {
+    pub fn figures(&self) -> [f64; 7] {
         [
             self.jobs,
             self.job_assets,
@@ -194,13 +189,12 @@ impl PerRow {
             self.task_deps,
             self.attempts,
             self.artifacts,
-            self.lineage_edges,
             self.samples,
         ]
     }
 
     /// Bytes of `rows`, table by table, in `TableRows::TABLES` order.
-    pub fn bytes(&self, rows: &TableRows) -> [f64; 8] {
+    pub fn bytes(&self, rows: &TableRows) -> [f64; 7] {
         let (per_row, counts) = (self.figures(), rows.counts());
         std::array::from_fn(|i| per_row[i] * counts[i] as f64)
     }
@@ -209,7 +203,7 @@ impl PerRow {
 impl Store {
     /// Rows in each table, over every job: what `TableRows::submit` and `TableRows::task` predict.
     pub async fn table_rows(&self) -> Result<TableRows> {
-        let mut counts = [0u64; 8];
+        let mut counts = [0u64; 7];
         for (count, table) in counts.iter_mut().zip(TableRows::TABLES) {
             let n: i64 = sqlx::query(trusted(format!("SELECT COUNT(*) AS n FROM {table}")))
                 .fetch_one(&self.pool)
@@ -226,7 +220,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_task_writes_its_row_deps_attempt_outputs_and_an_edge_per_dependency_output() {
+    fn a_task_writes_its_row_deps_attempt_outputs_and_samples() {
         let package = TableRows::task(&[3, 12, 2], 15, 2);
         assert_eq!(
             package,
@@ -235,14 +229,13 @@ mod tests {
                 task_deps: 3,
                 attempts: 1,
                 artifacts: 15,
-                lineage_edges: 17,
                 samples: 2,
                 ..TableRows::default()
             }
         );
         let job = TableRows::submit(2) + package.times(3);
-        assert_eq!((job.jobs, job.job_assets, job.tasks, job.lineage_edges), (1, 2, 3, 51));
-        assert_eq!(job.total(), 1 + 2 + 3 * (1 + 3 + 1 + 15 + 17 + 2));
+        assert_eq!((job.jobs, job.job_assets, job.tasks, job.artifacts), (1, 2, 3, 45));
+        assert_eq!(job.total(), 1 + 2 + 3 * (1 + 3 + 1 + 15 + 2));
     }
 
     #[test]
@@ -254,10 +247,9 @@ mod tests {
             task_deps: 4.0,
             attempts: 5.0,
             artifacts: 6.0,
-            lineage_edges: 7.0,
             samples: 8.0,
         };
         let rows = TableRows::task(&[1, 1], 2, 1);
-        assert_eq!(per_row.bytes(&rows), [0.0, 0.0, 3.0, 8.0, 5.0, 12.0, 14.0, 8.0]);
+        assert_eq!(per_row.bytes(&rows), [0.0, 0.0, 3.0, 8.0, 5.0, 12.0, 8.0]);
     }
 }

@@ -93,7 +93,7 @@ async fn run_to_the_end(store: &Store, spec: &DatasetSpec) -> TableRows {
 store_test!(a_job_writes_the_rows_its_footprint_predicts_with_noisy_depth, |store: Store| async move {
     let spec = spec("[\"rgb\", \"depth\", \"depth_noisy\", \"mask\", \"segmentation\", \"pose\"]");
     let predicted = run_to_the_end(&store, &spec).await;
-    assert!(predicted.samples > 0 && predicted.lineage_edges > predicted.artifacts / 2, "{predicted:?}");
+    assert!(predicted.samples > 0 && predicted.artifacts > predicted.samples, "{predicted:?}");
     assert_eq!(store.table_rows().await.unwrap(), predicted);
 });
 
