@@ -1,19 +1,23 @@
 //! Coordinator throughput: how many tasks per second the real gRPC coordinator can lease and
 //! complete, on Postgres and on the embedded SQLite, when the work itself costs nothing.
 //!
-//!     cargo bench -p vint-tests --bench coordinator --profile dev [-- FILTER...]
+//!     cargo bench -p vint-tests --bench coordinator [-- FILTER...]
 //!
-//! (`--profile dev` measures the build vint ships from scripts/setup.sh: dependencies optimized,
-//! vint's own crates not; plain `cargo bench` builds everything in release first.)
+//! (plain `cargo bench` uses the `bench` profile, i.e. release, the build benches and deployments
+//! use; `--profile dev` measures the quick-to-compile development build instead. Each JSON line
+//! says which.) `benches/queue.sh` runs these cases side by side with the raw SQL ceiling and awa.
 //!
 //! Each run makes a fresh database, inserts N grasp tasks with `Store::submit_job` (a job whose
 //! spec is `examples/tiny.toml` cut to its first hand and first object, with `trials_per_pair = N`
 //! and `chunk_size = 1`, so every key is a real chunk key the planner accepts), serves the
 //! coordinator in-process on a loopback port and lets `WORKERS` concurrent `NoopWorker`s drain the
-//! queue over gRPC: `LeaseTasks(capacity = batch)`, then `CompleteTask` for each leased task with
-//! no outputs and `{"accepted": []}` (which unlocks nothing), until a lease comes back empty. The clock runs from the first lease to the
-//! last completion; inserting the tasks is not timed. Every run checks that all N tasks and the
-//! job succeeded.
+//! queue over gRPC: `LeaseTasks(capacity = batch)`, then one `CompleteTasks` call for the whole
+//! lease, every task with no outputs and `{"accepted": []}` (which unlocks nothing), until a lease
+//! comes back empty. With prefetch on, a worker leases its next batch while its last completion
+//! is still in flight (as a real worker with a small prefetch would), so each worker has at most
+//! one lease and one completion RPC outstanding. The clock runs from the first lease to the last
+//! completion; inserting the tasks is not timed. Every completion result must be COMPLETED, and
+//! every run checks that all N tasks and the job succeeded.
 //!
 //! No tracing subscriber is installed, so the coordinator's per-lease and per-completion log
 //! lines (written to stderr by the real binary) cost nothing here.
@@ -21,25 +25,80 @@
 //! FILTER words select cases whose name (`postgres/batch1`, `sqlite/batch64`, …) contains one of
 //! them; without any, every case runs. Postgres comes from `VINT_TEST_POSTGRES_URL` (an admin URL)
 //! or 127.0.0.1:5432, as in the tests; the bench fails without it.
+//!
+//! Knobs, for exploring (the defaults are what the figures in docs/benchmarks.md use):
+//! `VINT_BENCH_REPEATS` (runs per case, default 3), `VINT_BENCH_TASKS` (tasks per run, every case;
+//! default: per case, sized for runs of 2 s or more), `VINT_BENCH_WORKERS` (default 4) and
+//! `VINT_BENCH_PREFETCH` (1 = on, the default; 0 = lease only after the last completion returned).
 
 use std::net::{Ipv4Addr, SocketAddr};
+use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use serde_json::json;
 use tonic::transport::{Channel, Endpoint};
 use vint_coordinator::{CoordinatorConfig, now_ms};
 use vint_core::plan::{JobPlan, initial_tasks};
+use vint_core::spec::TRIALS_PER_PAIR;
 use vint_core::{DatasetSpec, JobState, Stage, TaskState};
 use vint_proto::v1 as pb;
+use vint_proto::v1::completion_result::Outcome;
 use vint_proto::v1::work_service_client::WorkServiceClient;
 use vint_store::{NewJob, RetryPolicy, Store};
 
 /// Concurrent no-op workers, each on its own HTTP/2 connection, as separate processes would be.
-const WORKERS: usize = 4;
+const WORKERS: Knob = Knob { var: "VINT_BENCH_WORKERS", default: 4, min: 1, max: 64 };
+/// Whether a worker leases its next batch while its last completion is in flight.
+const PREFETCH: Knob = Knob { var: "VINT_BENCH_PREFETCH", default: 1, min: 0, max: 1 };
 /// Runs per case; each on a fresh database. The summary is their median.
-const REPEATS: usize = 3;
+const REPEATS: Knob = Knob { var: "VINT_BENCH_REPEATS", default: 3, min: 1, max: 100 };
+/// Tasks per run for every case, overriding the per-case counts (short trial runs, or a machine
+/// fast enough that the defaults take less than `MIN_RUN`).
+const TASKS: Knob = Knob { var: "VINT_BENCH_TASKS", default: 0, min: 1, max: TRIALS_PER_PAIR.max };
+/// Shorter runs than this are too noisy to compare; the bench says so next to the figure.
+const MIN_RUN: Duration = Duration::from_secs(2);
 /// Long enough that no lease expires mid-run, so the reaper never interferes.
 const LEASE_MS: u32 = 60_000;
+
+/// A bench setting read from the environment, with its default and bounds.
+struct Knob {
+    var: &'static str,
+    default: u32,
+    min: u32,
+    max: u32,
+}
+
+impl Knob {
+    /// The setting's value; `None` when unset (the default then applies).
+    fn read(&self) -> Result<Option<u32>, String> {
+        let Ok(raw) = std::env::var(self.var) else {
+            return Ok(None);
+        };
+        match raw.trim().parse::<u32>() {
+            Ok(v) if (self.min..=self.max).contains(&v) => Ok(Some(v)),
+            _ => Err(format!("{} = {raw:?}: must be an integer from {} to {}", self.var, self.min, self.max)),
+        }
+    }
+}
+
+/// The run's settings, after the environment has had its say.
+struct Settings {
+    workers: usize,
+    prefetch: bool,
+    repeats: usize,
+    tasks: Option<u32>,
+}
+
+impl Settings {
+    fn from_env() -> Result<Settings, String> {
+        Ok(Settings {
+            workers: WORKERS.read()?.unwrap_or(WORKERS.default) as usize,
+            prefetch: PREFETCH.read()?.unwrap_or(PREFETCH.default) == 1,
+            repeats: REPEATS.read()?.unwrap_or(REPEATS.default) as usize,
+            tasks: TASKS.read()?,
+        })
+    }
+}
 
 #[derive(Clone, Copy, PartialEq)]
 enum Backend {
@@ -74,9 +133,27 @@ impl Case {
     }
 }
 
+/// The cases, and the tasks per run that keep each above `MIN_RUN` at today's speed. SQLite at
+/// batch 256 is left out: one writer serializes every transaction there, so a bigger batch than
+/// 64 changes only how long the write lock is held, not what the embedded path can do.
+fn cases(tasks: Option<u32>) -> Vec<Case> {
+    [
+        (Backend::Postgres, 1, 8_000),
+        (Backend::Postgres, 64, 60_000),
+        (Backend::Postgres, 256, 60_000),
+        (Backend::Sqlite, 1, 8_000),
+        (Backend::Sqlite, 64, 40_000),
+    ]
+    .into_iter()
+    .map(|(backend, batch, default)| Case { backend, batch, tasks: tasks.unwrap_or(default) })
+    .collect()
+}
+
 /// What one run measured.
 struct Run {
     tasks: u64,
+    /// Inserting the tasks (untimed in the figure; it bounds how long a case takes to run).
+    seeding: Duration,
     elapsed: Duration,
     lease_rpc_ms: Vec<f64>,
     complete_rpc_ms: Vec<f64>,
@@ -88,29 +165,44 @@ impl Run {
     }
 }
 
+/// Which build is measuring: debug assertions are on in the dev profile, off in release/bench.
+fn profile() -> &'static str {
+    if cfg!(debug_assertions) { "dev" } else { "release" }
+}
+
 #[tokio::main]
-async fn main() {
+async fn main() -> ExitCode {
+    let settings = match Settings::from_env() {
+        Ok(s) => s,
+        Err(e) => {
+            eprintln!("coordinator bench: {e}");
+            return ExitCode::from(2);
+        }
+    };
     // cargo passes `--bench`; every other word is a case filter.
     let filters: Vec<String> = std::env::args().skip(1).filter(|a| !a.starts_with("--")).collect();
-    let mut cases = Vec::new();
-    for backend in [Backend::Postgres, Backend::Sqlite] {
-        for (batch, tasks) in [(1, 1_000), (64, 5_000)] {
-            cases.push(Case { backend, batch, tasks });
-        }
-    }
+    let mut cases = cases(settings.tasks);
     cases.retain(|c| c.selected(&filters));
+    if cases.is_empty() {
+        eprintln!("coordinator bench: no case matches the filters {filters:?}");
+        return ExitCode::from(2);
+    }
 
     println!(
-        "coordinator lease+complete throughput: {WORKERS} no-op workers over gRPC, {REPEATS} runs per case, fresh database each"
+        "coordinator lease+complete throughput ({} build): {} no-op workers over gRPC, prefetch {}, {} runs per case, fresh database each",
+        profile(),
+        settings.workers,
+        if settings.prefetch { "on" } else { "off" },
+        settings.repeats,
     );
     println!("load average at start: {}", load_average());
     // Rounds run every case once, so a change in the machine's load touches all cases alike.
     let mut runs_by_case: Vec<Vec<Run>> = cases.iter().map(|_| Vec::new()).collect();
-    for repeat in 0..REPEATS {
+    for repeat in 0..settings.repeats {
         for (case, runs) in cases.iter().zip(&mut runs_by_case) {
-            let run = run_case(case, repeat).await;
+            let run = run_case(case, repeat, &settings).await;
             println!(
-                "  {:<24} run {}: {:>6} tasks in {:>7.1} ms = {:>7.0} tasks/s  (p50 LeaseTasks {:.2} ms, p50 CompleteTask {:.2} ms)",
+                "  {:<24} run {}: {:>6} tasks in {:>7.1} ms = {:>7.0} tasks/s  (p50 LeaseTasks {:.2} ms, p50 CompleteTasks {:.2} ms; seeded in {:.1} s){}",
                 case.name(),
                 repeat + 1,
                 run.tasks,
@@ -118,6 +210,8 @@ async fn main() {
                 run.tasks_per_s(),
                 median(run.lease_rpc_ms.clone()),
                 median(run.complete_rpc_ms.clone()),
+                run.seeding.as_secs_f64(),
+                if run.elapsed < MIN_RUN { "  [shorter than 2 s: raise VINT_BENCH_TASKS]" } else { "" },
             );
             runs.push(run);
         }
@@ -155,8 +249,11 @@ async fn main() {
             "backend": case.backend.name(),
             "batch": case.batch,
             "tasks": case.tasks,
-            "workers": WORKERS,
+            "workers": settings.workers,
+            "prefetch": settings.prefetch,
+            "profile": profile(),
             "runs_tasks_per_s": rates.iter().map(|r| r.round()).collect::<Vec<_>>(),
+            "runs_elapsed_s": runs.iter().map(|r| round2(r.elapsed.as_secs_f64())).collect::<Vec<_>>(),
             "median_tasks_per_s": median(rates.clone()).round(),
             "min_tasks_per_s": min(&rates).round(),
             "max_tasks_per_s": max(&rates).round(),
@@ -165,6 +262,7 @@ async fn main() {
         });
         println!("{line}");
     }
+    ExitCode::SUCCESS
 }
 
 /// Side-by-side ratios of medians from this run: batch 64 over batch 1, Postgres over SQLite.
@@ -181,6 +279,9 @@ fn print_ratios(summaries: &[(&Case, Vec<Run>)]) {
             println!("ratio {}: batch64 / batch1 = {:.2}x", backend.name(), b64 / b1);
         }
     }
+    if let (Some(b256), Some(b64)) = (med(Backend::Postgres, 256), med(Backend::Postgres, 64)) {
+        println!("ratio postgres: batch256 / batch64 = {:.2}x", b256 / b64);
+    }
     for batch in [1, 64] {
         if let (Some(pg), Some(sq)) = (med(Backend::Postgres, batch), med(Backend::Sqlite, batch)) {
             println!("ratio batch{batch}: postgres / sqlite = {:.2}x", pg / sq);
@@ -188,7 +289,7 @@ fn print_ratios(summaries: &[(&Case, Vec<Run>)]) {
     }
 }
 
-async fn run_case(case: &Case, repeat: usize) -> Run {
+async fn run_case(case: &Case, repeat: usize, settings: &Settings) -> Run {
     let scratch = tempfile::tempdir().expect("temp dir");
     let (url, pg_database) = match case.backend {
         Backend::Postgres => {
@@ -205,6 +306,7 @@ async fn run_case(case: &Case, repeat: usize) -> Run {
     let spec = DatasetSpec::parse(&spec_toml).expect("bench spec parses");
     let tasks = initial_tasks(&spec, &[]).expect("the bench spec names no assets");
     assert_eq!(tasks.len(), case.tasks as usize);
+    let seeding = Instant::now();
     store
         .submit_job(
             &NewJob {
@@ -222,6 +324,7 @@ async fn run_case(case: &Case, repeat: usize) -> Run {
         )
         .await
         .expect("submit the bench job");
+    let seeding = seeding.elapsed();
 
     let (listener, addr) =
         vint_coordinator::bind(SocketAddr::from((Ipv4Addr::LOCALHOST, 0))).await.expect("bind the coordinator");
@@ -232,12 +335,13 @@ async fn run_case(case: &Case, repeat: usize) -> Run {
     let server = tokio::spawn(vint_coordinator::serve(store.clone(), CoordinatorConfig::default(), listener, shutdown));
 
     let mut workers = Vec::new();
-    for i in 0..WORKERS {
-        workers.push(NoopWorker::connect(addr, format!("noop-{i}"), case.batch).await);
+    for i in 0..settings.workers {
+        workers.push(NoopWorker::connect(addr, format!("noop-{i}"), case.batch, settings.prefetch).await);
     }
     let started = Instant::now();
     let handles: Vec<_> = workers.into_iter().map(|w| tokio::spawn(w.drain())).collect();
-    let mut run = Run { tasks: 0, elapsed: Duration::ZERO, lease_rpc_ms: Vec::new(), complete_rpc_ms: Vec::new() };
+    let mut run =
+        Run { tasks: 0, seeding, elapsed: Duration::ZERO, lease_rpc_ms: Vec::new(), complete_rpc_ms: Vec::new() };
     for h in handles {
         let done = h.await.expect("no-op worker panicked");
         run.tasks += done.completed;
@@ -314,34 +418,39 @@ async fn drop_postgres_database(db: &str) {
 }
 
 /// What one no-op worker did.
+#[derive(Default)]
 struct Drained {
     completed: u64,
     lease_rpc_ms: Vec<f64>,
     complete_rpc_ms: Vec<f64>,
 }
 
-/// A test-only worker that does no work: it leases grasp tasks and completes each at once with
-/// no outputs and no accepted grasps, so the measured cost is the coordinator's and the store's.
+/// A test-only worker that does no work: it leases grasp tasks and completes each lease at once,
+/// in one `CompleteTasks` call, with no outputs and no accepted grasps, so the measured cost is
+/// the coordinator's and the store's.
 struct NoopWorker {
     client: WorkServiceClient<Channel>,
     worker_id: String,
     batch: u32,
+    prefetch: bool,
 }
 
 impl NoopWorker {
-    async fn connect(addr: SocketAddr, worker_id: String, batch: u32) -> NoopWorker {
+    async fn connect(addr: SocketAddr, worker_id: String, batch: u32, prefetch: bool) -> NoopWorker {
         let channel = Endpoint::from_shared(format!("http://{addr}"))
             .expect("coordinator URL")
             .connect()
             .await
             .expect("connect to the coordinator");
-        NoopWorker { client: WorkServiceClient::new(channel), worker_id, batch }
+        NoopWorker { client: WorkServiceClient::new(channel), worker_id, batch, prefetch }
     }
 
     /// Leases and completes until a lease comes back empty. All tasks are queued before the
-    /// workers start and none fails, so an empty lease means the queue is drained.
+    /// workers start and none fails, so an empty lease means the queue is drained. With prefetch,
+    /// the completion of one lease runs on the same connection while the next lease is asked for.
     async fn drain(mut self) -> Drained {
-        let mut done = Drained { completed: 0, lease_rpc_ms: Vec::new(), complete_rpc_ms: Vec::new() };
+        let mut done = Drained::default();
+        let mut in_flight: Option<tokio::task::JoinHandle<(u64, f64)>> = None;
         loop {
             let t = Instant::now();
             let leased = self
@@ -357,28 +466,62 @@ impl NoopWorker {
                 .into_inner()
                 .tasks;
             done.lease_rpc_ms.push(ms(t.elapsed()));
+            if let Some(completion) = in_flight.take() {
+                let (completed, rpc_ms) = completion.await.expect("CompleteTasks call panicked");
+                done.completed += completed;
+                done.complete_rpc_ms.push(rpc_ms);
+            }
             if leased.is_empty() {
                 return done;
             }
-            for task in leased {
-                let t = Instant::now();
-                self.client
-                    .complete_task(pb::CompleteTaskRequest {
-                        worker_id: self.worker_id.clone(),
-                        task_id: task.task_id,
-                        attempt: task.attempt,
-                        outputs: vec![],
-                        engine_json: "{}".into(),
-                        timings: Some(pb::Timings::default()),
-                        result_json: r#"{"accepted": []}"#.into(),
-                    })
-                    .await
-                    .expect("CompleteTask");
-                done.complete_rpc_ms.push(ms(t.elapsed()));
-                done.completed += 1;
+            let completion = complete_all(self.client.clone(), self.worker_id.clone(), leased);
+            if self.prefetch {
+                in_flight = Some(tokio::spawn(completion));
+            } else {
+                let (completed, rpc_ms) = completion.await;
+                done.completed += completed;
+                done.complete_rpc_ms.push(rpc_ms);
             }
         }
     }
+}
+
+/// Completes every leased task in one `CompleteTasks` call and checks that each one completed.
+/// Returns how many did and how long the call took, in milliseconds.
+async fn complete_all(
+    mut client: WorkServiceClient<Channel>,
+    worker_id: String,
+    leased: Vec<pb::LeasedTask>,
+) -> (u64, f64) {
+    let tasks: Vec<pb::CompleteTaskRequest> = leased
+        .into_iter()
+        .map(|task| pb::CompleteTaskRequest {
+            worker_id: worker_id.clone(),
+            task_id: task.task_id,
+            attempt: task.attempt,
+            outputs: vec![],
+            engine_json: "{}".into(),
+            timings: Some(pb::Timings::default()),
+            result_json: r#"{"accepted": []}"#.into(),
+        })
+        .collect();
+    let sent = tasks.len();
+    let t = Instant::now();
+    let results =
+        client.complete_tasks(pb::CompleteTasksRequest { tasks }).await.expect("CompleteTasks").into_inner().results;
+    let rpc_ms = ms(t.elapsed());
+    assert_eq!(results.len(), sent, "{worker_id}: one CompleteTasks result per task");
+    for r in &results {
+        assert_eq!(
+            Outcome::try_from(r.outcome),
+            Ok(Outcome::Completed),
+            "{worker_id}: task {} attempt {}: {}",
+            r.task_id,
+            r.attempt,
+            r.message
+        );
+    }
+    (results.len() as u64, rpc_ms)
 }
 
 /// The machine's 1, 5 and 15 minute load averages: other work on it skews every figure.
