@@ -7,6 +7,7 @@
 pub mod asset;
 pub mod catalog;
 pub mod contract;
+pub mod file_sizes;
 pub mod plan;
 pub mod sample;
 pub mod seed;

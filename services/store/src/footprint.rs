@@ -30,7 +30,8 @@ pub struct TableRows {
 
 impl TableRows {
     /// The tables in schema order, with their names.
-    pub const TABLES: [&'static str; 7] = ["jobs", "job_assets", "tasks", "task_deps", "attempts", "artifacts", "samples"];
+    pub const TABLES: [&'static str; 7] =
+        ["jobs", "job_assets", "tasks", "task_deps", "attempts", "artifacts", "samples"];
 
     /// What a submission writes besides its tasks: the job and the user files its spec names.
     pub fn submit(user_files: u64) -> TableRows {
@@ -55,15 +56,7 @@ impl TableRows {
 
     /// Every table's count, in `TABLES` order.
     pub fn counts(&self) -> [u64; 7] {
-        [
-            self.jobs,
-            self.job_assets,
-            self.tasks,
-            self.task_deps,
-            self.attempts,
-            self.artifacts,
-            self.samples,
-        ]
+        [self.jobs, self.job_assets, self.tasks, self.task_deps, self.attempts, self.artifacts, self.samples]
     }
 
     pub fn total(&self) -> u64 {
@@ -182,15 +175,7 @@ pub struct PerRow {
 impl PerRow {
     /// Every table's figure, in `TableRows::TABLES` order.
     pub fn figures(&self) -> [f64; 7] {
-        [
-            self.jobs,
-            self.job_assets,
-            self.tasks,
-            self.task_deps,
-            self.attempts,
-            self.artifacts,
-            self.samples,
-        ]
+        [self.jobs, self.job_assets, self.tasks, self.task_deps, self.attempts, self.artifacts, self.samples]
     }
 
     /// Bytes of `rows`, table by table, in `TableRows::TABLES` order.
@@ -224,14 +209,7 @@ mod tests {
         let package = TableRows::task(&[3, 12, 2], 15, 2);
         assert_eq!(
             package,
-            TableRows {
-                tasks: 1,
-                task_deps: 3,
-                attempts: 1,
-                artifacts: 15,
-                samples: 2,
-                ..TableRows::default()
-            }
+            TableRows { tasks: 1, task_deps: 3, attempts: 1, artifacts: 15, samples: 2, ..TableRows::default() }
         );
         let job = TableRows::submit(2) + package.times(3);
         assert_eq!((job.jobs, job.job_assets, job.tasks, job.artifacts), (1, 2, 3, 45));

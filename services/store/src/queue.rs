@@ -129,26 +129,29 @@ impl Store {
         lease_ms: i64,
         now_ms: i64,
     ) -> Result<Vec<(String, u32)>> {
-        let mut lost = Vec::new();
-        for (task_id, attempt) in held {
-            let n = sqlx::query(
-                "UPDATE tasks SET lease_deadline_ms = $1, updated_ms = $2 WHERE id = $3 AND state = $4 \
-                 AND lease_owner = $5 AND attempt = $6 AND lease_deadline_ms >= $2",
-            )
+        if held.is_empty() {
+            return Ok(Vec::new());
+        }
+        let rows: Vec<serde_json::Value> =
+            held.iter().map(|(id, attempt)| serde_json::json!({"id": id, "attempt": attempt})).collect();
+        let sql = format!(
+            "UPDATE tasks SET lease_deadline_ms = $1, updated_ms = $2 FROM {} WHERE tasks.id = h.id \
+             AND tasks.state = $3 AND tasks.lease_owner = $4 AND tasks.attempt = h.attempt \
+             AND tasks.lease_deadline_ms >= $2 RETURNING tasks.id, tasks.attempt",
+            self.backend.json_rows("$5", "h", &[("id", "text"), ("attempt", "bigint")]),
+        );
+        let kept: HashSet<(String, i64)> = sqlx::query(trusted(sql))
             .bind(now_ms + lease_ms)
             .bind(now_ms)
-            .bind(task_id)
             .bind(TaskState::Running.as_str())
             .bind(worker_id)
-            .bind(i64::from(*attempt))
-            .execute(&self.pool)
+            .bind(json_text(&rows)?)
+            .fetch_all(&self.pool)
             .await?
-            .rows_affected();
-            if n == 0 {
-                lost.push((task_id.clone(), *attempt));
-            }
-        }
-        Ok(lost)
+            .iter()
+            .map(|row| Ok((row.try_get::<String, _>("id")?, row.try_get::<i64, _>("attempt")?)))
+            .collect::<Result<_>>()?;
+        Ok(held.iter().filter(|(id, attempt)| !kept.contains(&(id.clone(), i64::from(*attempt)))).cloned().collect())
     }
 
     /// Completes a task: records its outputs and attempt, unblocks its dependents and

@@ -12,6 +12,10 @@ use serde::Serialize;
 use vint_core::DatasetSpec;
 use vint_core::contract::package::Modality;
 use vint_core::contract::render::RenderOutput;
+use vint_core::file_sizes::{
+    CAMERA_JSON_BYTES, DEPTH_BYTES_PER_PIXEL, GRASP_RECORD_BYTES, GRASPS_JSON_BYTES_PER_TRIAL, MASKS_BYTES_PER_PIXEL,
+    META_JSON_BYTES, OBJECT_PLY_BYTES, RGB_BYTES_PER_PIXEL, SEGMENTATION_BYTES_PER_PIXEL, TOUCH_JSON_BYTES_PER_TRIAL,
+};
 
 /// Grasp: CPU seconds per trial at the default 2 ms timestep with 2.25 s simulated (a 1 s hold).
 /// docs/benchmarks.md, "Grasp engine": "a trial costs ~60–80 ms of CPU (2.25 s of simulated time
@@ -40,27 +44,6 @@ const DENOISE_S_PER_PIXEL: f64 = 8e-6;
 const NOISE_S_PER_PIXEL: f64 = 0.56e-6;
 /// Package: per sample. docs/benchmarks.md, "tiny.toml": 244 ms for 72 samples.
 const PACKAGE_S_PER_SAMPLE: f64 = 0.0034;
-
-/// Bytes per pixel of each image file, and of a sample's meta.json. docs/benchmarks.md, "Output
-/// size per sample": medians of tiny.toml's 72 samples (128×128, 16 spp). An RGB PNG shrinks as
-/// samples per pixel rise (less noise to compress); depth is float32 `.npy`.
-const RGB_BYTES_PER_PIXEL: f64 = 1.8; // rgb.png, median 29 916 B
-const DEPTH_BYTES_PER_PIXEL: f64 = 4.0; // depth.npy and depth_noisy.npy, 65 664 B each
-const MASKS_BYTES_PER_PIXEL: f64 = 0.05; // mask.png + mask_full.png, 383 + 398 B
-const SEGMENTATION_BYTES_PER_PIXEL: f64 = 0.045; // segmentation.png, 707 B
-const META_JSON_BYTES: f64 = 4_417.0; // meta.json, median (4.1–4.7 KB): the view alone
-const GRASP_RECORD_BYTES: f64 = 37_053.0; // <grasp_id>/grasp.json, median (26–50 KB), once per grasp
-
-/// The grasp and render stages' JSON and model files, from the artifacts of a real `vintctl run
-/// examples/tiny.toml` job (2026-11-25, commit `687edb3`; `scripts/measure_db_bytes.py` prints
-/// them): `grasps.json` and `touch.json` per trial the chunk ran (medians over its 6 chunks of 2
-/// trials; rejected trials write less), `object.ply` per object (content-addressed: one object
-/// for every chunk and hand; median of tiny's 3 objects, 5–18 KB), a view's `camera.json`
-/// (median of 60).
-const GRASPS_JSON_BYTES_PER_TRIAL: f64 = 8_505.0;
-const TOUCH_JSON_BYTES_PER_TRIAL: f64 = 7_279.0;
-const OBJECT_PLY_BYTES: f64 = 11_306.0;
-const CAMERA_JSON_BYTES: f64 = 1_612.0;
 
 /// Above these a spec earns a warning.
 pub const LARGE_CPU_S: f64 = 86_400.0; // one CPU-day

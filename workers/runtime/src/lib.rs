@@ -4,8 +4,10 @@
 //! (MuJoCo grasp, Blender render, OpenCV noise) behind the framed protocol of
 //! `workers/engines/PROTOCOL.md`; `package` is the one stage written in Rust. The runtime moves
 //! artifacts between object storage and engines; it never decides what a task means — the
-//! planner in `vint-core` does, through the coordinator.
+//! planner in `vint-core` does, through the coordinator. `timing_only` is the measuring mode that
+//! runs no engine (`--engine-mode timing-only`, never the default).
 
 pub mod engine;
 pub mod package;
+pub mod timing_only;
 pub mod worker;

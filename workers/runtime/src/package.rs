@@ -14,7 +14,7 @@ use serde_json::{Value, json};
 use vint_artifacts::ArtifactStore;
 use vint_core::contract::grasp::{GRASPS_FILE, TOUCH_FILE};
 use vint_core::contract::noise::noisy_depth_file;
-use vint_core::contract::package::{GRASP_RECORD_FILE, META_FILE, PackageResult, Params, Source, model_path};
+use vint_core::contract::package::{GRASP_RECORD_FILE, META_FILE, Modality, PackageResult, Params, Source, model_path};
 use vint_core::contract::render::ViewFile;
 use vint_core::plan::{GraspChunk, noise_key, render_key};
 use vint_core::{GraspId, SampleId};
@@ -65,10 +65,60 @@ pub struct Packaged {
     pub result: PackageResult,
 }
 
+/// A package task's inputs by origin: (task key, file name).
+pub(crate) struct Inputs<'a> {
+    by_origin: BTreeMap<(&'a str, &'a str), &'a PackageInput>,
+}
+
+impl<'a> Inputs<'a> {
+    pub(crate) fn new(inputs: &'a [PackageInput]) -> Inputs<'a> {
+        Inputs { by_origin: inputs.iter().map(|i| ((i.task_key.as_str(), i.name.as_str()), i)).collect() }
+    }
+
+    fn find(&self, sample: &str, task_key: String, name: String) -> Result<&'a PackageInput, PackageError> {
+        self.by_origin.get(&(task_key.as_str(), name.as_str())).copied().ok_or_else(|| PackageError::MissingInput {
+            sample: sample.to_string(),
+            task_key,
+            name,
+        })
+    }
+}
+
+/// A sample's image and depth files: its render and noise tasks' artifacts for its view, named
+/// `<sample_id>/<file>` and referenced by hash (packaging moves no pixels).
+pub(crate) fn referenced_files(
+    inputs: &Inputs<'_>,
+    id: &SampleId,
+    modalities: &[Modality],
+) -> Result<Vec<PackagedFile>, PackageError> {
+    let sample = id.to_string();
+    let render = render_key(&id.object, &id.hand, id.grasp_index);
+    let mut files = Vec::new();
+    for modality in modalities {
+        for file in modality.sample_files() {
+            let src = match file.from {
+                Source::Render(view_file) => inputs.find(&sample, render.clone(), view_file.name(id.view_index))?,
+                Source::Noise => inputs.find(
+                    &sample,
+                    noise_key(&id.object, &id.hand, id.grasp_index),
+                    noisy_depth_file(id.view_index),
+                )?,
+            };
+            files.push(PackagedFile {
+                name: format!("{sample}/{}", file.name),
+                sha256: src.sha256.clone(),
+                size: src.size,
+                media_type: src.media_type.clone(),
+                key: src.key.clone(),
+            });
+        }
+    }
+    Ok(files)
+}
+
 pub async fn package(params: &Value, inputs: &[PackageInput], store: &ArtifactStore) -> Result<Packaged, PackageError> {
     let params: Params = serde_json::from_value(params.clone()).map_err(|e| PackageError::Params(e.to_string()))?;
-    let by_origin: BTreeMap<(&str, &str), &PackageInput> =
-        inputs.iter().map(|i| ((i.task_key.as_str(), i.name.as_str()), i)).collect();
+    let by_origin = Inputs::new(inputs);
     // Each (object, hand)'s grasp document, found once rather than by a scan of every input per sample.
     let grasp_inputs: BTreeMap<(String, String), &PackageInput> = inputs
         .iter()
@@ -82,32 +132,9 @@ pub async fn package(params: &Value, inputs: &[PackageInput], store: &ArtifactSt
     for s in &params.samples {
         let id: SampleId =
             s.sample_id.parse().map_err(|e: vint_core::sample::BadSampleId| PackageError::Params(e.to_string()))?;
-        let find = |task_key: String, name: String| {
-            by_origin.get(&(task_key.as_str(), name.as_str())).copied().ok_or_else(|| PackageError::MissingInput {
-                sample: s.sample_id.clone(),
-                task_key,
-                name,
-            })
-        };
+        files.extend(referenced_files(&by_origin, &id, &params.modalities)?);
         let render = render_key(&id.object, &id.hand, id.grasp_index);
-        for modality in &params.modalities {
-            for file in modality.sample_files() {
-                let src = match file.from {
-                    Source::Render(view_file) => find(render.clone(), view_file.name(id.view_index))?,
-                    Source::Noise => {
-                        find(noise_key(&id.object, &id.hand, id.grasp_index), noisy_depth_file(id.view_index))?
-                    }
-                };
-                files.push(PackagedFile {
-                    name: format!("{}/{}", s.sample_id, file.name),
-                    sha256: src.sha256.clone(),
-                    size: src.size,
-                    media_type: src.media_type.clone(),
-                    key: src.key.clone(),
-                });
-            }
-        }
-        let camera_ref = find(render, ViewFile::Camera.name(id.view_index))?;
+        let camera_ref = by_origin.find(&s.sample_id, render, ViewFile::Camera.name(id.view_index))?;
         let camera = read_json(store, camera_ref, &s.sample_id).await?;
         let grasp_ref = grasp_inputs.get(&(id.object.clone(), id.hand.clone())).copied().ok_or_else(|| {
             PackageError::MissingInput {
@@ -116,7 +143,7 @@ pub async fn package(params: &Value, inputs: &[PackageInput], store: &ArtifactSt
                 name: GRASPS_FILE.into(),
             }
         })?;
-        let touch_ref = find(grasp_ref.task_key.clone(), TOUCH_FILE.to_string())?;
+        let touch_ref = by_origin.find(&s.sample_id, grasp_ref.task_key.clone(), TOUCH_FILE.to_string())?;
         for input in [grasp_ref, touch_ref] {
             if !documents.contains_key(&input.sha256) {
                 let doc = read_json(store, input, &s.sample_id).await?;

@@ -42,6 +42,8 @@ pub struct WorkerConfig {
 pub enum WorkerError {
     #[error("invalid coordinator URL {url:?}: {source}")]
     BadCoordinatorUrl { url: String, source: tonic::transport::Error },
+    #[error("opening the latency log {path}: {source}")]
+    LatencyLog { path: PathBuf, source: std::io::Error },
 }
 
 /// Why a task attempt did not complete.
@@ -383,15 +385,15 @@ async fn heartbeat_loop(
 
 /// Retries an RPC through transient coordinator outages until the lease deadline has passed
 /// (after which the coordinator would refuse it anyway).
-async fn with_retries<F, Fut>(lease_deadline_ms: i64, mut call: F) -> Result<(), Status>
+pub(crate) async fn with_retries<T, F, Fut>(lease_deadline_ms: i64, mut call: F) -> Result<T, Status>
 where
     F: FnMut() -> Fut,
-    Fut: Future<Output = Result<(), Status>>,
+    Fut: Future<Output = Result<T, Status>>,
 {
     let mut wait = Duration::from_millis(100);
     loop {
         match call().await {
-            Ok(()) => return Ok(()),
+            Ok(answer) => return Ok(answer),
             Err(s)
                 if matches!(s.code(), Code::Unavailable | Code::Unknown | Code::DeadlineExceeded | Code::Cancelled) =>
             {

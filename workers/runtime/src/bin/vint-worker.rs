@@ -4,10 +4,11 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::Context;
-use clap::Parser;
+use clap::{Parser, ValueEnum};
 use vint_artifacts::ArtifactStore;
 use vint_core::Stage;
 use vint_runtime::engine::{EngineCommand, RecyclePolicy};
+use vint_runtime::timing_only::{self, TimingOnlyConfig};
 use vint_runtime::worker::{Worker, WorkerConfig};
 
 #[derive(Parser)]
@@ -50,6 +51,37 @@ struct Args {
     /// Log as JSON lines.
     #[arg(long)]
     log_json: bool,
+    /// `engines` runs each task in its engine (the default, and the only mode that makes data);
+    /// `timing-only` runs none and answers each task with outputs of the real names and sizes
+    /// but constant bytes, to measure the coordinator, database and store at scale.
+    #[arg(long, value_enum, default_value_t = EngineMode::Engines)]
+    engine_mode: EngineMode,
+    /// timing-only: share of grasp trials accepted (by their seeds). 0.84 is the built-in
+    /// objects' mean (docs/physics.md).
+    #[arg(long, default_value_t = 0.84, value_parser = share)]
+    accept_rate: f64,
+    /// timing-only: tasks per lease and per completion call (1–256).
+    #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u32).range(1..=256))]
+    batch: u32,
+    /// timing-only: lease-and-complete loops in flight (1–64).
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=64))]
+    concurrency: u32,
+    /// timing-only: append one CSV line per batch (unix_ms,slot,tasks,lease_ms,complete_ms).
+    #[arg(long)]
+    latency_log: Option<PathBuf>,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+enum EngineMode {
+    Engines,
+    TimingOnly,
+}
+
+fn share(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(x) if (0.0..=1.0).contains(&x) => Ok(x),
+        _ => Err(format!("{s:?} is not a share in [0, 1]")),
+    }
 }
 
 #[tokio::main]
@@ -64,6 +96,23 @@ async fn main() -> anyhow::Result<()> {
     });
     let scratch = args.scratch.unwrap_or_else(|| std::env::temp_dir().join(format!("vint-worker-{worker_id}")));
     let store = ArtifactStore::open(&args.store).with_context(|| format!("opening artifact store {}", args.store))?;
+    if args.engine_mode == EngineMode::TimingOnly {
+        let config = TimingOnlyConfig {
+            coordinator: args.coordinator,
+            worker_id,
+            stages,
+            lease_ms: args.lease_ms,
+            accept_rate: args.accept_rate,
+            batch: args.batch,
+            concurrency: args.concurrency,
+            max_idle_poll: Duration::from_millis(500),
+            latency_log: args.latency_log,
+        };
+        tracing::warn!(worker = %config.worker_id, stages = ?config.stages, batch = config.batch,
+            concurrency = config.concurrency, "worker starting in timing-only mode: no engine runs, outputs are not data");
+        timing_only::run(config, store, shutdown_signal()).await?;
+        return Ok(());
+    }
     let config = WorkerConfig {
         coordinator: args.coordinator,
         worker_id,

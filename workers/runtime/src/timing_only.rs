@@ -1,0 +1,541 @@
+//! `vint-worker --engine-mode timing-only`: a worker that runs no engine, for measuring the
+//! system around the engines — coordinator, planner, database, lineage and object store — at
+//! the scale of a real dataset (`benches/dispatch.sh` drives 2 M samples through it).
+//!
+//! It is never the default and its output is not data. Each task answers what its engine would:
+//! a result of the stage's contract and output files of the real names and sizes
+//! (`vint_core::file_sizes`, measured on real runs). The bytes of a file are a constant payload
+//! per (kind, size), stored once in the object store and referenced by its hash, so the object
+//! store sees every put and content addressing dedupes the rest; a package task references its
+//! render and noise inputs by hash exactly as the real stage does. A grasp trial is accepted when
+//! its seed (derived from the job seed and the trial's identity) falls below `accept_rate`, so a
+//! run is deterministic. Every completion's `engine_json` names the mode, so lineage says which
+//! artifacts came from it.
+//!
+//! Tasks go in batches both ways: one `LeaseTasks` for up to `batch` tasks and one
+//! `CompleteTasks` for all of them, with the next lease already in flight (prefetch) while a
+//! batch is answered, and `concurrency` such loops per process. One heartbeat renews every lease
+//! the process holds.
+
+use std::collections::{BTreeSet, HashMap, HashSet};
+use std::future::Future;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use bytes::Bytes;
+use serde_json::Value;
+use tokio::sync::{Mutex, watch};
+use tonic::transport::{Channel, Endpoint};
+use tracing::Instrument;
+use vint_artifacts::{ArtifactStore, StoredObject};
+use vint_core::contract::grasp::{self, GRASPS_FILE, GraspResult, MODEL_FILE, TOUCH_FILE};
+use vint_core::contract::noise::{self, NoiseResult, noisy_depth_file};
+use vint_core::contract::package::{self, GRASP_RECORD_FILE, META_FILE, PackageResult};
+use vint_core::contract::render::{self, RenderResult, ViewFile};
+use vint_core::file_sizes::{
+    GRASP_RECORD_BYTES, GRASPS_JSON_BYTES_PER_TRIAL, META_JSON_BYTES, OBJECT_PLY_BYTES, TOUCH_JSON_BYTES_PER_TRIAL,
+    view_file_bytes,
+};
+use vint_core::{SampleId, Stage};
+use vint_proto::v1 as pb;
+use vint_proto::v1::completion_result::Outcome;
+use vint_proto::v1::work_service_client::WorkServiceClient;
+
+use crate::package::{Inputs, PackageInput, referenced_files};
+use crate::worker::WorkerError;
+
+/// Largest lease answer read, and largest completion call sent: a batch's completions go in as
+/// many `CompleteTasks` calls as keep each under the coordinator's limit (8 MiB).
+const MAX_MESSAGE_BYTES: usize = 64 << 20;
+const MAX_COMPLETION_CALL_BYTES: usize = 6 << 20;
+
+/// What `engine_json` says of every task this mode completes.
+pub const ENGINE_MODE: &str = "timing-only";
+
+#[derive(Clone, Debug)]
+pub struct TimingOnlyConfig {
+    pub coordinator: String,
+    pub worker_id: String,
+    pub stages: Vec<Stage>,
+    pub lease_ms: u32,
+    /// Share of grasp trials accepted (by their seeds), within each chunk's quota.
+    pub accept_rate: f64,
+    /// Tasks per lease and per completion call.
+    pub batch: u32,
+    /// Lease-and-complete loops in flight in this process.
+    pub concurrency: u32,
+    /// Longest pause between lease polls when there is no work.
+    pub max_idle_poll: Duration,
+    /// Where to append one CSV line per batch: `unix_ms,slot,tasks,lease_ms,complete_ms` (the
+    /// lease and completion RPCs' round trips), for the lease latency curve of a long run.
+    pub latency_log: Option<std::path::PathBuf>,
+}
+
+/// What a timing-only worker did, for its closing log line and for tests.
+#[derive(Debug, Default)]
+pub struct Tally {
+    pub completed: AtomicU64,
+    pub refused: AtomicU64,
+    pub failed: AtomicU64,
+}
+
+/// The constant payloads, each stored once and then referenced by hash.
+struct Payloads {
+    store: ArtifactStore,
+    stored: Mutex<HashMap<(&'static str, u64), StoredObject>>,
+}
+
+impl Payloads {
+    async fn get(&self, kind: &'static str, size: u64) -> Result<StoredObject, vint_artifacts::ArtifactError> {
+        let mut stored = self.stored.lock().await;
+        if let Some(object) = stored.get(&(kind, size)) {
+            return Ok(object.clone());
+        }
+        let line = format!("vint timing-only payload ({kind}): not data\n");
+        let bytes: Vec<u8> = line.bytes().cycle().take(size as usize).collect();
+        let object = self.store.put_bytes(Bytes::from(bytes)).await?;
+        stored.insert((kind, size), object.clone());
+        Ok(object)
+    }
+
+    async fn file(
+        &self,
+        name: String,
+        kind: &'static str,
+        size: u64,
+        task_key: &str,
+    ) -> Result<pb::ArtifactRef, String> {
+        let object = self.get(kind, size).await.map_err(|e| format!("storing a {kind} payload: {e}"))?;
+        Ok(pb::ArtifactRef {
+            name,
+            sha256: object.sha256,
+            size: object.size,
+            media_type: media_type(kind).to_string(),
+            key: object.key,
+            task_key: task_key.to_string(),
+        })
+    }
+}
+
+fn media_type(kind: &str) -> &'static str {
+    match kind {
+        "png" => "image/png",
+        "npy" => "application/x-npy",
+        "ply" => "application/x-ply",
+        _ => "application/json",
+    }
+}
+
+/// Why a task could not be answered: its parameters do not follow the contract (permanent), or
+/// the object store failed (retryable).
+struct Refusal {
+    retryable: bool,
+    message: String,
+}
+
+fn permanent(message: impl Into<String>) -> Refusal {
+    Refusal { retryable: false, message: message.into() }
+}
+
+/// A trial's acceptance: its seed is uniform over [0, 2^53), so this accepts `rate` of them.
+fn accepted(seed: u64, rate: f64) -> bool {
+    (seed as f64) / ((vint_core::seed::SEED_MASK as f64) + 1.0) < rate
+}
+
+/// The result and output files of one task, as its stage's engine would answer.
+async fn answer(
+    task: &pb::LeasedTask,
+    payloads: &Payloads,
+    accept_rate: f64,
+) -> Result<(Value, Vec<pb::ArtifactRef>), Refusal> {
+    let stage: Stage = task.stage.parse().map_err(|e: vint_core::stage::UnknownStage| permanent(e.to_string()))?;
+    let params: Value =
+        serde_json::from_str(&task.params_json).map_err(|e| permanent(format!("task params are not JSON: {e}")))?;
+    let contract = |e: serde_json::Error| permanent(format!("{stage} params do not follow the contract: {e}"));
+    let store = |message: String| Refusal { retryable: true, message };
+    let key = task.key.as_str();
+    let mut files = Vec::new();
+    let result = match stage {
+        Stage::Grasp => {
+            let p: grasp::Params = serde_json::from_value(params).map_err(contract)?;
+            let mut result = GraspResult::default();
+            let mut ran = 0u64;
+            for trial in &p.trials {
+                if p.accept.is_some_and(|quota| result.accepted.len() as u32 >= quota) {
+                    break;
+                }
+                ran += 1;
+                if accepted(trial.seed, accept_rate) {
+                    result.accepted.push(trial.grasp_index);
+                } else {
+                    *result.rejected.entry("timing_only".into()).or_default() += 1;
+                }
+            }
+            let per_trial = |bytes: f64| (bytes * ran as f64).round() as u64;
+            files.push(
+                payloads
+                    .file(GRASPS_FILE.into(), "json", per_trial(GRASPS_JSON_BYTES_PER_TRIAL), key)
+                    .await
+                    .map_err(store)?,
+            );
+            files.push(
+                payloads
+                    .file(TOUCH_FILE.into(), "json", per_trial(TOUCH_JSON_BYTES_PER_TRIAL), key)
+                    .await
+                    .map_err(store)?,
+            );
+            files.push(payloads.file(MODEL_FILE.into(), "ply", OBJECT_PLY_BYTES as u64, key).await.map_err(store)?);
+            serde_json::to_value(result)
+        }
+        Stage::Render => {
+            let p: render::Params = serde_json::from_value(params).map_err(contract)?;
+            let pixels = u64::from(p.render.width) * u64::from(p.render.height);
+            for view in &p.views {
+                for file in render::view_files(&p.outputs) {
+                    let kind = match file {
+                        ViewFile::Depth => "npy",
+                        ViewFile::Camera => "json",
+                        _ => "png",
+                    };
+                    let name = file.name(view.view_index);
+                    files.push(payloads.file(name, kind, view_file_bytes(file, pixels), key).await.map_err(store)?);
+                }
+            }
+            serde_json::to_value(RenderResult { views: p.views.len() as u32, device: ENGINE_MODE.into() })
+        }
+        Stage::Noise => {
+            let p: noise::Params = serde_json::from_value(params).map_err(contract)?;
+            for view in &p.views {
+                // The noisy depth is the size of the depth it is made from.
+                let depth = ViewFile::Depth.name(view.view_index);
+                let size = task
+                    .inputs
+                    .iter()
+                    .find(|a| a.name == depth)
+                    .map(|a| a.size)
+                    .ok_or_else(|| permanent(format!("noise input {depth} is missing")))?;
+                files.push(payloads.file(noisy_depth_file(view.view_index), "npy", size, key).await.map_err(store)?);
+            }
+            serde_json::to_value(NoiseResult { views: p.views.len() as u32 })
+        }
+        Stage::Package => {
+            let p: package::Params = serde_json::from_value(params).map_err(contract)?;
+            let inputs: Vec<PackageInput> = task
+                .inputs
+                .iter()
+                .map(|a| PackageInput {
+                    name: a.name.clone(),
+                    task_key: a.task_key.clone(),
+                    sha256: a.sha256.clone(),
+                    size: a.size,
+                    media_type: a.media_type.clone(),
+                    key: a.key.clone(),
+                })
+                .collect();
+            let by_origin = Inputs::new(&inputs);
+            let mut result = PackageResult::default();
+            let mut grasps = BTreeSet::new();
+            for s in &p.samples {
+                let id: SampleId =
+                    s.sample_id.parse().map_err(|e: vint_core::sample::BadSampleId| permanent(e.to_string()))?;
+                for f in referenced_files(&by_origin, &id, &p.modalities).map_err(|e| permanent(e.to_string()))? {
+                    files.push(pb::ArtifactRef {
+                        name: f.name,
+                        sha256: f.sha256,
+                        size: f.size,
+                        media_type: f.media_type,
+                        key: f.key,
+                        task_key: key.to_string(),
+                    });
+                }
+                let meta = format!("{}/{META_FILE}", s.sample_id);
+                files.push(payloads.file(meta, "json", META_JSON_BYTES as u64, key).await.map_err(store)?);
+                grasps.insert(id.grasp().to_string());
+                result.samples.push(s.sample_id.clone());
+            }
+            for grasp in &grasps {
+                let record = format!("{grasp}/{GRASP_RECORD_FILE}");
+                files.push(payloads.file(record, "json", GRASP_RECORD_BYTES as u64, key).await.map_err(store)?);
+            }
+            result.grasps = grasps.into_iter().collect();
+            serde_json::to_value(result)
+        }
+    };
+    let result = result.map_err(|e| permanent(format!("{stage} result: {e}")))?;
+    Ok((result, files))
+}
+
+/// The worker's shared state: its coordinator client, payloads, held leases and tally.
+struct Shared {
+    config: TimingOnlyConfig,
+    client: WorkServiceClient<Channel>,
+    payloads: Payloads,
+    held: std::sync::Mutex<HashSet<(String, u32)>>,
+    tally: Arc<Tally>,
+    engine_json: String,
+    latency_log: Option<std::sync::Mutex<std::io::BufWriter<std::fs::File>>>,
+}
+
+impl Shared {
+    fn log_batch(&self, slot: u32, tasks: usize, lease_ms: f64, complete_ms: f64) {
+        if let Some(log) = &self.latency_log {
+            use std::io::Write;
+            let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
+            let mut log = log.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+            let _ = writeln!(log, "{},{slot},{tasks},{lease_ms:.3},{complete_ms:.3}", now.as_millis());
+        }
+    }
+}
+
+/// Serves tasks until `shutdown` resolves; the batches in flight are answered first.
+pub async fn run(
+    config: TimingOnlyConfig,
+    store: ArtifactStore,
+    shutdown: impl Future<Output = ()>,
+) -> Result<Arc<Tally>, WorkerError> {
+    let endpoint = Endpoint::from_shared(config.coordinator.clone())
+        .map_err(|source| WorkerError::BadCoordinatorUrl { url: config.coordinator.clone(), source })?
+        .connect_timeout(Duration::from_secs(5));
+    let engine_json = serde_json::json!({
+        "name": "vint-timing-only",
+        "version": env!("CARGO_PKG_VERSION"),
+        "mode": ENGINE_MODE,
+        "accept_rate": config.accept_rate,
+    })
+    .to_string();
+    let latency_log = match &config.latency_log {
+        None => None,
+        Some(path) => {
+            let file = std::fs::OpenOptions::new()
+                .create(true)
+                .append(true)
+                .open(path)
+                .map_err(|source| WorkerError::LatencyLog { path: path.clone(), source })?;
+            Some(std::sync::Mutex::new(std::io::BufWriter::new(file)))
+        }
+    };
+    let tally = Arc::new(Tally::default());
+    let shared = Arc::new(Shared {
+        // A package task's lease carries every file of its chunk's renders: a batch of them is
+        // tens of MiB.
+        client: WorkServiceClient::new(endpoint.connect_lazy()).max_decoding_message_size(MAX_MESSAGE_BYTES),
+        payloads: Payloads { store, stored: Mutex::default() },
+        held: std::sync::Mutex::default(),
+        tally: tally.clone(),
+        engine_json,
+        latency_log,
+        config,
+    });
+    let (stop_tx, stop_rx) = watch::channel(false);
+    let heartbeat = tokio::spawn(heartbeat_loop(shared.clone()));
+    let loops: Vec<_> = (0..shared.config.concurrency.max(1))
+        .map(|slot| tokio::spawn(serve_loop(shared.clone(), slot, stop_rx.clone())))
+        .collect();
+    shutdown.await;
+    let _ = stop_tx.send(true);
+    for l in loops {
+        let _ = l.await;
+    }
+    heartbeat.abort();
+    if let Some(log) = &shared.latency_log {
+        use std::io::Write;
+        let _ = log.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).flush();
+    }
+    tracing::info!(
+        worker = %shared.config.worker_id,
+        completed = tally.completed.load(Ordering::Relaxed),
+        refused = tally.refused.load(Ordering::Relaxed),
+        failed = tally.failed.load(Ordering::Relaxed),
+        "timing-only worker stopped"
+    );
+    Ok(tally)
+}
+
+/// Leases a batch: its tasks and the RPC's round trip in milliseconds.
+async fn lease(shared: Arc<Shared>) -> (Vec<pb::LeasedTask>, f64) {
+    let started = Instant::now();
+    let tasks = lease_batch(&shared).await;
+    (tasks, started.elapsed().as_secs_f64() * 1_000.0)
+}
+
+async fn lease_batch(shared: &Shared) -> Vec<pb::LeasedTask> {
+    let request = pb::LeaseTasksRequest {
+        worker_id: shared.config.worker_id.clone(),
+        stages: shared.config.stages.iter().map(|s| s.as_str().to_string()).collect(),
+        capacity: shared.config.batch,
+        lease_ms: shared.config.lease_ms,
+    };
+    match shared.client.clone().lease_tasks(request).await {
+        Ok(resp) => {
+            let tasks = resp.into_inner().tasks;
+            let mut held = shared.held.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+            held.extend(tasks.iter().map(|t| (t.task_id.clone(), t.attempt)));
+            tasks
+        }
+        Err(status) => {
+            tracing::warn!(error = %status.message(), code = ?status.code(), "lease failed; coordinator unreachable?");
+            Vec::new()
+        }
+    }
+}
+
+async fn serve_loop(shared: Arc<Shared>, slot: u32, mut stop: watch::Receiver<bool>) {
+    let mut idle = Duration::from_millis(20);
+    let mut next = tokio::spawn(lease(shared.clone()));
+    loop {
+        let (tasks, lease_ms) = next.await.unwrap_or_default();
+        let stopping = *stop.borrow();
+        if tasks.is_empty() {
+            if stopping {
+                return;
+            }
+            tokio::select! {
+                _ = stop.changed() => {}
+                _ = tokio::time::sleep(idle) => {}
+            }
+            idle = (idle * 2).min(shared.config.max_idle_poll);
+            next = tokio::spawn(lease(shared.clone()));
+            continue;
+        }
+        idle = Duration::from_millis(20);
+        // Prefetch: the next batch is leased while this one is answered.
+        next = tokio::spawn(if stopping {
+            futures::future::Either::Left(async { (Vec::new(), 0.0) })
+        } else {
+            futures::future::Either::Right(lease(shared.clone()))
+        });
+        let n = tasks.len();
+        let span = tracing::debug_span!("batch", worker = %shared.config.worker_id, slot, tasks = n);
+        let complete_ms = answer_batch(&shared, tasks).instrument(span).await;
+        shared.log_batch(slot, n, lease_ms, complete_ms);
+    }
+}
+
+/// Answers a batch; returns the completion RPC's round trip in milliseconds.
+async fn answer_batch(shared: &Shared, tasks: Vec<pb::LeasedTask>) -> f64 {
+    let mut complete_ms = 0.0;
+    let mut completions = Vec::with_capacity(tasks.len());
+    for task in &tasks {
+        let started = Instant::now();
+        match answer(task, &shared.payloads, shared.config.accept_rate).await {
+            Ok((result, outputs)) => {
+                let total_ms = started.elapsed().as_secs_f64() * 1_000.0;
+                completions.push(pb::CompleteTaskRequest {
+                    worker_id: shared.config.worker_id.clone(),
+                    task_id: task.task_id.clone(),
+                    attempt: task.attempt,
+                    outputs,
+                    engine_json: shared.engine_json.clone(),
+                    timings: Some(pb::Timings { fetch_ms: 0.0, engine_ms: 0.0, upload_ms: total_ms, total_ms }),
+                    result_json: result.to_string(),
+                });
+            }
+            Err(refusal) => {
+                tracing::warn!(task = %task.key, retryable = refusal.retryable, error = %refusal.message, "task failed");
+                shared.tally.failed.fetch_add(1, Ordering::Relaxed);
+                let request = pb::FailTaskRequest {
+                    worker_id: shared.config.worker_id.clone(),
+                    task_id: task.task_id.clone(),
+                    attempt: task.attempt,
+                    retryable: refusal.retryable,
+                    message: refusal.message,
+                };
+                if let Err(s) = shared.client.clone().fail_task(request).await {
+                    tracing::warn!(error = %s.message(), "could not report the failure; the lease will expire instead");
+                }
+            }
+        }
+    }
+    let deadline = tasks.iter().map(|t| t.lease_deadline_ms).min().unwrap_or(0);
+    for calls in split_by_size(completions) {
+        let request = pb::CompleteTasksRequest { tasks: calls };
+        let client = shared.client.clone();
+        let started = Instant::now();
+        let sent = crate::worker::with_retries(deadline, || {
+            let mut c = client.clone();
+            let r = request.clone();
+            async move { c.complete_tasks(r).await.map(tonic::Response::into_inner) }
+        })
+        .await;
+        complete_ms += started.elapsed().as_secs_f64() * 1_000.0;
+        match sent {
+            Ok(resp) => {
+                for r in resp.results {
+                    if r.outcome == Outcome::Completed as i32 {
+                        shared.tally.completed.fetch_add(1, Ordering::Relaxed);
+                    } else {
+                        shared.tally.refused.fetch_add(1, Ordering::Relaxed);
+                        tracing::warn!(task = %r.task_id, outcome = r.outcome, error = %r.message, "completion refused");
+                    }
+                }
+            }
+            Err(s) => tracing::error!(error = %s.message(), "completion failed; these tasks will be leased again"),
+        }
+    }
+    let mut held = shared.held.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    for t in &tasks {
+        held.remove(&(t.task_id.clone(), t.attempt));
+    }
+    complete_ms
+}
+
+/// Completions in calls of at most `MAX_COMPLETION_CALL_BYTES` each (one alone may be larger).
+fn split_by_size(completions: Vec<pb::CompleteTaskRequest>) -> Vec<Vec<pb::CompleteTaskRequest>> {
+    use prost::Message;
+    let mut calls: Vec<Vec<pb::CompleteTaskRequest>> = Vec::new();
+    let mut bytes = 0;
+    for c in completions {
+        let len = c.encoded_len() + 8;
+        match calls.last_mut() {
+            Some(call) if bytes + len <= MAX_COMPLETION_CALL_BYTES => {
+                call.push(c);
+                bytes += len;
+            }
+            _ => {
+                calls.push(vec![c]);
+                bytes = len;
+            }
+        }
+    }
+    calls
+}
+
+/// Renews every lease this process holds, every third of the lease.
+async fn heartbeat_loop(shared: Arc<Shared>) {
+    let every = Duration::from_millis(u64::from(shared.config.lease_ms / 3).max(200));
+    loop {
+        tokio::time::sleep(every).await;
+        let held: Vec<pb::TaskAttempt> = {
+            let held = shared.held.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+            held.iter()
+                .map(|(task_id, attempt)| pb::TaskAttempt { task_id: task_id.clone(), attempt: *attempt })
+                .collect()
+        };
+        if held.is_empty() {
+            continue;
+        }
+        let request =
+            pb::HeartbeatRequest { worker_id: shared.config.worker_id.clone(), held, lease_ms: shared.config.lease_ms };
+        match shared.client.clone().heartbeat(request).await {
+            Ok(resp) if !resp.get_ref().lost.is_empty() => {
+                tracing::warn!(lost = resp.get_ref().lost.len(), "leases lost; their completions will be refused")
+            }
+            Ok(_) => {}
+            Err(s) => tracing::warn!(error = %s.message(), "heartbeat failed"),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn acceptance_follows_the_rate_over_many_seeds() {
+        let seeds = (0..10_000u32).map(|i| vint_core::seed::grasp_trial(7, "mug", "trx3", i));
+        let share = seeds.filter(|&s| accepted(s, 0.84)).count() as f64 / 10_000.0;
+        assert!((share - 0.84).abs() < 0.02, "{share}");
+        assert!(!accepted(0, 0.0) && accepted(vint_core::seed::SEED_MASK, 1.0));
+    }
+}
