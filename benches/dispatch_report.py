@@ -22,11 +22,16 @@ from pathlib import Path
 from typing import Any
 
 
-def read_csv(path: Path) -> list[dict[str, float]]:
+LATENCY_FIELDS = ["unix_ms", "slot", "tasks", "lease_ms", "complete_ms"]  # vint-worker --latency-log
+
+
+def read_csv(path: Path, fields: list[str] | None = None) -> list[dict[str, float]]:
+    """Rows of a CSV file as numbers; `fields` names the columns of a file without a header."""
     if not path.exists():
         return []
     with path.open() as f:
-        return [{k: float(v) for k, v in row.items()} for row in csv.DictReader(f) if all(row.values())]
+        rows = csv.DictReader(f, fieldnames=fields)
+        return [{k: float(v) for k, v in row.items()} for row in rows if all(row.values())]
 
 
 def sample_ids(database: str, job: str, n: int) -> list[str]:
@@ -149,7 +154,7 @@ def main() -> int:
     before = json.loads((out / "db-before.json").read_text())
     after = json.loads((out / "db-after.json").read_text())
     rss = read_csv(out / "rss.csv")
-    batches = [row for f in sorted(out.glob("latency-*.csv")) for row in read_csv(f)]
+    batches = [row for f in sorted(out.glob("latency-*.csv")) for row in read_csv(f, LATENCY_FIELDS)]
     wall_s = args.finished - args.submitted
     rss_mib = [r["rss_kib"] / 1024 for r in rss]
     lineage = verify(args)
