@@ -29,6 +29,10 @@ rounds=${VINT_QUEUE_ROUNDS:-3}
 ceiling_s=${VINT_QUEUE_CEILING_S:-15}
 awa_jobs=${VINT_QUEUE_AWA_JOBS:-100000}
 awa_workers=1024          # awa-bench's best configuration on this machine kind (its README)
+# The coordinator's no-op workers: as many as the ceiling's pgbench clients (2), each with its next
+# lease in flight while it completes the last; more only queue on the same two cores (4 workers:
+# ~10 % fewer tasks/s here).
+export VINT_BENCH_WORKERS=${VINT_BENCH_WORKERS:-2}
 ceiling_batch=64          # tasks per transaction in lease_batch64.pgb
 ceiling_rows_per_s=100000 # rows loaded per second of pgbench: headroom over the ~57k tasks/s measured
 ceiling_db=vint_bench_ceiling

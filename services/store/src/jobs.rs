@@ -177,9 +177,11 @@ impl Store {
             .await?
             .rows_affected();
         if changed == 1 {
+            // The running attempts end as cancelled (written once, as every attempt).
             sqlx::query(
-                "UPDATE attempts SET ended_ms = $1, outcome = $2 WHERE ended_ms IS NULL AND task_id IN \
-                 (SELECT id FROM tasks WHERE job_id = $3 AND state = $4)",
+                "INSERT INTO attempts (task_id, attempt, worker_id, started_ms, ended_ms, outcome) \
+                 SELECT id, attempt, lease_owner, COALESCE(leased_ms, $1), $1, $2 FROM tasks \
+                 WHERE job_id = $3 AND state = $4",
             )
             .bind(now_ms)
             .bind(AttemptOutcome::Cancelled.as_str())

@@ -6,7 +6,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use sqlx::Row;
 use sqlx::any::AnyRow;
 
-use crate::{ArtifactRecord, JobAsset, LineageEntry, Result, Store, StoreError, to_u32, trusted};
+use crate::{ArtifactRecord, JobAsset, LineageEntry, Result, Store, StoreError, trusted};
 
 pub(crate) fn artifact_from_row(row: &AnyRow) -> Result<ArtifactRecord> {
     Ok(ArtifactRecord {
@@ -185,14 +185,9 @@ impl Store {
         row.map(|r| Ok((r.try_get("job_id")?, r.try_get("package_task_id")?))).transpose()
     }
 
-    /// Number of attempts recorded for a task (for lineage displays).
+    /// Number of attempts of a task, ended or running (for lineage displays).
     pub async fn attempt_count(&self, task_id: &str) -> Result<u32> {
-        let n: i64 = sqlx::query("SELECT COUNT(*) AS n FROM attempts WHERE task_id = $1")
-            .bind(task_id)
-            .fetch_one(&self.pool)
-            .await?
-            .try_get("n")?;
-        to_u32("attempt count", n)
+        self.attempts(task_id).await.map(|a| a.len() as u32)
     }
 
     /// (artifact rows, distinct contents) of a job: with content addressing, retries and copies

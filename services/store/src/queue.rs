@@ -42,7 +42,7 @@ impl Store {
         let stage_list = stages.iter().map(|s| literal(s.as_str())).collect::<Vec<_>>().join(", ");
         let update = format!(
             "UPDATE tasks SET state = $1, attempt = attempt + 1, lease_owner = $2, lease_deadline_ms = $3, \
-             updated_ms = $4 WHERE id IN (SELECT id FROM tasks WHERE state = {queued} AND not_before_ms <= $4 \
+             leased_ms = $4, updated_ms = $4 WHERE id IN (SELECT id FROM tasks WHERE state = {queued} AND not_before_ms <= $4 \
              AND stage IN ({stage_list}) ORDER BY priority, created_ms, id LIMIT $5 {skip_locked}) \
              RETURNING id, job_id, key, stage, attempt, params_json, lease_deadline_ms",
             queued = literal(TaskState::Queued.as_str()),
@@ -50,11 +50,11 @@ impl Store {
         );
         let deadline = now_ms + lease_ms;
         let mut leased = match self.backend {
-            // One statement: the lease, its attempts and every leased task's inputs.
+            // One statement: the lease and every leased task's inputs. The attempt is written
+            // when it ends; until then the task's row is its record.
             Backend::Postgres => {
                 let sql = format!(
-                    "WITH leased AS ({update}), started AS (INSERT INTO attempts (task_id, attempt, worker_id, \
-                     started_ms) SELECT id, attempt, $2, $4 FROM leased) \
+                    "WITH leased AS ({update}) \
                      SELECT leased.*, (SELECT COALESCE(json_agg(json_build_object('task_id', a.task_id, \
                      'key', t.key, 'name', a.name, 'sha256', a.sha256, 'size', a.size, 'media_type', a.media_type, \
                      'object_key', a.object_key) ORDER BY t.key, a.name), '[]')::text FROM task_deps d \
@@ -80,35 +80,19 @@ impl Store {
                 leased
             }
             Backend::Sqlite => {
-                let mut tx = self.pool.begin().await?;
                 let rows = sqlx::query(trusted(update))
                     .bind(TaskState::Running.as_str())
                     .bind(worker_id)
                     .bind(deadline)
                     .bind(now_ms)
                     .bind(i64::from(capacity))
-                    .fetch_all(&mut *tx)
+                    .fetch_all(&self.pool)
                     .await?;
                 if rows.is_empty() {
-                    tx.rollback().await?;
                     return Ok(Vec::new());
                 }
                 let mut leased = rows.iter().map(leased_from_row).collect::<Result<Vec<_>>>()?;
-                let attempts: Vec<serde_json::Value> =
-                    leased.iter().map(|t| serde_json::json!({"id": t.id, "attempt": t.attempt})).collect();
-                let sql = format!(
-                    "INSERT INTO attempts (task_id, attempt, worker_id, started_ms) SELECT a.id, a.attempt, $1, $2 \
-                     FROM {}",
-                    self.backend.json_rows("$3", "a", &[("id", "text"), ("attempt", "bigint")]),
-                );
-                sqlx::query(trusted(sql))
-                    .bind(worker_id)
-                    .bind(now_ms)
-                    .bind(json_text(&attempts)?)
-                    .execute(&mut *tx)
-                    .await?;
-                tx.commit().await?;
-                // Inputs are outputs of succeeded tasks, which never change: read after the commit.
+                // Inputs are outputs of succeeded tasks, which never change: read after the lease.
                 let ids: Vec<&str> = leased.iter().map(|t| t.id.as_str()).collect();
                 let mut inputs = self.dependency_outputs(&ids).await?;
                 for t in &mut leased {
@@ -179,6 +163,17 @@ impl Store {
         if candidates.is_empty() {
             return Ok(Vec::new());
         }
+        if self.backend == Backend::Postgres && candidates.iter().all(|(_, children)| children.is_empty()) {
+            // Nothing to insert after the completions: their one statement is a transaction of its
+            // own, without the round trips of BEGIN and COMMIT (render, noise and package tasks,
+            // most of a job's).
+            let mut conn = self.pool.acquire().await?;
+            let done = record_completions_pg(&mut conn, &candidates, now_ms).await?;
+            drop(conn);
+            let jobs: BTreeSet<&str> = done.values().map(String::as_str).collect();
+            self.finalize_jobs_among(&jobs, now_ms).await?;
+            return Ok(completion_outcomes(items, &first, &done));
+        }
         let mut tx = self.pool.begin().await?;
         let done = match self.backend {
             Backend::Postgres => record_completions_pg(&mut tx, &candidates, now_ms).await?,
@@ -198,15 +193,7 @@ impl Store {
         tx.commit().await?;
         let jobs: BTreeSet<&str> = done.values().map(String::as_str).collect();
         self.finalize_jobs_among(&jobs, now_ms).await?;
-        Ok(items
-            .iter()
-            .zip(&first)
-            .map(
-                |((c, _), first)| {
-                    if *first && done.contains_key(&c.fence.task_id) { Ok(()) } else { Err(lease_lost(&c.fence)) }
-                },
-            )
-            .collect())
+        Ok(completion_outcomes(items, &first, &done))
     }
 
     /// Fails an attempt. A retryable failure with attempts left requeues the task after a backoff
@@ -317,13 +304,14 @@ impl Store {
 
     /// The task's attempts, oldest first.
     pub async fn attempts(&self, task_id: &str) -> Result<Vec<crate::AttemptRecord>> {
-        let rows = sqlx::query(
+        // Ended attempts are rows of `attempts`; a running one is its task's row.
+        let sql = format!(
             "SELECT task_id, attempt, worker_id, started_ms, ended_ms, outcome, error FROM attempts \
-             WHERE task_id = $1 ORDER BY attempt",
-        )
-        .bind(task_id)
-        .fetch_all(&self.pool)
-        .await?;
+             WHERE task_id = $1 UNION ALL SELECT id, attempt, lease_owner, COALESCE(leased_ms, updated_ms), NULL, \
+             NULL, NULL FROM tasks WHERE id = $1 AND state = {running} ORDER BY attempt",
+            running = literal(TaskState::Running.as_str()),
+        );
+        let rows = sqlx::query(trusted(sql)).bind(task_id).fetch_all(&self.pool).await?;
         rows.iter()
             .map(|r| {
                 Ok(crate::AttemptRecord {
@@ -403,9 +391,11 @@ async fn end_attempt(
     engine_and_timings: Option<(&str, &str)>,
 ) -> Result<()> {
     let (engine, timings) = engine_and_timings.unzip();
+    // Before the task's row leaves `running`: it holds when the attempt started.
     sqlx::query(
-        "UPDATE attempts SET ended_ms = $1, outcome = $2, error = $3, engine_json = $4, timings_json = $5 \
-         WHERE task_id = $6 AND attempt = $7",
+        "INSERT INTO attempts (task_id, attempt, worker_id, started_ms, ended_ms, outcome, error, engine_json, \
+         timings_json) SELECT id, attempt, lease_owner, COALESCE(leased_ms, $1), $1, $2, $3, $4, $5 FROM tasks \
+         WHERE id = $6 AND attempt = $7",
     )
     .bind(now_ms)
     .bind(outcome.as_str())
@@ -463,8 +453,26 @@ const OUTPUT_COLUMNS: &[(&str, &str)] =
 /// Postgres: fences the completions and records what every accepted one made — task, attempt,
 /// outputs, unblocked dependents, samples — in ONE statement of data-modifying
 /// CTEs keyed on the fenced rows. Returns the accepted tasks' ids with their jobs.
+/// Each item's outcome: completed when it was the first of its task in the batch and its fence
+/// held (`done`), its lease lost otherwise.
+fn completion_outcomes(
+    items: &[(Completion, Vec<NewTask>)],
+    first: &[bool],
+    done: &HashMap<String, String>,
+) -> Vec<std::result::Result<(), StoreError>> {
+    items
+        .iter()
+        .zip(first)
+        .map(
+            |((c, _), first)| {
+                if *first && done.contains_key(&c.fence.task_id) { Ok(()) } else { Err(lease_lost(&c.fence)) }
+            },
+        )
+        .collect()
+}
+
 async fn record_completions_pg(
-    tx: &mut Transaction<'static, Any>,
+    conn: &mut sqlx::AnyConnection,
     candidates: &[&(Completion, Vec<NewTask>)],
     now_ms: i64,
 ) -> Result<HashMap<String, String>> {
@@ -478,10 +486,10 @@ async fn record_completions_pg(
          done AS (UPDATE tasks SET state = $1, lease_owner = NULL, lease_deadline_ms = NULL, engine_json = c.engine, \
            result_json = c.result, updated_ms = $3 FROM c WHERE tasks.id = c.id AND tasks.state = $2 \
            AND tasks.lease_owner = c.worker AND tasks.attempt = c.attempt AND tasks.lease_deadline_ms >= $3 \
-           RETURNING tasks.id, tasks.job_id, tasks.attempt), \
-         ended AS (UPDATE attempts SET ended_ms = $3, outcome = $5, error = NULL, engine_json = c.engine, \
-           timings_json = c.timings FROM done JOIN c ON c.id = done.id \
-           WHERE attempts.task_id = done.id AND attempts.attempt = done.attempt), \
+           RETURNING tasks.id, tasks.job_id, tasks.attempt, tasks.leased_ms), \
+         ended AS (INSERT INTO attempts (task_id, attempt, worker_id, started_ms, ended_ms, outcome, engine_json, \
+           timings_json) SELECT done.id, done.attempt, c.worker, COALESCE(done.leased_ms, $3), $3, $5, c.engine, \
+           c.timings FROM done JOIN c ON c.id = done.id), \
          outputs AS (INSERT INTO artifacts (task_id, name, sha256, size, media_type, object_key, created_ms) \
            SELECT o.task, o.name, o.sha, o.size, o.media, o.key, $3 FROM {outputs} JOIN done ON done.id = o.task), \
          unblocked AS (UPDATE tasks SET deps_pending = tasks.deps_pending - n.done, \
@@ -505,7 +513,7 @@ async fn record_completions_pg(
         .bind(TaskState::Waiting.as_str())
         .bind(TaskState::Queued.as_str())
         .bind(json_text(&samples)?)
-        .fetch_all(&mut **tx)
+        .fetch_all(&mut *conn)
         .await?;
     rows.iter().map(|row| Ok((row.try_get::<String, _>("id")?, row.try_get::<String, _>("job_id")?))).collect()
 }
@@ -552,9 +560,11 @@ async fn record_completions(
         let outputs = output_rows(accepted.iter().map(|(c, _)| c))?;
         sqlx::query(trusted(sql)).bind(now_ms).bind(outputs).execute(&mut **tx).await?;
     }
+    // The attempts, written once now that they end (the task's row still holds leased_ms).
     let sql = format!(
-        "UPDATE attempts SET ended_ms = $1, outcome = $2, error = NULL, engine_json = e.engine, \
-         timings_json = e.timings FROM {} WHERE attempts.task_id = e.id AND attempts.attempt = e.attempt",
+        "INSERT INTO attempts (task_id, attempt, worker_id, started_ms, ended_ms, outcome, engine_json, \
+         timings_json) SELECT e.id, e.attempt, e.worker, COALESCE(t.leased_ms, $1), $1, $2, e.engine, e.timings \
+         FROM {} JOIN tasks t ON t.id = e.id",
         backend.json_rows("$3", "e", FENCE_COLUMNS),
     );
     sqlx::query(trusted(sql))

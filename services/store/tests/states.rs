@@ -13,7 +13,7 @@ use common::*;
 use sqlx::Connection;
 use vint_core::TaskState::{Cancelled, Failed, Queued, Running, Succeeded, Waiting};
 use vint_core::{AttemptOutcome, JobState, Stage, TaskState};
-use vint_store::{Store, StoreError, TaskRecord};
+use vint_store::{Fence, Store, StoreError, TaskRecord};
 
 // ---------------------------------------------------------------------------------------------
 // The migrations name exactly the enums' values.
@@ -85,6 +85,9 @@ database_test!(
     |store: Store, url: String| async move {
         store.submit_job(&job("j"), &[task("grasp/a", Stage::Grasp, &[])], 0).await.unwrap();
         store.lease("w", &[Stage::Grasp], 1, 1_000, 0).await.unwrap();
+        // An attempt's row is written when it ends: end this one (requeued for a retry).
+        let fence = Fence { task_id: "j/grasp/a".into(), worker_id: "w".into(), attempt: 1 };
+        assert!(store.fail(&fence, true, "try again", 1).await.unwrap());
         let mut conn = sqlx::AnyConnection::connect(&url).await.unwrap();
         // (check, statement setting one value on an existing row, every name the enum defines, a stranger)
         let updates = [
@@ -103,7 +106,7 @@ database_test!(
             assert!(err.to_string().contains(check), "{update} with {stranger:?}: {err}");
         }
         let running = sqlx::query("UPDATE attempts SET outcome = NULL WHERE task_id = 'j/grasp/a'");
-        running.execute(&mut conn).await.expect("an attempt that has not ended has no outcome");
+        running.execute(&mut conn).await.expect("no outcome is not a stranger outcome");
 
         let inserts = [
             (
