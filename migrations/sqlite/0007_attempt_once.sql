@@ -9,3 +9,7 @@ UPDATE tasks SET leased_ms = (
     SELECT a.started_ms FROM attempts a WHERE a.task_id = tasks.id AND a.attempt = tasks.attempt
 ) WHERE state = 'running';
 DELETE FROM attempts WHERE ended_ms IS NULL;
+
+-- (Postgres also drops the foreign keys of attempts, artifacts and samples here, whose checks
+-- cost a row lock per row written; SQLite cannot drop a constraint without rebuilding the table,
+-- and the embedded store is small.)
