@@ -103,5 +103,10 @@ async fn reap_forever(store: Store, every: Duration) {
         if let Err(e) = store.finalize_jobs(now).await {
             tracing::error!(error = %e, "finalizing jobs failed");
         }
+        match store.refresh_statistics().await {
+            Ok(tables) if !tables.is_empty() => tracing::debug!(?tables, "analyzed"),
+            Ok(_) => {}
+            Err(e) => tracing::error!(error = %e, "refreshing the planner's statistics failed"),
+        }
     }
 }

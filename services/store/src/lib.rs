@@ -83,6 +83,16 @@ impl Backend {
             Backend::Sqlite => "",
         }
     }
+
+    /// Locks the rows of `table_alias` a query selects (Postgres; SQLite has one writer).
+    /// Statements that update many task rows first lock them this way in id order, so that two
+    /// of them never wait on each other's rows in opposite orders (a deadlock).
+    fn lock_rows_of(self, table_alias: &str) -> String {
+        match self {
+            Backend::Postgres => format!("FOR UPDATE OF {table_alias}"),
+            Backend::Sqlite => String::new(),
+        }
+    }
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -138,7 +148,24 @@ impl Store {
             return Err(StoreError::UnsupportedUrl(url.to_string()));
         };
         let pool = match backend {
-            Backend::Postgres => AnyPoolOptions::new().max_connections(16).connect(url).await?,
+            Backend::Postgres => {
+                AnyPoolOptions::new()
+                    .max_connections(16)
+                    .after_connect(|conn, _| {
+                        Box::pin(async move {
+                            // Every statement here is a few index lookups per row of a batch,
+                            // planned against tables that grow tenfold within minutes: plan each
+                            // execution with the statistics of the moment (a generic plan made
+                            // while a table was empty scans it whole once it holds millions of
+                            // rows), and never pay JIT compilation for it.
+                            conn.execute("SET plan_cache_mode = force_custom_plan").await?;
+                            conn.execute("SET jit = off").await?;
+                            Ok(())
+                        })
+                    })
+                    .connect(url)
+                    .await?
+            }
             Backend::Sqlite => {
                 let url = if url.contains('?') { url.to_string() } else { format!("{url}?mode=rwc") };
                 // One connection: SQLite serializes writers anyway, and one connection means no

@@ -365,3 +365,73 @@ store_test!(a_batch_unlocks_dependents_and_inserts_children_like_single_completi
     let inputs: Vec<(&str, &str)> = lineage[0].inputs.iter().map(|a| (a.task_key.as_str(), a.name.as_str())).collect();
     assert_eq!(inputs, [("grasp/a", "grasps.json")], "lineage: the dependency's outputs");
 });
+
+store_test!(a_table_a_job_grew_is_analyzed_once_until_it_grows_again, |store: Store| async move {
+    let tasks: Vec<NewTask> = (0..3_000).map(|i| task(&format!("grasp/t{i:05}"), Stage::Grasp, &[])).collect();
+    store.submit_job(&job("j"), &tasks, 0).await.unwrap();
+    if store.backend() != vint_store::Backend::Postgres {
+        assert!(store.refresh_statistics().await.unwrap().is_empty(), "SQLite keeps no planner statistics here");
+        return;
+    }
+    // Postgres publishes a transaction's row counts to pg_stat_user_tables within a second or so.
+    let mut analyzed = Vec::new();
+    for _ in 0..50 {
+        analyzed = store.refresh_statistics().await.unwrap();
+        if analyzed.iter().any(|t| t == "tasks") {
+            break;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+    }
+    assert!(analyzed.iter().any(|t| t == "tasks"), "3,000 new tasks leave the statistics stale: {analyzed:?}");
+    assert!(!store.refresh_statistics().await.unwrap().iter().any(|t| t == "tasks"), "analyzed already");
+});
+
+store_test!(a_heartbeat_and_a_completion_of_the_same_tasks_never_deadlock, |store: Store| async move {
+    // A worker's heartbeat names the leases it holds while its completion of them is in flight,
+    // and a batch's completions unblock dependents other batches unblock too. Each statement locks
+    // its rows in id order; listed in opposite orders they would otherwise wait on each other.
+    // A table of some size, analyzed, so that Postgres joins a batch to it row by row in the
+    // batch's order (as on a real job) rather than scanning a small table whole.
+    let filler: Vec<NewTask> = (0..5_000).map(|i| task(&format!("grasp/f{i:05}"), Stage::Grasp, &[])).collect();
+    store.submit_job(&job("filler"), &filler, 0).await.unwrap();
+    for _ in 0..50 {
+        if store.refresh_statistics().await.unwrap().iter().any(|t| t == "tasks") {
+            break;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+    }
+    for round in 0..10 {
+        let job_id = format!("j{round}");
+        let mut tasks: Vec<NewTask> = (0..256).map(|i| task(&format!("render/r{i:03}"), Stage::Render, &[])).collect();
+        let deps: Vec<String> = (0..256).map(|i| format!("render/r{i:03}")).collect();
+        let deps: Vec<&str> = deps.iter().map(String::as_str).collect();
+        tasks.push(task("package/p1", Stage::Package, &deps));
+        tasks.push(task("package/p2", Stage::Package, &deps));
+        store.submit_job(&job(&job_id), &tasks, 0).await.unwrap();
+        let leased = store.lease("w", &[Stage::Render], 256, 60_000, 1).await.unwrap();
+        assert_eq!(leased.len(), 256);
+        let held: Vec<(String, u32)> = leased.iter().rev().map(|t| (t.id.clone(), t.attempt)).collect();
+        let (first, second) = leased.split_at(128);
+        let batch = |ts: &[vint_store::LeasedTask], rev: bool| {
+            let mut items: Vec<_> =
+                ts.iter().map(|t| (completion(fence(t, "w"), &["v00_rgb.png"]), Vec::new())).collect();
+            if rev {
+                items.reverse();
+            }
+            items
+        };
+        let (a, b) = (batch(first, false), batch(second, true));
+        let (s1, s2, s3) = (store.clone(), store.clone(), store.clone());
+        let (r1, r2, r3) = tokio::join!(
+            async move { s1.complete_batch(&a, 2).await },
+            async move { s2.complete_batch(&b, 2).await },
+            async move { s3.heartbeat("w", &held, 60_000, 2).await },
+        );
+        for r in [r1.unwrap(), r2.unwrap()] {
+            assert!(r.iter().all(Result::is_ok), "round {round}: {r:?}");
+        }
+        assert!(r3.is_ok(), "round {round}: {r3:?}");
+        assert_eq!(state_of(&store, &format!("{job_id}/package/p1")).await, TaskState::Queued);
+        assert_eq!(state_of(&store, &format!("{job_id}/package/p2")).await, TaskState::Queued);
+    }
+});
