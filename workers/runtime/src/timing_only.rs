@@ -519,7 +519,13 @@ async fn heartbeat_loop(shared: Arc<Shared>) {
             pb::HeartbeatRequest { worker_id: shared.config.worker_id.clone(), held, lease_ms: shared.config.lease_ms };
         match shared.client.clone().heartbeat(request).await {
             Ok(resp) if !resp.get_ref().lost.is_empty() => {
-                tracing::warn!(lost = resp.get_ref().lost.len(), "leases lost; their completions will be refused")
+                // A batch completed while the heartbeat was in flight reads as lost: only those
+                // still held are.
+                let held = shared.held.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+                let lost = resp.get_ref().lost.iter().filter(|l| held.contains(&(l.task_id.clone(), l.attempt))).count();
+                if lost > 0 {
+                    tracing::warn!(lost, "leases lost; their completions will be refused");
+                }
             }
             Ok(_) => {}
             Err(s) => tracing::warn!(error = %s.message(), "heartbeat failed"),
