@@ -17,6 +17,15 @@
 //! any name the enums do not define (migration 0004); `tests/states.rs` checks every transition the
 //! store makes against `TaskState::can_transition`. Times are passed in (`now_ms`) rather than read
 //! from a clock, which keeps the queue logic testable.
+//!
+//! At the scale of millions of samples (issue 11, `benches/dispatch.sh`): a batch of leases or
+//! completions is a fixed number of set-based statements; an attempt is written once, when it
+//! ends (the running attempt is its task's row); the rows written per artifact and per sample
+//! carry no foreign key on Postgres (the store writes them only from the task row it has just
+//! fenced); no two batch statements wait on each other's task rows in opposite orders (a
+//! heartbeat skips rows locked by a completion of the same leases; completions lock the
+//! dependents they unblock in id order); and the coordinator keeps the planner's statistics
+//! current as a job grows its tables (`Store::refresh_statistics`).
 
 mod failures;
 pub mod footprint;
@@ -84,12 +93,11 @@ impl Backend {
         }
     }
 
-    /// Locks the rows of `table_alias` a query selects (Postgres; SQLite has one writer).
-    /// Statements that update many task rows first lock them this way in id order, so that two
-    /// of them never wait on each other's rows in opposite orders (a deadlock).
-    fn lock_rows_of(self, table_alias: &str) -> String {
+    /// Locks the rows of `table_alias` a query selects, skipping those another transaction holds
+    /// (Postgres; SQLite has one writer).
+    fn skip_locked_of(self, table_alias: &str) -> String {
         match self {
-            Backend::Postgres => format!("FOR UPDATE OF {table_alias}"),
+            Backend::Postgres => format!("FOR UPDATE OF {table_alias} SKIP LOCKED"),
             Backend::Sqlite => String::new(),
         }
     }
@@ -153,12 +161,9 @@ impl Store {
                     .max_connections(16)
                     .after_connect(|conn, _| {
                         Box::pin(async move {
-                            // Every statement here is a few index lookups per row of a batch,
-                            // planned against tables that grow tenfold within minutes: plan each
-                            // execution with the statistics of the moment (a generic plan made
-                            // while a table was empty scans it whole once it holds millions of
-                            // rows), and never pay JIT compilation for it.
-                            conn.execute("SET plan_cache_mode = force_custom_plan").await?;
+                            // Every statement here is a few index lookups per row of a batch:
+                            // never pay JIT compilation for one (a table without statistics makes
+                            // its estimated cost look large enough to trigger it).
                             conn.execute("SET jit = off").await?;
                             Ok(())
                         })

@@ -118,15 +118,17 @@ impl Store {
         }
         let rows: Vec<serde_json::Value> =
             held.iter().map(|(id, attempt)| serde_json::json!({"id": id, "attempt": attempt})).collect();
-        // The held rows locked in id order first, as every batch of task updates locks them.
+        // A heartbeat never waits: a held row another statement has locked (its completion in
+        // flight, the reaper expiring it) is not renewed and reads as lost. Waiting instead could
+        // deadlock with a completion of the same leases locking them in another order.
         let sql = format!(
             "WITH h AS (SELECT * FROM {held}), \
              kept AS (SELECT t.id FROM tasks t JOIN h ON h.id = t.id WHERE t.state = $3 AND t.lease_owner = $4 \
-               AND t.attempt = h.attempt AND t.lease_deadline_ms >= $2 ORDER BY t.id {lock}) \
+               AND t.attempt = h.attempt AND t.lease_deadline_ms >= $2 {lock}) \
              UPDATE tasks SET lease_deadline_ms = $1, updated_ms = $2 FROM kept WHERE tasks.id = kept.id \
              RETURNING tasks.id, tasks.attempt",
             held = self.backend.json_rows("$5", "h", &[("id", "text"), ("attempt", "bigint")]),
-            lock = self.backend.lock_rows_of("t"),
+            lock = self.backend.skip_locked_of("t"),
         );
         let kept: HashSet<(String, i64)> = sqlx::query(trusted(sql))
             .bind(now_ms + lease_ms)
@@ -208,17 +210,20 @@ impl Store {
     }
 
     /// Keeps the planner's statistics of the tables a running job grows (Postgres): analyzes each
-    /// one whose rows changed by more than a fifth since it was last analyzed, returning their
-    /// names. A job grows `artifacts` from nothing to millions of rows in minutes, faster than
-    /// autovacuum's analyze follows (seen: none in the first 3 minutes of a 2 M-sample job), and
-    /// a plan made with no statistics scans the whole table for each leased task's inputs.
+    /// one that holds twice the rows its last analysis counted (or was never analyzed),
+    /// returning their names. A job grows `artifacts` from nothing to millions of rows in
+    /// minutes, faster than autovacuum's analyze follows (seen: none in the first 3 minutes of a
+    /// 2 M-sample job), and a plan made with no statistics scans the whole table for each leased
+    /// task's inputs. An analysis also replaces the cached plans of the statements that read the
+    /// table. Updates do not count: they leave the row counts, and the plans, as they were.
     pub async fn refresh_statistics(&self) -> Result<Vec<String>> {
         if self.backend != Backend::Postgres {
             return Ok(Vec::new());
         }
         let stale: Vec<String> = sqlx::query(
-            "SELECT relname::text AS relname FROM pg_stat_user_tables WHERE relname IN ('tasks', 'task_deps', 'attempts', \
-             'artifacts', 'samples') AND n_mod_since_analyze > 1000 + 0.2 * n_live_tup ORDER BY relname",
+            "SELECT s.relname::text AS relname FROM pg_stat_user_tables s JOIN pg_class c ON c.oid = s.relid \
+             WHERE s.relname IN ('tasks', 'task_deps', 'attempts', 'artifacts', 'samples') \
+             AND s.n_live_tup > 1000 + 2 * greatest(c.reltuples, 0) ORDER BY s.relname",
         )
         .fetch_all(&self.pool)
         .await?
@@ -512,10 +517,9 @@ async fn record_completions_pg(
     let pg = Backend::Postgres;
     let sql = format!(
         "WITH c AS (SELECT * FROM {fences}), \
-         fenced AS (SELECT t.id FROM tasks t JOIN c ON c.id = t.id WHERE t.state = $2 AND t.lease_owner = c.worker \
-           AND t.attempt = c.attempt AND t.lease_deadline_ms >= $3 ORDER BY t.id FOR UPDATE OF t), \
          done AS (UPDATE tasks SET state = $1, lease_owner = NULL, lease_deadline_ms = NULL, engine_json = c.engine, \
-           result_json = c.result, updated_ms = $3 FROM fenced JOIN c ON c.id = fenced.id WHERE tasks.id = fenced.id \
+           result_json = c.result, updated_ms = $3 FROM c WHERE tasks.id = c.id AND tasks.state = $2 \
+           AND tasks.lease_owner = c.worker AND tasks.attempt = c.attempt AND tasks.lease_deadline_ms >= $3 \
            RETURNING tasks.id, tasks.job_id, tasks.attempt, tasks.leased_ms), \
          ended AS (INSERT INTO attempts (task_id, attempt, worker_id, started_ms, ended_ms, outcome, engine_json, \
            timings_json) SELECT done.id, done.attempt, c.worker, COALESCE(done.leased_ms, $3), $3, $5, c.engine, \

@@ -388,8 +388,9 @@ store_test!(a_table_a_job_grew_is_analyzed_once_until_it_grows_again, |store: St
 
 store_test!(a_heartbeat_and_a_completion_of_the_same_tasks_never_deadlock, |store: Store| async move {
     // A worker's heartbeat names the leases it holds while its completion of them is in flight,
-    // and a batch's completions unblock dependents other batches unblock too. Each statement locks
-    // its rows in id order; listed in opposite orders they would otherwise wait on each other.
+    // and a batch's completions unblock dependents other batches unblock too. A heartbeat skips
+    // rows a completion holds and completions lock dependents in id order; otherwise, listing
+    // rows in opposite orders, they would wait on each other (a deadlock).
     // A table of some size, analyzed, so that Postgres joins a batch to it row by row in the
     // batch's order (as on a real job) rather than scanning a small table whole.
     let filler: Vec<NewTask> = (0..5_000).map(|i| task(&format!("grasp/f{i:05}"), Stage::Grasp, &[])).collect();

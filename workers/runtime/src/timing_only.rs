@@ -522,7 +522,8 @@ async fn heartbeat_loop(shared: Arc<Shared>) {
                 // A batch completed while the heartbeat was in flight reads as lost: only those
                 // still held are.
                 let held = shared.held.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
-                let lost = resp.get_ref().lost.iter().filter(|l| held.contains(&(l.task_id.clone(), l.attempt))).count();
+                let lost =
+                    resp.get_ref().lost.iter().filter(|l| held.contains(&(l.task_id.clone(), l.attempt))).count();
                 if lost > 0 {
                     tracing::warn!(lost, "leases lost; their completions will be refused");
                 }
