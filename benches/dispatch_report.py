@@ -21,7 +21,6 @@ import sys
 from pathlib import Path
 from typing import Any
 
-
 LATENCY_FIELDS = ["unix_ms", "slot", "tasks", "lease_ms", "complete_ms"]  # vint-worker --latency-log
 
 

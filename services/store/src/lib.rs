@@ -161,9 +161,15 @@ impl Store {
                     .max_connections(16)
                     .after_connect(|conn, _| {
                         Box::pin(async move {
-                            // Every statement here is a few index lookups per row of a batch:
-                            // never pay JIT compilation for one (a table without statistics makes
-                            // its estimated cost look large enough to trigger it).
+                            // Plan each execution with its values: task states are skewed (a
+                            // job's few failed or running tasks among millions succeeded), and a
+                            // generic plan estimates every state alike. Measured on a 2 M-sample
+                            // job: with cached generic plans, the per-batch check whether a job
+                            // finished and the progress counts grew to 0.5 s each and samples/s
+                            // fell from 2,400 to 1,300 as the job went on; a run with custom plans
+                            // held ~2,800 to the end (docs/benchmarks.md). Every statement
+                            // here is a few index lookups per row of a batch: no JIT either.
+                            conn.execute("SET plan_cache_mode = force_custom_plan").await?;
                             conn.execute("SET jit = off").await?;
                             Ok(())
                         })
