@@ -30,6 +30,19 @@ pub struct PackageInput {
     pub key: String,
 }
 
+impl From<&vint_proto::v1::ArtifactRef> for PackageInput {
+    fn from(a: &vint_proto::v1::ArtifactRef) -> PackageInput {
+        PackageInput {
+            name: a.name.clone(),
+            task_key: a.task_key.clone(),
+            sha256: a.sha256.clone(),
+            size: a.size,
+            media_type: a.media_type.clone(),
+            key: a.key.clone(),
+        }
+    }
+}
+
 /// A file of a packaged sample, named `<sample_id>/<file>`.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct PackagedFile {

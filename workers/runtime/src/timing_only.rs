@@ -221,18 +221,7 @@ async fn answer(
         }
         Stage::Package => {
             let p: package::Params = serde_json::from_value(params).map_err(contract)?;
-            let inputs: Vec<PackageInput> = task
-                .inputs
-                .iter()
-                .map(|a| PackageInput {
-                    name: a.name.clone(),
-                    task_key: a.task_key.clone(),
-                    sha256: a.sha256.clone(),
-                    size: a.size,
-                    media_type: a.media_type.clone(),
-                    key: a.key.clone(),
-                })
-                .collect();
+            let inputs: Vec<PackageInput> = task.inputs.iter().map(PackageInput::from).collect();
             let by_origin = Inputs::new(&inputs);
             let mut result = PackageResult::default();
             let mut grasps = BTreeSet::new();

@@ -161,18 +161,7 @@ impl Worker {
         let params: Value = serde_json::from_str(&task.params_json)
             .map_err(|e| TaskFailure::permanent(format!("task params are not JSON: {e}")))?;
         if stage == Stage::Package {
-            let inputs: Vec<PackageInput> = task
-                .inputs
-                .iter()
-                .map(|a| PackageInput {
-                    name: a.name.clone(),
-                    task_key: a.task_key.clone(),
-                    sha256: a.sha256.clone(),
-                    size: a.size,
-                    media_type: a.media_type.clone(),
-                    key: a.key.clone(),
-                })
-                .collect();
+            let inputs: Vec<PackageInput> = task.inputs.iter().map(PackageInput::from).collect();
             let packaged = package::package(&params, &inputs, &self.store)
                 .await
                 .map_err(|e| TaskFailure { retryable: e.retryable(), message: e.to_string() })?;
