@@ -169,25 +169,34 @@ impl Store {
         if candidates.is_empty() {
             return Ok(Vec::new());
         }
+        let done = self.record_batch(&candidates, now_ms).await?;
+        let jobs: BTreeSet<&str> = done.values().map(String::as_str).collect();
+        self.finalize_jobs_among(&jobs, now_ms).await?;
+        Ok(completion_outcomes(items, &first, &done))
+    }
+
+    /// Records the completions whose fence holds, with the tasks they unlock, atomically; returns
+    /// the completed task ids with their jobs.
+    async fn record_batch(
+        &self,
+        candidates: &[&(Completion, Vec<NewTask>)],
+        now_ms: i64,
+    ) -> Result<HashMap<String, String>> {
         if self.backend == Backend::Postgres && candidates.iter().all(|(_, children)| children.is_empty()) {
             // Nothing to insert after the completions: their one statement is a transaction of its
             // own, without the round trips of BEGIN and COMMIT (render, noise and package tasks,
             // most of a job's).
             let mut conn = self.pool.acquire().await?;
-            let done = record_completions_pg(&mut conn, &candidates, now_ms).await?;
-            drop(conn);
-            let jobs: BTreeSet<&str> = done.values().map(String::as_str).collect();
-            self.finalize_jobs_among(&jobs, now_ms).await?;
-            return Ok(completion_outcomes(items, &first, &done));
+            return record_completions_pg(&mut conn, candidates, now_ms).await;
         }
         let mut tx = self.pool.begin().await?;
         let done = match self.backend {
-            Backend::Postgres => record_completions_pg(&mut tx, &candidates, now_ms).await?,
-            Backend::Sqlite => record_completions(&mut tx, self.backend, &candidates, now_ms).await?,
+            Backend::Postgres => record_completions_pg(&mut tx, candidates, now_ms).await?,
+            Backend::Sqlite => record_completions(&mut tx, self.backend, candidates, now_ms).await?,
         };
         if done.is_empty() {
             tx.rollback().await?;
-            return Ok(items.iter().map(|(c, _)| Err(lease_lost(&c.fence))).collect());
+            return Ok(done);
         }
         let mut children_by_job: BTreeMap<&str, Vec<NewTask>> = BTreeMap::new();
         for (c, children) in candidates.iter().filter(|(c, _)| done.contains_key(&c.fence.task_id)) {
@@ -197,9 +206,7 @@ impl Store {
             self.insert_tasks(&mut tx, job_id, children, now_ms).await?;
         }
         tx.commit().await?;
-        let jobs: BTreeSet<&str> = done.values().map(String::as_str).collect();
-        self.finalize_jobs_among(&jobs, now_ms).await?;
-        Ok(completion_outcomes(items, &first, &done))
+        Ok(done)
     }
 
     /// Fails an attempt. A retryable failure with attempts left requeues the task after a backoff

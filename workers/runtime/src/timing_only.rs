@@ -43,7 +43,7 @@ use vint_proto::v1::completion_result::Outcome;
 use vint_proto::v1::work_service_client::WorkServiceClient;
 
 use crate::package::{Inputs, PackageInput, referenced_files};
-use crate::worker::WorkerError;
+use crate::worker::{WorkerError, ms};
 
 /// Largest lease answer read, and largest completion call sent: a batch's completions go in as
 /// many `CompleteTasks` calls as keep each under the coordinator's limit (8 MiB).
@@ -345,7 +345,7 @@ pub async fn run(
 async fn lease(shared: Arc<Shared>) -> (Vec<pb::LeasedTask>, f64) {
     let started = Instant::now();
     let tasks = lease_batch(&shared).await;
-    (tasks, started.elapsed().as_secs_f64() * 1_000.0)
+    (tasks, ms(started.elapsed()))
 }
 
 async fn lease_batch(shared: &Shared) -> Vec<pb::LeasedTask> {
@@ -409,7 +409,7 @@ async fn answer_batch(shared: &Shared, tasks: Vec<pb::LeasedTask>) -> f64 {
         let started = Instant::now();
         match answer(task, &shared.payloads, shared.config.accept_rate).await {
             Ok((result, outputs)) => {
-                let total_ms = started.elapsed().as_secs_f64() * 1_000.0;
+                let total_ms = ms(started.elapsed());
                 completions.push(pb::CompleteTaskRequest {
                     worker_id: shared.config.worker_id.clone(),
                     task_id: task.task_id.clone(),
@@ -447,7 +447,7 @@ async fn answer_batch(shared: &Shared, tasks: Vec<pb::LeasedTask>) -> f64 {
             async move { c.complete_tasks(r).await.map(tonic::Response::into_inner) }
         })
         .await;
-        complete_ms += started.elapsed().as_secs_f64() * 1_000.0;
+        complete_ms += ms(started.elapsed());
         match sent {
             Ok(resp) => {
                 for r in resp.results {
