@@ -55,6 +55,8 @@ WORKER_HEADROOM_MIB = 1024
 HAND_BACK_BOUND_S = 30
 # The coordinator drains in-flight RPCs for up to 30 s on SIGTERM.
 COORDINATOR_DRAIN_S = 30
+# gRPC health names SERVING only while the database answers ("" is the process alone).
+API_SERVICES = ("vint.v1.WorkService", "vint.v1.JobService")
 
 # Created out of band in production (deploy/README.md, "First deploy"): the overlay refers to them
 # by name and must never contain them.
@@ -531,6 +533,16 @@ def coordinator_findings(obj: Manifest, spec: Manifest, container: Manifest, ove
     database = (env_entry(container, "VINT_DATABASE_URL") or {}).get("valueFrom", {}).get("secretKeyRef", {})
     if not database.get("name", "").startswith("vint-database") or "migrate" in database.get("name", ""):
         findings.append(f"{at}: VINT_DATABASE_URL must come from the vint-database Secret (DML rights only)")
+    readiness, liveness = container.get("readinessProbe", {}), container.get("livenessProbe", {})
+    if (
+        readiness.get("grpc", {}).get("service") not in API_SERVICES
+        and readiness.get("httpGet", {}).get("path") != "/healthz"
+    ):
+        findings.append(
+            f"{at}: readinessProbe does not follow the database (an API's gRPC health or /healthz)"
+        )
+    if liveness.get("grpc", {}).get("service") or "httpGet" in liveness:
+        findings.append(f"{at}: livenessProbe follows the database: an outage would restart every replica")
     if flag(container, "--tls-cert") is not None:
         for probe in ("startupProbe", "readinessProbe", "livenessProbe"):
             if "grpc" in container.get(probe, {}):

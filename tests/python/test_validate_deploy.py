@@ -159,6 +159,19 @@ def test_a_writable_root_filesystem_and_kept_capabilities_are_refused(
     assert_named(found, "vint-postgres", "drop ALL")
 
 
+def test_coordinator_probes_that_ignore_or_overreact_to_the_database_are_refused(
+    rendered: dict[str, list[Manifest]], readme: str
+) -> None:
+    def edit(objects: list[Manifest]) -> None:
+        coordinator = container(find(objects, "Deployment", "vint-coordinator"))
+        coordinator["readinessProbe"] = {"grpc": {"port": 7700}}
+        coordinator["livenessProbe"] = {"grpc": {"port": 7700, "service": "vint.v1.JobService"}}
+
+    found = findings_after(rendered, readme, "dev", edit)
+    assert_named(found, "vint-coordinator", "readinessProbe does not follow the database")
+    assert_named(found, "vint-coordinator", "livenessProbe follows the database")
+
+
 def test_a_secret_in_the_production_kustomization_is_refused(
     rendered: dict[str, list[Manifest]], readme: str
 ) -> None:
