@@ -72,6 +72,23 @@ EXTERNAL_SECRETS = frozenset(
 )
 EXTERNAL_CONFIGMAPS = frozenset({"vint-coordinator-ca", "vint-postgres-ca"})
 
+# What the image build reads from its context: the workspace (every member's manifest and targets,
+# tests/ and the bench it names in benches/ included), the files crates compile in, the engines.
+BUILD_INPUTS = frozenset(
+    {
+        "Cargo.toml",
+        "Cargo.lock",
+        "services",
+        "workers",
+        "tests",
+        "benches",
+        "proto",
+        "migrations",
+        "catalog",
+        "examples",
+    }
+)
+
 Manifest = dict[str, Any]
 
 
@@ -768,6 +785,8 @@ def dockerfile_findings(dockerfile: str, dockerignore: str) -> list[str]:
     for path in ("target", ".venv", ".git"):
         if path not in ignored:
             findings.append(f".dockerignore: {path} is sent to the build")
+    for path in sorted(ignored & BUILD_INPUTS):
+        findings.append(f".dockerignore: {path} is left out, but the build reads it")
     return findings
 
 

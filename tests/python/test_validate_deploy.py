@@ -338,6 +338,10 @@ def test_a_dockerignore_that_sends_target_is_refused() -> None:
     assert_named(vd.dockerfile_findings(DOCKERFILE, ignore), "target")
 
 
+def test_a_dockerignore_that_leaves_out_a_build_input_is_refused() -> None:
+    assert_named(vd.dockerfile_findings(DOCKERFILE, DOCKERIGNORE + "\nbenches\n"), "benches", "build reads")
+
+
 def test_quantities_flags_and_images_parse() -> None:
     assert vd.mebibytes("6Gi") == 6144
     assert vd.mebibytes("1536Mi") == 1536
