@@ -4,9 +4,9 @@
 #   scripts/test.sh [ARGS...]     ARGS go to `cargo test --workspace` (e.g. a test-name filter)
 #
 # Sets up the engines' Python environment (scripts/setup-python.sh), finds a Postgres, then runs
-# cargo fmt, ruff, clippy, cargo build (the end-to-end tests start the built binaries), cargo test
-# and pytest, stopping at the first failure. Nothing is skipped: a missing Postgres, Rust tool or
-# engine library is a failure.
+# cargo fmt, ruff, the deploy manifests' checks, clippy, cargo build (the end-to-end tests start the
+# built binaries), cargo test and pytest, stopping at the first failure. Nothing is skipped: a missing
+# Postgres, Rust tool, kustomize (kubectl) or engine library is a failure.
 #
 # Postgres, first that applies:
 #   1. $VINT_TEST_POSTGRES_URL, if set (an admin URL: the tests create databases through it);
@@ -215,8 +215,15 @@ drop_stale_test_databases() {
 
 # --- steps ---------------------------------------------------------------------------------------
 
+# deploy/: every kustomize overlay rendered (kubectl >= 1.27 or kustomize v5 on PATH) and checked
+# against the Kubernetes API schemas and the platform rules; then the checker's own tests.
+deploy_checks() {
+    .venv/bin/python scripts/validate_deploy.py &&
+        .venv/bin/python -m pytest tests/python/test_validate_deploy.py -q
+}
+
 STEP=0
-STEPS=7
+STEPS=8
 
 # Runs one check with a banner and its elapsed time; the first failure ends the script.
 step() {
@@ -250,6 +257,7 @@ total=$SECONDS
 step "cargo fmt --check" cargo fmt --all -- --check
 step "ruff check" .venv/bin/ruff check workers/engines benches scripts examples tests/python
 step "ruff format --check" .venv/bin/ruff format --check workers/engines benches scripts examples tests/python
+step "deploy manifests" deploy_checks
 step "cargo clippy" cargo clippy --workspace --all-targets -- -D warnings
 step "cargo build --bins" cargo build --workspace --bins
 step "cargo test" cargo test --workspace "$@"
