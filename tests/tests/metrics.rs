@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 use vint_store::{RetryPolicy, Store};
 use vint_tests::*;
 
-/// One pair, 4 accepted grasps in chunks of 4 trials, 2 views, noisy depth: every stage runs.
+/// One pair, 4 accepted grasps of at most 8 trials, 2 views, noisy depth: every stage runs.
 const SPEC: &str = r#"
 hands = ["trx3"]
 objects = ["mug"]
@@ -103,7 +103,7 @@ async fn metrics_parse_as_prometheus_text_and_count_what_the_store_holds() {
     let job = stdout(&o).trim().to_string();
     let store = Store::open(&database, RetryPolicy::default()).await.unwrap();
     let grasps = store.tasks_of_job(&job).await.unwrap().len() as f64;
-    assert!(grasps >= 2.0, "chunks of 4 of 8 trials: {grasps}");
+    assert!(grasps >= 1.0, "a job starts with its grasp chunks");
 
     // Before any worker: the submitted grasp chunks are queued, and the gauge says so.
     let queued = |e: &Exposition| e.sum("vint_queue_tasks", &[("stage", "grasp"), ("state", "queued")]);

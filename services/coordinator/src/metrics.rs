@@ -80,6 +80,30 @@ impl Refusal {
     }
 }
 
+/// A worker API call, as `vint_rpc_duration_seconds` labels it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Rpc {
+    LeaseTasks,
+    CompleteTask,
+    CompleteTasks,
+    Heartbeat,
+    FailTask,
+}
+
+impl Rpc {
+    const ALL: [Rpc; 5] = [Rpc::LeaseTasks, Rpc::CompleteTask, Rpc::CompleteTasks, Rpc::Heartbeat, Rpc::FailTask];
+
+    fn as_str(self) -> &'static str {
+        match self {
+            Rpc::LeaseTasks => "lease_tasks",
+            Rpc::CompleteTask => "complete_task",
+            Rpc::CompleteTasks => "complete_tasks",
+            Rpc::Heartbeat => "heartbeat",
+            Rpc::FailTask => "fail_task",
+        }
+    }
+}
+
 /// The coordinator's metrics and the registry that exports them. Clones share the metrics.
 #[derive(Clone, Debug)]
 pub struct Metrics {
@@ -103,57 +127,58 @@ impl Default for Metrics {
 
 impl Metrics {
     pub fn new() -> Metrics {
+        // prometheus-client ends each help text with a period.
         let mut registry = Registry::default();
         let tasks_leased = Family::default();
-        registry.register("vint_tasks_leased", "Tasks handed to workers, by stage.", Family::clone(&tasks_leased));
+        registry.register("vint_tasks_leased", "Tasks handed to workers, by stage", Family::clone(&tasks_leased));
         let tasks_completed = Family::default();
         registry.register(
             "vint_tasks_completed",
-            "Task completions recorded, by stage.",
+            "Task completions recorded, by stage",
             Family::clone(&tasks_completed),
         );
         let tasks_failed = Family::default();
         registry.register(
             "vint_tasks_failed",
             "Task failures workers reported, by stage and outcome: retry (requeued after a backoff) or \
-             failed (for good: not retryable, or out of attempts).",
+             failed (for good: not retryable, or out of attempts)",
             Family::clone(&tasks_failed),
         );
         let completions_refused = Family::default();
         registry.register(
             "vint_completions_refused",
-            "Completions refused, by reason: lease_lost, invalid (a report that breaks the rules), not_found.",
+            "Completions refused, by reason: lease_lost, invalid (a report that breaks the rules), not_found",
             Family::clone(&completions_refused),
         );
         let leases_expired = Counter::default();
         registry.register(
             "vint_leases_expired",
             "Leases the reaper ended because the worker stopped heartbeating; each task was requeued (or \
-             failed, out of attempts).",
+             failed, out of attempts)",
             leases_expired.clone(),
         );
         let jobs_submitted = Counter::default();
         registry.register(
             "vint_jobs_submitted",
-            "Jobs created (a resubmission is not counted).",
+            "Jobs created (a resubmission is not counted)",
             jobs_submitted.clone(),
         );
         let rpc_seconds = HistogramFamily::new_with_constructor(rpc_histogram as fn() -> Histogram);
         registry.register(
             "vint_rpc_duration_seconds",
             "Worker API call latency in the coordinator, by rpc (lease_tasks, complete_task, complete_tasks, \
-             heartbeat, fail_task).",
+             heartbeat, fail_task)",
             rpc_seconds.clone(),
         );
         let queue_tasks = Family::default();
         registry.register(
             "vint_queue_tasks",
             "Live tasks by stage and state (waiting: on dependencies; queued: ready to lease; running: leased), \
-             refreshed every few seconds. Scale each worker stage on it.",
+             refreshed every few seconds. Scale each worker stage on it",
             Family::clone(&queue_tasks),
         );
         let jobs = Family::default();
-        registry.register("vint_jobs", "Jobs by state, refreshed every few seconds.", Family::clone(&jobs));
+        registry.register("vint_jobs", "Jobs by state, refreshed every few seconds", Family::clone(&jobs));
         let metrics = Metrics {
             registry: Arc::new(registry),
             tasks_leased,
@@ -178,6 +203,9 @@ impl Metrics {
         }
         for reason in [Refusal::LeaseLost, Refusal::Invalid, Refusal::NotFound] {
             let _ = metrics.completions_refused.get_or_create(&RefusalLabels { reason: reason.as_str() });
+        }
+        for rpc in Rpc::ALL {
+            let _ = metrics.rpc_seconds.get_or_create(&RpcLabels { rpc: rpc.as_str() });
         }
         metrics.set_queue_depth(&QueueDepth::default());
         metrics
@@ -216,8 +244,9 @@ impl Metrics {
 
     /// Times a worker API call: the latency is observed when the returned guard drops, so every
     /// return of the handler counts, errors too.
-    pub(crate) fn time_rpc(&self, rpc: &'static str) -> RpcTimer {
-        RpcTimer { histogram: self.rpc_seconds.get_or_create_owned(&RpcLabels { rpc }), started: Instant::now() }
+    pub(crate) fn time_rpc(&self, rpc: Rpc) -> RpcTimer {
+        let histogram = self.rpc_seconds.get_or_create_owned(&RpcLabels { rpc: rpc.as_str() });
+        RpcTimer { histogram, started: Instant::now() }
     }
 
     /// Sets the queue and job gauges to `depth`, every (stage, live state) and job state included.

@@ -16,7 +16,7 @@ use vint_proto::v1::work_service_server::WorkService;
 use vint_store::{Completion, Fence, NewArtifact, Store, TaskRecord};
 
 use crate::convert::{self, status};
-use crate::metrics::Refusal;
+use crate::metrics::{Refusal, Rpc};
 use crate::planner;
 use crate::{CoordinatorConfig, now_ms};
 
@@ -186,7 +186,7 @@ impl WorkService for WorkApi {
         &self,
         request: Request<pb::LeaseTasksRequest>,
     ) -> Result<Response<pb::LeaseTasksResponse>, Status> {
-        let _timer = self.config.metrics.time_rpc("lease_tasks");
+        let _timer = self.config.metrics.time_rpc(Rpc::LeaseTasks);
         let req = request.into_inner();
         let stages = req
             .stages
@@ -223,7 +223,7 @@ impl WorkService for WorkApi {
         &self,
         request: Request<pb::HeartbeatRequest>,
     ) -> Result<Response<pb::HeartbeatResponse>, Status> {
-        let _timer = self.config.metrics.time_rpc("heartbeat");
+        let _timer = self.config.metrics.time_rpc(Rpc::Heartbeat);
         let req = request.into_inner();
         let held: Vec<(String, u32)> = req.held.iter().map(|h| (h.task_id.clone(), h.attempt)).collect();
         let lease_ms = self.lease_ms(req.lease_ms);
@@ -239,7 +239,7 @@ impl WorkService for WorkApi {
         &self,
         request: Request<pb::CompleteTaskRequest>,
     ) -> Result<Response<pb::CompleteTaskResponse>, Status> {
-        let _timer = self.config.metrics.time_rpc("complete_task");
+        let _timer = self.config.metrics.time_rpc(Rpc::CompleteTask);
         let mut results = self.complete_many(vec![request.into_inner()]).await?;
         let r = results.pop().ok_or_else(|| Status::internal("a completion went unanswered"))?;
         match pb::completion_result::Outcome::try_from(r.outcome) {
@@ -254,7 +254,7 @@ impl WorkService for WorkApi {
         &self,
         request: Request<pb::CompleteTasksRequest>,
     ) -> Result<Response<pb::CompleteTasksResponse>, Status> {
-        let _timer = self.config.metrics.time_rpc("complete_tasks");
+        let _timer = self.config.metrics.time_rpc(Rpc::CompleteTasks);
         let tasks = request.into_inner().tasks;
         if tasks.len() > MAX_BATCH {
             return Err(Status::invalid_argument(format!(
@@ -267,7 +267,7 @@ impl WorkService for WorkApi {
     }
 
     async fn fail_task(&self, request: Request<pb::FailTaskRequest>) -> Result<Response<pb::FailTaskResponse>, Status> {
-        let _timer = self.config.metrics.time_rpc("fail_task");
+        let _timer = self.config.metrics.time_rpc(Rpc::FailTask);
         let req = request.into_inner();
         let fence = Fence { task_id: req.task_id.clone(), worker_id: req.worker_id.clone(), attempt: req.attempt };
         let will_retry = self.store.fail(&fence, req.retryable, &req.message, now_ms()).await.map_err(status)?;

@@ -153,9 +153,9 @@ mod tests {
         let counter = Family::<Vec<(String, String)>, Counter>::default();
         let gauge = Gauge::<i64>::default();
         let histogram = Histogram::new(crate::rpc_seconds_buckets());
-        registry.register("vint_test_events", "Events seen.", counter.clone());
-        registry.register("vint_test_depth", "Things waiting.", gauge.clone());
-        registry.register("vint_test_duration_seconds", "How long a thing took.", histogram.clone());
+        registry.register("vint_test_events", "Events seen", counter.clone());
+        registry.register("vint_test_depth", "Things waiting", gauge.clone());
+        registry.register("vint_test_duration_seconds", "How long a thing took", histogram.clone());
         gauge.set(7);
         (registry, counter, histogram)
     }

@@ -166,12 +166,13 @@ impl WorkerMetrics {
     /// Metrics for a worker whose loop is unhealthy once it has not come around for `stale_after`
     /// (`liveness_limit`).
     pub fn new(stale_after: Duration) -> WorkerMetrics {
+        // prometheus-client ends each help text with a period.
         let mut registry = Registry::default();
         let tasks = Family::default();
         registry.register(
             "vint_worker_tasks",
             "Tasks this worker finished, by stage and outcome (completed, retryable_failure, \
-             permanent_failure, lease_lost, refused, unreported).",
+             permanent_failure, lease_lost, refused, unreported)",
             Family::clone(&tasks),
         );
         let histogram = |registry: &mut Registry, name: &str, help: &str| {
@@ -182,34 +183,34 @@ impl WorkerMetrics {
         let engine_seconds = histogram(
             &mut registry,
             "vint_worker_engine_seconds",
-            "Time a task spent in its engine (the package stage: packaging), by stage.",
+            "Time a task spent in its engine (the package stage: packaging), by stage",
         );
         let fetch_seconds =
-            histogram(&mut registry, "vint_worker_fetch_seconds", "Time staging a task's inputs, by stage.");
+            histogram(&mut registry, "vint_worker_fetch_seconds", "Time staging a task's inputs, by stage");
         let upload_seconds =
-            histogram(&mut registry, "vint_worker_upload_seconds", "Time uploading a task's outputs, by stage.");
+            histogram(&mut registry, "vint_worker_upload_seconds", "Time uploading a task's outputs, by stage");
         let downloaded_bytes = Counter::default();
         registry.register(
             "vint_worker_downloaded_bytes",
-            "Artifact bytes read from the object store.",
+            "Artifact bytes read from the object store",
             downloaded_bytes.clone(),
         );
         let uploaded_bytes = Counter::default();
         registry.register(
             "vint_worker_uploaded_bytes",
-            "Artifact bytes written to the object store.",
+            "Artifact bytes written to the object store",
             uploaded_bytes.clone(),
         );
         let engine_restarts = Family::default();
         registry.register(
             "vint_worker_engine_restarts",
-            "Engine processes replaced, by stage and reason (crash, protocol, timeout, max_tasks, max_rss).",
+            "Engine processes replaced, by stage and reason (crash, protocol, timeout, max_tasks, max_rss)",
             Family::clone(&engine_restarts),
         );
         let leases_lost = Counter::default();
         registry.register(
             "vint_worker_leases_lost",
-            "Leases a heartbeat found lost (expired, cancelled or taken over) while this worker held them.",
+            "Leases a heartbeat found lost (expired, cancelled or taken over) while this worker held them",
             leases_lost.clone(),
         );
         let metrics = WorkerMetrics {
