@@ -70,8 +70,7 @@ pub fn free_port() -> u16 {
 pub async fn postgres_database(tag: &str) -> String {
     use std::sync::atomic::{AtomicU64, Ordering};
     static N: AtomicU64 = AtomicU64::new(0);
-    let admin = std::env::var("VINT_TEST_POSTGRES_URL")
-        .unwrap_or_else(|_| "postgres://postgres@127.0.0.1:5432/postgres".to_string());
+    let admin = postgres_admin_url();
     sqlx::any::install_default_drivers();
     let mut conn = <sqlx::AnyConnection as sqlx::Connection>::connect(&admin)
         .await
@@ -81,6 +80,12 @@ pub async fn postgres_database(tag: &str) -> String {
     sqlx::Executor::execute(&mut conn, sqlx::AssertSqlSafe(format!("CREATE DATABASE {db}"))).await.expect("create db");
     let base = admin.rsplit_once('/').map(|(b, _)| b.to_string()).expect("admin URL has a database");
     format!("{base}/{db}")
+}
+
+/// The admin URL of the tests' Postgres: `VINT_TEST_POSTGRES_URL`, or the local server.
+pub fn postgres_admin_url() -> String {
+    std::env::var("VINT_TEST_POSTGRES_URL")
+        .unwrap_or_else(|_| "postgres://postgres@127.0.0.1:5432/postgres".to_string())
 }
 
 /// A child process killed when dropped.
@@ -131,11 +136,15 @@ pub fn start_coordinator(database: &str, port: u16, logs: &Path, name: &str) -> 
 
 /// `start_coordinator`, with an artifact store for the files a submission carries.
 pub fn start_coordinator_with_store(database: &str, port: u16, logs: &Path, name: &str, store: Option<&str>) -> Proc {
+    let store_args = store.map(|s| vec!["--store", s]).unwrap_or_default();
+    start_coordinator_with_args(database, port, logs, name, &store_args)
+}
+
+/// `start_coordinator`, with more arguments for `vint-coordinator`.
+pub fn start_coordinator_with_args(database: &str, port: u16, logs: &Path, name: &str, args: &[&str]) -> Proc {
     let mut cmd = Command::new(bin("vint-coordinator"));
     cmd.args(["--database", database, "--listen", &format!("127.0.0.1:{port}"), "--backoff-ms", "200"]);
-    if let Some(store) = store {
-        cmd.args(["--store", store]);
-    }
+    cmd.args(args);
     let child = cmd.stdout(Stdio::null()).stderr(log_file(logs, name)).spawn().expect("start coordinator");
     let deadline = Instant::now() + Duration::from_secs(30);
     while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
@@ -166,6 +175,25 @@ pub fn start_worker(
         .spawn()
         .expect("start worker");
     Proc { child, name: id.to_string() }
+}
+
+/// An HTTP/1.0 GET of `path` on 127.0.0.1:`port`: the status, the content type and the body.
+/// `None` while nothing accepts connections there.
+pub fn http_get(port: u16, path: &str) -> Option<(u16, String, String)> {
+    use std::io::{Read, Write};
+    let mut stream = std::net::TcpStream::connect(("127.0.0.1", port)).ok()?;
+    stream.set_read_timeout(Some(Duration::from_secs(10))).ok()?;
+    stream.write_all(format!("GET {path} HTTP/1.0\r\nHost: 127.0.0.1\r\n\r\n").as_bytes()).ok()?;
+    let mut raw = String::new();
+    stream.read_to_string(&mut raw).ok()?;
+    let (head, body) = raw.split_once("\r\n\r\n")?;
+    let status = head.split(' ').nth(1)?.parse().ok()?;
+    let content_type = head
+        .lines()
+        .find_map(|l| l.split_once(':').filter(|(k, _)| k.eq_ignore_ascii_case("content-type")).map(|(_, v)| v.trim()))
+        .unwrap_or_default()
+        .to_string();
+    Some((status, content_type, body.to_string()))
 }
 
 /// Runs vintctl to completion.

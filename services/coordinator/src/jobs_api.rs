@@ -244,6 +244,9 @@ impl JobService for JobApi {
             assets,
         };
         let (job, created) = self.store.submit_job(&new_job, &tasks, now_ms()).await.map_err(status)?;
+        if created {
+            self.config.metrics.job_submitted();
+        }
         tracing::info!(job = %job.id, created, tasks = tasks.len(), "job submitted");
         Ok(Response::new(pb::SubmitJobResponse { job: Some(self.job_message(&job).await?), created }))
     }

@@ -6,14 +6,19 @@
 //! never reads artifact contents; workers move the bytes, the coordinator records their hashes.
 //! The one set of bytes it writes is a submission's user files (a spec's own hands and objects),
 //! which it stores content-addressed where the workers read artifacts.
+//!
+//! What it does is counted in `Metrics` (`metrics.rs`); `http_router` serves them at `/metrics`,
+//! with `/healthz`, when the binary is given `--http-listen`.
 
 mod convert;
+mod http;
 mod jobs_api;
+mod metrics;
 mod planner;
 mod work_api;
 
 use std::net::SocketAddr;
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use tokio::net::TcpListener;
 use tonic::transport::server::TcpIncoming;
@@ -21,7 +26,9 @@ use vint_proto::v1::job_service_server::JobServiceServer;
 use vint_proto::v1::work_service_server::WorkServiceServer;
 use vint_store::Store;
 
+pub use http::router as http_router;
 pub use jobs_api::JobApi;
+pub use metrics::Metrics;
 pub use work_api::WorkApi;
 
 /// Tunables of one coordinator process.
@@ -36,6 +43,8 @@ pub struct CoordinatorConfig {
     /// Where submitted user files go (the workers' artifact store); `None` refuses specs that
     /// name any.
     pub artifacts: Option<vint_artifacts::ArtifactStore>,
+    /// Where the services record what they do (`http_router` exports it).
+    pub metrics: Metrics,
 }
 
 impl Default for CoordinatorConfig {
@@ -45,6 +54,7 @@ impl Default for CoordinatorConfig {
             reap_interval: Duration::from_millis(500),
             watch_interval: Duration::from_millis(250),
             artifacts: None,
+            metrics: Metrics::default(),
         }
     }
 }
@@ -66,7 +76,7 @@ pub async fn serve(
     listener: TcpListener,
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> Result<(), tonic::transport::Error> {
-    let reaper = tokio::spawn(reap_forever(store.clone(), config.reap_interval));
+    let reaper = tokio::spawn(reap_forever(store.clone(), config.reap_interval, config.metrics.clone()));
     let jobs =
         JobServiceServer::new(JobApi::new(store.clone(), config.clone())).max_decoding_message_size(MAX_SUBMIT_BYTES);
     let work = WorkServiceServer::new(WorkApi::new(store, config)).max_decoding_message_size(MAX_MESSAGE_BYTES);
@@ -89,15 +99,22 @@ pub async fn bind(addr: SocketAddr) -> std::io::Result<(TcpListener, SocketAddr)
     Ok((listener, local))
 }
 
-async fn reap_forever(store: Store, every: Duration) {
+/// How often the queue and job gauges are counted again (`Store::queue_depth`).
+const QUEUE_DEPTH_EVERY: Duration = Duration::from_secs(5);
+
+async fn reap_forever(store: Store, every: Duration, metrics: Metrics) {
     let mut tick = tokio::time::interval(every);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut depth_counted: Option<Instant> = None;
     loop {
         tick.tick().await;
         let now = now_ms();
         match store.reap_expired(now).await {
             Ok(0) => {}
-            Ok(n) => tracing::warn!(tasks = n, "requeued tasks whose lease expired"),
+            Ok(n) => {
+                metrics.leases_expired(n);
+                tracing::warn!(tasks = n, "requeued tasks whose lease expired");
+            }
             Err(e) => tracing::error!(error = %e, "lease reaper failed"),
         }
         if let Err(e) = store.finalize_jobs(now).await {
@@ -107,6 +124,13 @@ async fn reap_forever(store: Store, every: Duration) {
             Ok(tables) if !tables.is_empty() => tracing::debug!(?tables, "analyzed"),
             Ok(_) => {}
             Err(e) => tracing::error!(error = %e, "refreshing the planner's statistics failed"),
+        }
+        if depth_counted.is_none_or(|at| at.elapsed() >= QUEUE_DEPTH_EVERY) {
+            depth_counted = Some(Instant::now());
+            match store.queue_depth().await {
+                Ok(depth) => metrics.set_queue_depth(&depth),
+                Err(e) => tracing::error!(error = %e, "counting the queue failed"),
+            }
         }
     }
 }

@@ -16,6 +16,7 @@ use vint_proto::v1::work_service_server::WorkService;
 use vint_store::{Completion, Fence, NewArtifact, Store, TaskRecord};
 
 use crate::convert::{self, status};
+use crate::metrics::{Refusal, Rpc};
 use crate::planner;
 use crate::{CoordinatorConfig, now_ms};
 
@@ -75,6 +76,7 @@ impl WorkApi {
         let mut batch_index = Vec::with_capacity(reqs.len());
         for (i, req) in reqs.into_iter().enumerate() {
             let Some(task) = tasks.get(&req.task_id) else {
+                self.config.metrics.completion_refused(Refusal::NotFound);
                 results[i].outcome = Outcome::NotFound as i32;
                 results[i].message = format!("task {} not found", req.task_id);
                 continue;
@@ -85,6 +87,7 @@ impl WorkApi {
                     batch_index.push(i);
                 }
                 Err(message) => {
+                    self.config.metrics.completion_refused(Refusal::Invalid);
                     results[i].outcome = Outcome::Invalid as i32;
                     results[i].message = message;
                 }
@@ -94,11 +97,15 @@ impl WorkApi {
         for ((i, outcome), (completion, children)) in batch_index.into_iter().zip(stored).zip(&batch) {
             let task = &tasks[&completion.fence.task_id];
             match outcome {
-                Ok(()) => tracing::info!(
-                    job = %task.job_id, task = %task.key, stage = %task.stage, attempt = completion.fence.attempt,
-                    worker = %completion.fence.worker_id, children = children.len(), "completed"
-                ),
+                Ok(()) => {
+                    self.config.metrics.task_completed(task.stage);
+                    tracing::info!(
+                        job = %task.job_id, task = %task.key, stage = %task.stage, attempt = completion.fence.attempt,
+                        worker = %completion.fence.worker_id, children = children.len(), "completed"
+                    )
+                }
                 Err(e) => {
+                    self.config.metrics.completion_refused(Refusal::LeaseLost);
                     tracing::warn!(job = %task.job_id, task = %task.key, error = %e, "completion refused");
                     results[i].outcome = Outcome::LeaseLost as i32;
                     results[i].message = e.to_string();
@@ -179,6 +186,7 @@ impl WorkService for WorkApi {
         &self,
         request: Request<pb::LeaseTasksRequest>,
     ) -> Result<Response<pb::LeaseTasksResponse>, Status> {
+        let _timer = self.config.metrics.time_rpc(Rpc::LeaseTasks);
         let req = request.into_inner();
         let stages = req
             .stages
@@ -194,6 +202,7 @@ impl WorkService for WorkApi {
         let tasks = leased
             .into_iter()
             .map(|t| {
+                self.config.metrics.task_leased(t.stage);
                 tracing::info!(job = %t.job_id, task = %t.key, stage = %t.stage, attempt = t.attempt, worker = %req.worker_id, "leased");
                 pb::LeasedTask {
                     task_id: t.id,
@@ -214,6 +223,7 @@ impl WorkService for WorkApi {
         &self,
         request: Request<pb::HeartbeatRequest>,
     ) -> Result<Response<pb::HeartbeatResponse>, Status> {
+        let _timer = self.config.metrics.time_rpc(Rpc::Heartbeat);
         let req = request.into_inner();
         let held: Vec<(String, u32)> = req.held.iter().map(|h| (h.task_id.clone(), h.attempt)).collect();
         let lease_ms = self.lease_ms(req.lease_ms);
@@ -229,6 +239,7 @@ impl WorkService for WorkApi {
         &self,
         request: Request<pb::CompleteTaskRequest>,
     ) -> Result<Response<pb::CompleteTaskResponse>, Status> {
+        let _timer = self.config.metrics.time_rpc(Rpc::CompleteTask);
         let mut results = self.complete_many(vec![request.into_inner()]).await?;
         let r = results.pop().ok_or_else(|| Status::internal("a completion went unanswered"))?;
         match pb::completion_result::Outcome::try_from(r.outcome) {
@@ -243,6 +254,7 @@ impl WorkService for WorkApi {
         &self,
         request: Request<pb::CompleteTasksRequest>,
     ) -> Result<Response<pb::CompleteTasksResponse>, Status> {
+        let _timer = self.config.metrics.time_rpc(Rpc::CompleteTasks);
         let tasks = request.into_inner().tasks;
         if tasks.len() > MAX_BATCH {
             return Err(Status::invalid_argument(format!(
@@ -255,9 +267,15 @@ impl WorkService for WorkApi {
     }
 
     async fn fail_task(&self, request: Request<pb::FailTaskRequest>) -> Result<Response<pb::FailTaskResponse>, Status> {
+        let _timer = self.config.metrics.time_rpc(Rpc::FailTask);
         let req = request.into_inner();
         let fence = Fence { task_id: req.task_id.clone(), worker_id: req.worker_id.clone(), attempt: req.attempt };
         let will_retry = self.store.fail(&fence, req.retryable, &req.message, now_ms()).await.map_err(status)?;
+        // The report names no stage; failures are rare enough for one more read. The failure is
+        // recorded whether or not the metric can be.
+        if let Ok(Some(task)) = self.store.task(&req.task_id).await {
+            self.config.metrics.task_failed(task.stage, will_retry);
+        }
         tracing::warn!(task = %req.task_id, attempt = req.attempt, retryable = req.retryable, will_retry, message = %req.message, "task failed");
         Ok(Response::new(pb::FailTaskResponse { will_retry }))
     }

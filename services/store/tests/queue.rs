@@ -436,3 +436,27 @@ store_test!(a_heartbeat_and_a_completion_of_the_same_tasks_never_deadlock, |stor
         assert_eq!(state_of(&store, &format!("{job_id}/package/p2")).await, TaskState::Queued);
     }
 });
+
+store_test!(queue_depth_counts_live_tasks_by_stage_and_state_and_jobs_by_state, |store: Store| async move {
+    use vint_store::QueueDepth;
+    assert_eq!(store.queue_depth().await.unwrap(), QueueDepth::default());
+    submit_chain(&store, "j1").await;
+    submit_chain(&store, "j2").await;
+    store.cancel_job("j2", 1).await.unwrap();
+    let leased = store.lease("w", &[Stage::Grasp], 10, 1_000, 2).await.unwrap();
+    let depth = store.queue_depth().await.unwrap();
+    // Only j1's tasks are live: j2's are cancelled, and cancelled work is history.
+    assert_eq!(depth.tasks_in(Stage::Grasp, TaskState::Running), 1, "{depth:?}");
+    assert_eq!(depth.tasks_in(Stage::Render, TaskState::Waiting), 1, "{depth:?}");
+    assert_eq!(depth.tasks_in(Stage::Package, TaskState::Waiting), 1, "{depth:?}");
+    assert_eq!(depth.tasks.iter().map(|(_, _, n)| n).sum::<u64>(), 3, "{depth:?}");
+    assert_eq!((depth.jobs_in(JobState::Running), depth.jobs_in(JobState::Cancelled)), (1, 1));
+
+    store.complete(&completion(fence(&leased[0], "w"), &["grasps.json"]), &[], 3).await.unwrap();
+    let depth = store.queue_depth().await.unwrap();
+    assert_eq!(depth.tasks_in(Stage::Render, TaskState::Queued), 1, "{depth:?}");
+    assert_eq!(depth.tasks_in(Stage::Package, TaskState::Waiting), 1, "{depth:?}");
+    assert_eq!(depth.tasks_in(Stage::Grasp, TaskState::Succeeded), 0, "succeeded tasks are not counted");
+    assert_eq!(depth.tasks.iter().map(|(_, _, n)| n).sum::<u64>(), 2, "{depth:?}");
+    store.ping().await.unwrap();
+});

@@ -1,8 +1,9 @@
 //! The engine host: one long-lived Python engine process per stage, spoken to over the framed
 //! protocol of `workers/engines/PROTOCOL.md` (4-byte big-endian length + a JSON object).
 //!
-//! The host owns the child process. An engine that exits or overruns its task deadline is killed
-//! and reported as `EngineError::Crashed`; one that breaks a frame or answers with a reply that
+//! The host owns the child process. An engine that exits is reported as `EngineError::Crashed`;
+//! one that overruns its task (or start-up) deadline is killed and reported as
+//! `EngineError::TimedOut`; one that breaks a frame or answers with a reply that
 //! breaks the protocol or its stage's contract (a result of the wrong shape, an output outside its
 //! directory) is an `EngineError::Protocol`. Either way the engine is at fault, not the task: the
 //! worker fails the task as retryable and starts a fresh engine for the next one.
@@ -26,6 +27,8 @@ pub enum EngineError {
     Spawn { stage: Stage, python: String, source: std::io::Error },
     #[error("the {stage} engine crashed: {detail}")]
     Crashed { stage: Stage, detail: String },
+    #[error("the {stage} engine timed out and was killed: {detail}")]
+    TimedOut { stage: Stage, detail: String },
     #[error("the {stage} engine broke the protocol: {detail}")]
     Protocol { stage: Stage, detail: String },
 }
@@ -54,6 +57,26 @@ pub struct RecyclePolicy {
     /// Resident set size (bytes) past which the engine is replaced after its current task; `None`
     /// for no limit. Read from `/proc`, so it applies on Linux only.
     pub max_rss_bytes: Option<u64>,
+}
+
+/// Why a warm engine is replaced by a fresh process before its next task (`RecyclePolicy`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Recycle {
+    /// It served `limit` tasks (`max_tasks`).
+    Tasks { served: u32, limit: u32 },
+    /// Its resident memory passed the limit (`max_rss_bytes`).
+    Memory { rss_bytes: u64, limit_bytes: u64 },
+}
+
+impl std::fmt::Display for Recycle {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Recycle::Tasks { served, limit } => write!(f, "served {served} tasks (limit {limit})"),
+            Recycle::Memory { rss_bytes, limit_bytes } => {
+                write!(f, "resident memory {} MiB over the limit of {} MiB", rss_bytes >> 20, limit_bytes >> 20)
+            }
+        }
+    }
 }
 
 /// One file a task reads.
@@ -142,7 +165,7 @@ impl Engine {
         let hello = match tokio::time::timeout(cmd.start_timeout, engine.read_frame()).await {
             Ok(r) => r?,
             Err(_) => {
-                return Err(engine.kill(&format!("no hello within {:?}", cmd.start_timeout)).await);
+                return Err(engine.time_out(&format!("no hello within {:?}", cmd.start_timeout)).await);
             }
         };
         if hello.get("type").and_then(Value::as_str) != Some("hello") {
@@ -173,7 +196,7 @@ impl Engine {
         let reply = match tokio::time::timeout(self.task_timeout, self.read_frame()).await {
             Ok(r) => r?,
             Err(_) => {
-                return Err(self.kill(&format!("task {task_id} ran past {:?}", self.task_timeout)).await);
+                return Err(self.time_out(&format!("task {task_id} ran past {:?}", self.task_timeout)).await);
             }
         };
         if reply.get("type").and_then(Value::as_str) != Some("result") {
@@ -213,13 +236,13 @@ impl Engine {
     }
 
     /// Why this engine should be replaced before its next task, if it should.
-    pub fn recycle_reason(&self) -> Option<String> {
-        if let Some(max) = self.recycle.max_tasks.filter(|&max| self.tasks_served >= max) {
-            return Some(format!("served {} tasks (limit {max})", self.tasks_served));
+    pub fn recycle_reason(&self) -> Option<Recycle> {
+        if let Some(limit) = self.recycle.max_tasks.filter(|&max| self.tasks_served >= max) {
+            return Some(Recycle::Tasks { served: self.tasks_served, limit });
         }
-        let max = self.recycle.max_rss_bytes?;
-        let rss = self.rss_bytes().filter(|&rss| rss > max)?;
-        Some(format!("resident memory {} MiB over the limit of {} MiB", rss >> 20, max >> 20))
+        let limit_bytes = self.recycle.max_rss_bytes?;
+        let rss_bytes = self.rss_bytes().filter(|&rss| rss > limit_bytes)?;
+        Some(Recycle::Memory { rss_bytes, limit_bytes })
     }
 
     /// Asks the engine to exit and waits briefly; kills it otherwise.
@@ -235,9 +258,10 @@ impl Engine {
         self.child.id()
     }
 
-    async fn kill(&mut self, why: &str) -> EngineError {
+    /// Kills an engine that overran a deadline.
+    async fn time_out(&mut self, why: &str) -> EngineError {
         let _ = self.child.kill().await;
-        EngineError::Crashed { stage: self.stage, detail: why.to_string() }
+        EngineError::TimedOut { stage: self.stage, detail: why.to_string() }
     }
 
     async fn write_frame(&mut self, body: &[u8]) -> Result<(), EngineError> {

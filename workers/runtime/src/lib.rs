@@ -5,9 +5,11 @@
 //! `workers/engines/PROTOCOL.md`; `package` is the one stage written in Rust. The runtime moves
 //! artifacts between object storage and engines; it never decides what a task means — the
 //! planner in `vint-core` does, through the coordinator. `timing_only` is the measuring mode that
-//! runs no engine (`--engine-mode timing-only`, never the default).
+//! runs no engine (`--engine-mode timing-only`, never the default). `metrics` is what a worker
+//! reports at `/metrics` and `/healthz` (`--metrics-listen`).
 
 pub mod engine;
+pub mod metrics;
 pub mod package;
 pub mod timing_only;
 pub mod worker;

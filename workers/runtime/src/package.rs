@@ -76,6 +76,9 @@ impl PackageError {
 pub struct Packaged {
     pub files: Vec<PackagedFile>,
     pub result: PackageResult,
+    /// Bytes read from and written to the object store (for the worker's metrics).
+    pub bytes_read: u64,
+    pub bytes_written: u64,
 }
 
 /// A package task's inputs by origin: (task key, file name).
@@ -142,6 +145,7 @@ pub async fn package(params: &Value, inputs: &[PackageInput], store: &ArtifactSt
     let mut records: BTreeMap<GraspId, (String, PackagedFile)> = BTreeMap::new();
     let mut files = Vec::new();
     let mut samples = Vec::new();
+    let (mut bytes_read, mut bytes_written) = (0, 0);
     for s in &params.samples {
         let id: SampleId =
             s.sample_id.parse().map_err(|e: vint_core::sample::BadSampleId| PackageError::Params(e.to_string()))?;
@@ -149,6 +153,7 @@ pub async fn package(params: &Value, inputs: &[PackageInput], store: &ArtifactSt
         let render = render_key(&id.object, &id.hand, id.grasp_index);
         let camera_ref = by_origin.find(&s.sample_id, render, ViewFile::Camera.name(id.view_index))?;
         let camera = read_json(store, camera_ref, &s.sample_id).await?;
+        bytes_read += camera_ref.size;
         let grasp_ref = grasp_inputs.get(&(id.object.clone(), id.hand.clone())).copied().ok_or_else(|| {
             PackageError::MissingInput {
                 sample: s.sample_id.clone(),
@@ -160,6 +165,7 @@ pub async fn package(params: &Value, inputs: &[PackageInput], store: &ArtifactSt
         for input in [grasp_ref, touch_ref] {
             if !documents.contains_key(&input.sha256) {
                 let doc = read_json(store, input, &s.sample_id).await?;
+                bytes_read += input.size;
                 documents.insert(input.sha256.clone(), doc);
             }
         }
@@ -168,6 +174,7 @@ pub async fn package(params: &Value, inputs: &[PackageInput], store: &ArtifactSt
         if !records.contains_key(&grasp) {
             let record = grasp_record(&grasp, grasps, touch)?;
             let stored = store.put_bytes(to_json_bytes(&record)?.into()).await?;
+            bytes_written += stored.size;
             let file = PackagedFile {
                 name: format!("{grasp}/{GRASP_RECORD_FILE}"),
                 sha256: stored.sha256.clone(),
@@ -180,6 +187,7 @@ pub async fn package(params: &Value, inputs: &[PackageInput], store: &ArtifactSt
         let record_sha = &records[&grasp].0;
         let meta = sample_meta(&id, grasps, &camera, record_sha)?;
         let stored = store.put_bytes(to_json_bytes(&meta)?.into()).await?;
+        bytes_written += stored.size;
         files.push(PackagedFile {
             name: format!("{}/{META_FILE}", s.sample_id),
             sha256: stored.sha256,
@@ -191,7 +199,7 @@ pub async fn package(params: &Value, inputs: &[PackageInput], store: &ArtifactSt
     }
     let grasps = records.keys().map(GraspId::to_string).collect();
     files.extend(records.into_values().map(|(_, file)| file));
-    Ok(Packaged { files, result: PackageResult { samples, grasps } })
+    Ok(Packaged { files, result: PackageResult { samples, grasps }, bytes_read, bytes_written })
 }
 
 fn to_json_bytes(value: &Value) -> Result<Vec<u8>, PackageError> {

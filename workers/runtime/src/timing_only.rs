@@ -42,6 +42,7 @@ use vint_proto::v1 as pb;
 use vint_proto::v1::completion_result::Outcome;
 use vint_proto::v1::work_service_client::WorkServiceClient;
 
+use crate::metrics::{TaskOutcome, WorkerMetrics};
 use crate::package::{Inputs, PackageInput, referenced_files};
 use crate::worker::{WorkerError, ms};
 
@@ -70,6 +71,8 @@ pub struct TimingOnlyConfig {
     /// Where to append one CSV line per batch: `unix_ms,slot,tasks,lease_ms,complete_ms` (the
     /// lease and completion RPCs' round trips), for the lease latency curve of a long run.
     pub latency_log: Option<std::path::PathBuf>,
+    /// Where the worker records what it does (the same task counters as an engine worker).
+    pub metrics: WorkerMetrics,
 }
 
 /// What a timing-only worker did, for its closing log line and for tests.
@@ -84,6 +87,7 @@ pub struct Tally {
 struct Payloads {
     store: ArtifactStore,
     stored: Mutex<HashMap<(&'static str, u64), StoredObject>>,
+    metrics: WorkerMetrics,
 }
 
 impl Payloads {
@@ -95,6 +99,7 @@ impl Payloads {
         let line = format!("vint timing-only payload ({kind}): not data\n");
         let bytes: Vec<u8> = line.bytes().cycle().take(size as usize).collect();
         let object = self.store.put_bytes(Bytes::from(bytes)).await?;
+        self.metrics.moved_bytes(0, object.size);
         stored.insert((kind, size), object.clone());
         Ok(object)
     }
@@ -267,6 +272,13 @@ struct Shared {
 }
 
 impl Shared {
+    /// Counts how a task ended (a task of no known stage is not counted: it failed permanently).
+    fn record(&self, task: &pb::LeasedTask, outcome: TaskOutcome) {
+        if let Ok(stage) = task.stage.parse::<Stage>() {
+            self.config.metrics.task_finished(stage, outcome);
+        }
+    }
+
     fn log_batch(&self, slot: u32, tasks: usize, lease_ms: f64, complete_ms: f64) {
         if let Some(log) = &self.latency_log {
             use std::io::Write;
@@ -309,7 +321,7 @@ pub async fn run(
         // A package task's lease carries every file of its chunk's renders: a batch of them is
         // tens of MiB.
         client: WorkServiceClient::new(endpoint.connect_lazy()).max_decoding_message_size(MAX_MESSAGE_BYTES),
-        payloads: Payloads { store, stored: Mutex::default() },
+        payloads: Payloads { store, stored: Mutex::default(), metrics: config.metrics.clone() },
         held: std::sync::Mutex::default(),
         tally: tally.clone(),
         engine_json,
@@ -373,6 +385,7 @@ async fn serve_loop(shared: Arc<Shared>, slot: u32, mut stop: watch::Receiver<bo
     let mut idle = Duration::from_millis(20);
     let mut next = tokio::spawn(lease(shared.clone()));
     loop {
+        shared.config.metrics.beat();
         let (tasks, lease_ms) = next.await.unwrap_or_default();
         let stopping = *stop.borrow();
         if tasks.is_empty() {
@@ -423,6 +436,9 @@ async fn answer_batch(shared: &Shared, tasks: Vec<pb::LeasedTask>) -> f64 {
             Err(refusal) => {
                 tracing::warn!(task = %task.key, retryable = refusal.retryable, error = %refusal.message, "task failed");
                 shared.tally.failed.fetch_add(1, Ordering::Relaxed);
+                let outcome =
+                    if refusal.retryable { TaskOutcome::RetryableFailure } else { TaskOutcome::PermanentFailure };
+                shared.record(task, outcome);
                 let request = pb::FailTaskRequest {
                     worker_id: shared.config.worker_id.clone(),
                     task_id: task.task_id.clone(),
@@ -437,6 +453,7 @@ async fn answer_batch(shared: &Shared, tasks: Vec<pb::LeasedTask>) -> f64 {
         }
     }
     let deadline = tasks.iter().map(|t| t.lease_deadline_ms).min().unwrap_or(0);
+    let by_id: HashMap<&str, &pb::LeasedTask> = tasks.iter().map(|t| (t.task_id.as_str(), t)).collect();
     for calls in split_by_size(completions) {
         let request = pb::CompleteTasksRequest { tasks: calls };
         let client = shared.client.clone();
@@ -451,15 +468,31 @@ async fn answer_batch(shared: &Shared, tasks: Vec<pb::LeasedTask>) -> f64 {
         match sent {
             Ok(resp) => {
                 for r in resp.results {
-                    if r.outcome == Outcome::Completed as i32 {
+                    let outcome = if r.outcome == Outcome::Completed as i32 {
                         shared.tally.completed.fetch_add(1, Ordering::Relaxed);
+                        TaskOutcome::Completed
                     } else {
                         shared.tally.refused.fetch_add(1, Ordering::Relaxed);
                         tracing::warn!(task = %r.task_id, outcome = r.outcome, error = %r.message, "completion refused");
+                        if r.outcome == Outcome::LeaseLost as i32 {
+                            TaskOutcome::LeaseLost
+                        } else {
+                            TaskOutcome::Refused
+                        }
+                    };
+                    if let Some(task) = by_id.get(r.task_id.as_str()) {
+                        shared.record(task, outcome);
                     }
                 }
             }
-            Err(s) => tracing::error!(error = %s.message(), "completion failed; these tasks will be leased again"),
+            Err(s) => {
+                tracing::error!(error = %s.message(), "completion failed; these tasks will be leased again");
+                for c in &request.tasks {
+                    if let Some(task) = by_id.get(c.task_id.as_str()) {
+                        shared.record(task, TaskOutcome::Unreported);
+                    }
+                }
+            }
         }
     }
     let mut held = shared.held.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
@@ -495,6 +528,7 @@ async fn heartbeat_loop(shared: Arc<Shared>) {
     let every = Duration::from_millis(u64::from(shared.config.lease_ms / 3).max(200));
     loop {
         tokio::time::sleep(every).await;
+        shared.config.metrics.beat();
         let held: Vec<pb::TaskAttempt> = {
             let held = shared.held.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
             held.iter()
@@ -514,6 +548,7 @@ async fn heartbeat_loop(shared: Arc<Shared>) {
                 let lost =
                     resp.get_ref().lost.iter().filter(|l| held.contains(&(l.task_id.clone(), l.attempt))).count();
                 if lost > 0 {
+                    shared.config.metrics.leases_lost(lost as u64);
                     tracing::warn!(lost, "leases lost; their completions will be refused");
                 }
             }

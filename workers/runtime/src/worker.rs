@@ -22,6 +22,7 @@ use vint_proto::v1 as pb;
 use vint_proto::v1::work_service_client::WorkServiceClient;
 
 use crate::engine::{Engine, EngineCommand, EngineInput};
+use crate::metrics::{RestartReason, TaskOutcome, WorkerMetrics};
 use crate::package::{self, PackageInput};
 
 #[derive(Clone, Debug)]
@@ -36,6 +37,8 @@ pub struct WorkerConfig {
     pub engine: EngineCommand,
     /// Longest pause between lease polls when there is no work.
     pub max_idle_poll: Duration,
+    /// Where the worker records what it does (`--metrics-listen` serves it).
+    pub metrics: WorkerMetrics,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -91,6 +94,7 @@ impl Worker {
         let stages: Vec<String> = self.config.stages.iter().map(|s| s.as_str().to_string()).collect();
         let mut idle = Duration::from_millis(50);
         loop {
+            self.config.metrics.beat();
             let request = pb::LeaseTasksRequest {
                 worker_id: self.config.worker_id.clone(),
                 stages: stages.clone(),
@@ -136,6 +140,7 @@ impl Worker {
                 pb::TaskAttempt { task_id: task.task_id.clone(), attempt: task.attempt },
                 self.config.lease_ms,
                 lost.clone(),
+                self.config.metrics.clone(),
             ));
             let dir = self.config.scratch.join(format!("{}-a{}", sanitize(&task.task_id), task.attempt));
             let outcome = self.execute(&task, &dir).await;
@@ -143,6 +148,7 @@ impl Worker {
             let _ = tokio::fs::remove_dir_all(&dir).await;
             if lost.load(Ordering::SeqCst) {
                 tracing::warn!("lease lost while running; result discarded");
+                self.record(&task, TaskOutcome::LeaseLost);
                 return;
             }
             match outcome {
@@ -165,6 +171,8 @@ impl Worker {
             let packaged = package::package(&params, &inputs, &self.store)
                 .await
                 .map_err(|e| TaskFailure { retryable: e.retryable(), message: e.to_string() })?;
+            self.config.metrics.engine_ran(stage, started.elapsed());
+            self.config.metrics.moved_bytes(packaged.bytes_read, packaged.bytes_written);
             let engine_ms = ms(started.elapsed());
             let result_json = serde_json::to_string(&packaged.result)
                 .map_err(|e| TaskFailure::permanent(format!("package result: {e}")))?;
@@ -196,12 +204,14 @@ impl Worker {
             .map_err(|e| TaskFailure::retryable(format!("creating scratch {}: {e}", out_dir.display())))?;
         let fetch_start = Instant::now();
         let mut inputs = Vec::new();
+        let mut fetched_bytes = 0;
         for a in task.inputs.iter().filter(|a| contract::reads(stage, &a.name)) {
             let path = in_dir.join(sanitize(&a.task_key)).join(&a.name);
             self.store
                 .get_to_file(&a.sha256, &path)
                 .await
                 .map_err(|e| TaskFailure::retryable(format!("fetching input {} of {}: {e}", a.name, a.task_key)))?;
+            fetched_bytes += a.size;
             inputs.push(EngineInput { name: a.name.clone(), task_key: a.task_key.clone(), path });
         }
         for asset in task_assets(&params)? {
@@ -210,8 +220,10 @@ impl Worker {
                 .get_to_file(&asset.sha256, &path)
                 .await
                 .map_err(|e| TaskFailure::retryable(format!("fetching asset {}: {e}", asset.path)))?;
+            fetched_bytes += asset.size;
             inputs.push(EngineInput { name: asset.sha256, task_key: ASSET_INPUT_KEY.to_string(), path });
         }
+        self.config.metrics.fetched(stage, fetched_bytes, fetch_start.elapsed());
         let fetch_ms = ms(fetch_start.elapsed());
 
         let engine_start = Instant::now();
@@ -222,9 +234,11 @@ impl Worker {
             Err(e) => {
                 // The engine is unusable: drop (and so kill) it; the next task starts a fresh one.
                 self.engines.remove(&stage);
+                self.config.metrics.engine_restarted(stage, RestartReason::of_error(&e));
                 return Err(TaskFailure::retryable(e.to_string()));
             }
         };
+        self.config.metrics.engine_ran(stage, engine_start.elapsed());
         let engine_ms = ms(engine_start.elapsed());
         if !result.ok {
             return Err(TaskFailure { retryable: result.retryable, message: format!("engine: {}", result.error) });
@@ -232,12 +246,14 @@ impl Worker {
 
         let upload_start = Instant::now();
         let mut outputs = Vec::with_capacity(result.outputs.len());
+        let mut uploaded_bytes = 0;
         for o in &result.outputs {
             let stored = self
                 .store
                 .put_file(&o.path)
                 .await
                 .map_err(|e| TaskFailure::retryable(format!("uploading {}: {e}", o.name)))?;
+            uploaded_bytes += stored.size;
             outputs.push(pb::ArtifactRef {
                 name: o.name.clone(),
                 sha256: stored.sha256,
@@ -247,6 +263,7 @@ impl Worker {
                 task_key: task.key.clone(),
             });
         }
+        self.config.metrics.uploaded(stage, uploaded_bytes, upload_start.elapsed());
         let upload_ms = ms(upload_start.elapsed());
         let result_json = result.result.to_string();
         let mut engine_json: Value = serde_json::from_str(&identity).unwrap_or(Value::Null);
@@ -268,6 +285,7 @@ impl Worker {
             && let Some(old) = self.engines.remove(&stage)
         {
             tracing::info!(stage = %stage, %reason, "recycling the engine");
+            self.config.metrics.engine_restarted(stage, RestartReason::of_recycle(&reason));
             old.shutdown().await;
         }
         if !self.engines.contains_key(&stage) {
@@ -296,17 +314,25 @@ impl Worker {
             async move { c.complete_task(r).await.map(|_| ()) }
         })
         .await;
-        match sent {
+        let outcome = match sent {
             Ok(()) => {
-                tracing::info!(total_ms = done.timings.total_ms, engine_ms = done.timings.engine_ms, "task completed")
+                tracing::info!(total_ms = done.timings.total_ms, engine_ms = done.timings.engine_ms, "task completed");
+                TaskOutcome::Completed
             }
             Err(s) if s.code() == Code::FailedPrecondition => {
-                tracing::warn!(error = %s.message(), "completion refused: lease lost")
+                tracing::warn!(error = %s.message(), "completion refused: lease lost");
+                TaskOutcome::LeaseLost
+            }
+            Err(s) if matches!(s.code(), Code::InvalidArgument | Code::NotFound) => {
+                tracing::error!(error = %s.message(), code = ?s.code(), "completion refused");
+                TaskOutcome::Refused
             }
             Err(s) => {
-                tracing::error!(error = %s.message(), code = ?s.code(), "completion failed; the task will be leased again")
+                tracing::error!(error = %s.message(), code = ?s.code(), "completion failed; the task will be leased again");
+                TaskOutcome::Unreported
             }
-        }
+        };
+        self.record(task, outcome);
     }
 
     async fn fail(&mut self, task: &pb::LeasedTask, failure: TaskFailure) {
@@ -325,8 +351,21 @@ impl Worker {
             async move { c.fail_task(r).await.map(|_| ()) }
         })
         .await;
-        if let Err(s) = sent {
-            tracing::warn!(error = %s.message(), "could not report the failure; the lease will expire instead");
+        let outcome = match sent {
+            Ok(()) if request.retryable => TaskOutcome::RetryableFailure,
+            Ok(()) => TaskOutcome::PermanentFailure,
+            Err(s) => {
+                tracing::warn!(error = %s.message(), "could not report the failure; the lease will expire instead");
+                TaskOutcome::Unreported
+            }
+        };
+        self.record(task, outcome);
+    }
+
+    /// Counts how a task ended (a task of no known stage was failed permanently and is not counted).
+    fn record(&self, task: &pb::LeasedTask, outcome: TaskOutcome) {
+        if let Ok(stage) = task.stage.parse::<Stage>() {
+            self.config.metrics.task_finished(stage, outcome);
         }
     }
 }
@@ -356,13 +395,16 @@ async fn heartbeat_loop(
     held: pb::TaskAttempt,
     lease_ms: u32,
     lost: Arc<AtomicBool>,
+    metrics: WorkerMetrics,
 ) {
     let every = Duration::from_millis(u64::from(lease_ms / 3).max(200));
     loop {
         tokio::time::sleep(every).await;
+        metrics.beat();
         let request = pb::HeartbeatRequest { worker_id: worker_id.clone(), held: vec![held.clone()], lease_ms };
         match client.heartbeat(request).await {
             Ok(resp) if resp.get_ref().lost.iter().any(|l| l.task_id == held.task_id) => {
+                metrics.leases_lost(1);
                 lost.store(true, Ordering::SeqCst);
                 return;
             }

@@ -117,12 +117,12 @@ async fn an_engine_past_its_limits_asks_to_be_recycled() {
     engine.run("t0", &params, &inputs, &out).await.unwrap();
     assert_eq!(engine.recycle_reason(), None);
     engine.run("t1", &params, &inputs, &out).await.unwrap();
-    assert!(engine.recycle_reason().unwrap().contains("served 2 tasks"));
+    assert!(engine.recycle_reason().unwrap().to_string().contains("served 2 tasks"));
     engine.shutdown().await;
 
     cmd.recycle = RecyclePolicy { max_tasks: None, max_rss_bytes: Some(1 << 20) };
     let engine = Engine::start(Stage::Noise, &cmd).await.unwrap();
-    assert!(engine.recycle_reason().unwrap().contains("resident memory"));
+    assert!(engine.recycle_reason().unwrap().to_string().contains("resident memory"));
     engine.shutdown().await;
 }
 

@@ -16,6 +16,10 @@ struct Args {
     /// Address to listen on.
     #[arg(long, env = "VINT_LISTEN", default_value = "127.0.0.1:7700")]
     listen: SocketAddr,
+    /// Address to serve HTTP on: Prometheus metrics at /metrics, a health check at /healthz
+    /// (200 while the database answers). Off when not given.
+    #[arg(long, env = "VINT_HTTP_LISTEN")]
+    http_listen: Option<SocketAddr>,
     /// Artifact store the workers use (file:///… or s3://…): where the user files of submitted
     /// specs are stored. Without it, specs that name files of their own are refused.
     #[arg(long, env = "VINT_STORE")]
@@ -51,10 +55,23 @@ async fn main() -> anyhow::Result<()> {
         None => None,
     };
     let config = CoordinatorConfig { default_lease_ms: args.lease_ms, artifacts, ..CoordinatorConfig::default() };
+    let http = match args.http_listen {
+        Some(addr) => {
+            let (listener, addr) =
+                vint_coordinator::bind(addr).await.with_context(|| format!("binding --http-listen {addr}"))?;
+            tracing::info!(%addr, "serving /metrics and /healthz");
+            let router = vint_coordinator::http_router(store.clone(), &config.metrics);
+            Some(tokio::spawn(vint_telemetry::serve_http(listener, router, std::future::pending())))
+        }
+        None => None,
+    };
     let shutdown = async {
         let _ = tokio::signal::ctrl_c().await;
         tracing::info!("shutting down");
     };
     vint_coordinator::serve(store, config, listener, shutdown).await?;
+    if let Some(http) = http {
+        http.abort();
+    }
     Ok(())
 }

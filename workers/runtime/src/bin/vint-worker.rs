@@ -1,5 +1,6 @@
 //! `vint-worker`: leases tasks of the given stages from a coordinator and runs them.
 
+use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -8,6 +9,7 @@ use clap::{Parser, ValueEnum};
 use vint_artifacts::ArtifactStore;
 use vint_core::Stage;
 use vint_runtime::engine::{EngineCommand, RecyclePolicy};
+use vint_runtime::metrics::{WorkerMetrics, liveness_limit};
 use vint_runtime::timing_only::{self, TimingOnlyConfig};
 use vint_runtime::worker::{Worker, WorkerConfig};
 
@@ -51,6 +53,10 @@ struct Args {
     /// Log as JSON lines.
     #[arg(long)]
     log_json: bool,
+    /// Address to serve HTTP on: Prometheus metrics at /metrics, a health check at /healthz
+    /// (200 while the worker's loop comes around). Off when not given.
+    #[arg(long, env = "VINT_METRICS_LISTEN")]
+    metrics_listen: Option<SocketAddr>,
     /// `engines` runs each task in its engine (the default, and the only mode that makes data);
     /// `timing-only` runs none and answers each task with outputs of the real names and sizes
     /// but constant bytes, to measure the coordinator, database and store at scale.
@@ -96,6 +102,15 @@ async fn main() -> anyhow::Result<()> {
     });
     let scratch = args.scratch.unwrap_or_else(|| std::env::temp_dir().join(format!("vint-worker-{worker_id}")));
     let store = ArtifactStore::open(&args.store).with_context(|| format!("opening artifact store {}", args.store))?;
+    let max_idle_poll = Duration::from_millis(500);
+    let metrics = WorkerMetrics::new(liveness_limit(args.lease_ms, max_idle_poll));
+    if let Some(addr) = args.metrics_listen {
+        let listener =
+            tokio::net::TcpListener::bind(addr).await.with_context(|| format!("binding --metrics-listen {addr}"))?;
+        tracing::info!(addr = %listener.local_addr()?, "serving /metrics and /healthz");
+        // Serves until the process exits: the last scrape sees the finished worker.
+        tokio::spawn(vint_telemetry::serve_http(listener, metrics.router(), std::future::pending()));
+    }
     if args.engine_mode == EngineMode::TimingOnly {
         let config = TimingOnlyConfig {
             coordinator: args.coordinator,
@@ -105,8 +120,9 @@ async fn main() -> anyhow::Result<()> {
             accept_rate: args.accept_rate,
             batch: args.batch,
             concurrency: args.concurrency,
-            max_idle_poll: Duration::from_millis(500),
+            max_idle_poll,
             latency_log: args.latency_log,
+            metrics,
         };
         tracing::warn!(worker = %config.worker_id, stages = ?config.stages, batch = config.batch,
             concurrency = config.concurrency, "worker starting in timing-only mode: no engine runs, outputs are not data");
@@ -129,7 +145,8 @@ async fn main() -> anyhow::Result<()> {
                 max_rss_bytes: Some(args.engine_max_rss_mib << 20).filter(|&n| n > 0),
             },
         },
-        max_idle_poll: Duration::from_millis(500),
+        max_idle_poll,
+        metrics,
     };
     tracing::info!(worker = %config.worker_id, stages = ?config.stages, "worker starting");
     let worker = Worker::new(config, store)?;
