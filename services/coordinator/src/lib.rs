@@ -6,13 +6,19 @@
 //! never reads artifact contents; workers move the bytes, the coordinator records their hashes.
 //! The one set of bytes it writes is a submission's user files (a spec's own hands and objects),
 //! which it stores content-addressed where the workers read artifacts.
+//!
+//! With a tokens file every call is checked against the role table in `auth`; with a certificate
+//! and key both services speak TLS (`tls`).
 
+pub mod auth;
 mod convert;
 mod jobs_api;
 mod planner;
+pub mod tls;
 mod work_api;
 
 use std::net::SocketAddr;
+use std::sync::Arc;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use tokio::net::TcpListener;
@@ -36,6 +42,10 @@ pub struct CoordinatorConfig {
     /// Where submitted user files go (the workers' artifact store); `None` refuses specs that
     /// name any.
     pub artifacts: Option<vint_artifacts::ArtifactStore>,
+    /// Bearer tokens and their roles; `None` checks nothing (a loopback-only coordinator).
+    pub tokens: Option<Arc<auth::Tokens>>,
+    /// Certificate and key to serve TLS with; `None` serves plain HTTP/2.
+    pub tls: Option<tls::TlsIdentity>,
 }
 
 impl Default for CoordinatorConfig {
@@ -45,6 +55,8 @@ impl Default for CoordinatorConfig {
             reap_interval: Duration::from_millis(500),
             watch_interval: Duration::from_millis(250),
             artifacts: None,
+            tokens: None,
+            tls: None,
         }
     }
 }
@@ -66,6 +78,11 @@ pub async fn serve(
     listener: TcpListener,
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> Result<(), tonic::transport::Error> {
+    let mut server = tonic::transport::Server::builder();
+    if let Some(identity) = &config.tls {
+        server = server.tls_config(identity.server_config())?;
+    }
+    let auth = auth::AuthLayer::new(config.tokens.clone());
     let reaper = tokio::spawn(reap_forever(store.clone(), config.reap_interval));
     let jobs =
         JobServiceServer::new(JobApi::new(store.clone(), config.clone())).max_decoding_message_size(MAX_SUBMIT_BYTES);
@@ -73,11 +90,8 @@ pub async fn serve(
     // Small request/response pairs: without TCP_NODELAY each reply waits ~40 ms for a delayed ACK
     // (tonic applies its nodelay default only to listeners it binds itself).
     let incoming = TcpIncoming::from(listener).with_nodelay(Some(true));
-    let result = tonic::transport::Server::builder()
-        .add_service(jobs)
-        .add_service(work)
-        .serve_with_incoming_shutdown(incoming, shutdown)
-        .await;
+    let result =
+        server.layer(auth).add_service(jobs).add_service(work).serve_with_incoming_shutdown(incoming, shutdown).await;
     reaper.abort();
     result
 }

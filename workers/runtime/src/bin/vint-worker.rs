@@ -14,9 +14,16 @@ use vint_runtime::worker::{Worker, WorkerConfig};
 #[derive(Parser)]
 #[command(version, about = "vint worker: runs grasp, render, noise and package tasks")]
 struct Args {
-    /// Coordinator URL.
+    /// Coordinator URL (`https://` for a coordinator serving TLS).
     #[arg(long, env = "VINT_COORDINATOR", default_value = "http://127.0.0.1:7700")]
     coordinator: String,
+    /// Bearer token for a coordinator started with --auth-tokens: a worker token.
+    #[arg(long, env = "VINT_TOKEN", hide_env_values = true)]
+    token: Option<String>,
+    /// PEM certificate of the authority that signed an https:// coordinator's certificate (default:
+    /// the system's trusted roots).
+    #[arg(long, env = "VINT_TLS_CA")]
+    tls_ca: Option<PathBuf>,
     /// Artifact store URL: file:///abs/dir or s3://bucket[/prefix].
     #[arg(long, env = "VINT_STORE")]
     store: String,
@@ -96,9 +103,10 @@ async fn main() -> anyhow::Result<()> {
     });
     let scratch = args.scratch.unwrap_or_else(|| std::env::temp_dir().join(format!("vint-worker-{worker_id}")));
     let store = ArtifactStore::open(&args.store).with_context(|| format!("opening artifact store {}", args.store))?;
+    let coordinator = vint_connect::Remote { url: args.coordinator, token: args.token, tls_ca: args.tls_ca };
     if args.engine_mode == EngineMode::TimingOnly {
         let config = TimingOnlyConfig {
-            coordinator: args.coordinator,
+            coordinator,
             worker_id,
             stages,
             lease_ms: args.lease_ms,
@@ -114,7 +122,7 @@ async fn main() -> anyhow::Result<()> {
         return Ok(());
     }
     let config = WorkerConfig {
-        coordinator: args.coordinator,
+        coordinator,
         worker_id,
         stages,
         lease_ms: args.lease_ms,
