@@ -192,7 +192,7 @@ fn an_unreachable_coordinator_says_what_was_tried_and_what_to_do() {
 
 #[test]
 fn a_coordinator_url_with_another_scheme_is_bad_input() {
-    for url in ["ftp://127.0.0.1:7700", "https://127.0.0.1:7700", "http://"] {
+    for url in ["ftp://127.0.0.1:7700", "grpc://127.0.0.1:7700", "http://"] {
         let o = vintctl(&["--coordinator", url, "jobs"]);
         assert_eq!(o.status.code(), Some(2), "{url}: {}", stderr(&o));
         assert!(stderr(&o).contains(&format!("got {url:?}")), "{}", stderr(&o));

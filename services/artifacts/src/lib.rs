@@ -4,6 +4,10 @@
 //! An artifact's key is derived from its SHA-256 (`sha256/ab/abcdef…`), never chosen by a caller,
 //! so keys cannot escape the store and a retried upload of the same content is a no-op: writes use
 //! `PutMode::Create` and treat "already exists" as success. Reads verify the hash.
+//!
+//! A key that arrives from outside (a worker's completion, a row read back from the database) is
+//! checked by `check_key` against the one shape the store makes; every object location passes
+//! through it too, so no key can name a path outside the store's prefix.
 
 use std::path::Path;
 use std::sync::Arc;
@@ -27,6 +31,8 @@ pub enum ArtifactError {
     HashMismatch { key: String, expected: String, actual: String },
     #[error("{0:?} is not a sha256 hex digest")]
     BadDigest(String),
+    #[error("artifact key {key:?}: {rule}")]
+    BadKey { key: String, rule: &'static str },
 }
 
 pub type Result<T, E = ArtifactError> = std::result::Result<T, E>;
@@ -53,6 +59,33 @@ pub fn key_for(sha256: &str) -> Result<String> {
         return Err(ArtifactError::BadDigest(sha256.to_string()));
     }
     Ok(format!("sha256/{}/{}", &sha256[..2], sha256))
+}
+
+/// Checks that `key` is one the store makes: `sha256/<first two hex digits>/<64 lowercase hex
+/// digits>`. Anything else — empty, absolute, with a backslash, an empty, `.` or `..` segment, or
+/// any other shape — is `BadKey` naming the rule it breaks.
+pub fn check_key(key: &str) -> Result<()> {
+    let bad = |rule| Err(ArtifactError::BadKey { key: key.to_string(), rule });
+    if key.is_empty() {
+        return bad("must not be empty");
+    }
+    if key.contains('\\') {
+        return bad("must not contain a backslash");
+    }
+    if key.starts_with('/') {
+        return bad("must be relative to the store, not an absolute path");
+    }
+    let segments: Vec<&str> = key.split('/').collect();
+    if segments.contains(&"") {
+        return bad("must not have an empty segment");
+    }
+    if segments.iter().any(|s| *s == "." || *s == "..") {
+        return bad("must not have a '.' or '..' segment");
+    }
+    match segments[..] {
+        ["sha256", _, digest] if key_for(digest).is_ok_and(|k| k == key) => Ok(()),
+        _ => bad("must be sha256/<first two digits>/<64 lowercase hex digits>, the content key the store makes"),
+    }
 }
 
 pub fn sha256_hex(bytes: &[u8]) -> String {
@@ -88,8 +121,15 @@ impl ArtifactStore {
         &self.url
     }
 
-    fn location(&self, key: &str) -> ObjectPath {
-        if self.prefix.is_empty() { ObjectPath::from(key) } else { ObjectPath::from(format!("{}/{key}", self.prefix)) }
+    /// Where `key` lives under the store's prefix; a key of any other shape than the store's is
+    /// refused here, whoever passed it.
+    fn location(&self, key: &str) -> Result<ObjectPath> {
+        check_key(key)?;
+        Ok(if self.prefix.is_empty() {
+            ObjectPath::from(key)
+        } else {
+            ObjectPath::from(format!("{}/{key}", self.prefix))
+        })
     }
 
     /// Stores `bytes` under their content key. Storing the same content again changes nothing.
@@ -98,7 +138,7 @@ impl ArtifactStore {
         let key = key_for(&sha256)?;
         let size = bytes.len() as u64;
         let opts = PutOptions { mode: PutMode::Create, ..Default::default() };
-        match self.inner.put_opts(&self.location(&key), PutPayload::from(bytes), opts).await {
+        match self.inner.put_opts(&self.location(&key)?, PutPayload::from(bytes), opts).await {
             Ok(_) | Err(object_store::Error::AlreadyExists { .. }) => {}
             Err(e) => return Err(e.into()),
         }
@@ -116,7 +156,7 @@ impl ArtifactStore {
     /// Reads an artifact and checks it against its digest.
     pub async fn get(&self, sha256: &str) -> Result<Bytes> {
         let key = key_for(sha256)?;
-        let bytes = self.inner.get(&self.location(&key)).await?.bytes().await?;
+        let bytes = self.inner.get(&self.location(&key)?).await?.bytes().await?;
         let actual = sha256_hex(&bytes);
         if actual != sha256 {
             return Err(ArtifactError::HashMismatch { key, expected: sha256.to_string(), actual });
@@ -178,6 +218,45 @@ mod tests {
         assert!(key_for("../../etc/passwd").is_err());
         assert!(key_for(&"A".repeat(64)).is_err());
         assert_eq!(key_for(&"ab".repeat(32)).unwrap(), format!("sha256/ab/{}", "ab".repeat(32)));
+    }
+
+    fn rule_of(key: &str) -> &'static str {
+        match check_key(key) {
+            Err(ArtifactError::BadKey { rule, .. }) => rule,
+            other => panic!("{key:?} should be refused, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn only_the_content_keys_the_store_makes_pass_check_key() {
+        let digest = "ab".repeat(32);
+        let good = key_for(&digest).unwrap();
+        assert!(check_key(&good).is_ok());
+        assert!(rule_of("").contains("empty"));
+        assert!(rule_of(&format!("sha256\\ab\\{digest}")).contains("backslash"));
+        assert!(rule_of(&format!("/{good}")).contains("absolute"));
+        assert!(rule_of(&format!("sha256//{digest}")).contains("empty segment"));
+        assert!(rule_of(&format!("{good}/")).contains("empty segment"));
+        assert!(rule_of(&format!("sha256/ab/../../{digest}")).contains("'..'"));
+        assert!(rule_of(&format!("sha256/./{digest}")).contains("'.'"));
+        assert!(rule_of("../../etc/passwd").contains("'..'"));
+        // Right segments, wrong shape: another fan-out directory, upper case, a short digest, a prefix.
+        assert!(rule_of(&format!("sha256/cd/{digest}")).contains("content key"));
+        assert!(rule_of(&format!("sha256/AB/{}", "AB".repeat(32))).contains("content key"));
+        assert!(rule_of("sha256/ab/abab").contains("content key"));
+        assert!(rule_of(&format!("objects/{good}")).contains("content key"));
+        assert!(rule_of(&format!("sha512/ab/{digest}")).contains("content key"));
+    }
+
+    #[tokio::test]
+    async fn a_store_under_a_prefix_keeps_every_object_under_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let inner = dir.path().join("inner");
+        let store = ArtifactStore::open(&format!("file://{}", inner.display())).unwrap();
+        let stored = store.put_bytes(Bytes::from_static(b"touch")).await.unwrap();
+        assert!(inner.join(&stored.key).is_file());
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1, "nothing written beside the store");
+        assert!(matches!(store.location("sha256/ab/../../../x"), Err(ArtifactError::BadKey { .. })));
     }
 
     #[test]

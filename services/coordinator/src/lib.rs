@@ -9,15 +9,21 @@
 //!
 //! What it does is counted in `Metrics` (`metrics.rs`); `http_router` serves them at `/metrics`,
 //! with `/healthz`, when the binary is given `--http-listen`.
+//!
+//! With a tokens file every call is checked against the role table in `auth`; with a certificate
+//! and key both services speak TLS (`tls`).
 
+pub mod auth;
 mod convert;
 mod http;
 mod jobs_api;
 mod metrics;
 mod planner;
+pub mod tls;
 mod work_api;
 
 use std::net::SocketAddr;
+use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use tokio::net::TcpListener;
@@ -45,6 +51,10 @@ pub struct CoordinatorConfig {
     pub artifacts: Option<vint_artifacts::ArtifactStore>,
     /// Where the services record what they do (`http_router` exports it).
     pub metrics: Metrics,
+    /// Bearer tokens and their roles; `None` checks nothing (a loopback-only coordinator).
+    pub tokens: Option<Arc<auth::Tokens>>,
+    /// Certificate and key to serve TLS with; `None` serves plain HTTP/2.
+    pub tls: Option<tls::TlsIdentity>,
 }
 
 impl Default for CoordinatorConfig {
@@ -55,6 +65,8 @@ impl Default for CoordinatorConfig {
             watch_interval: Duration::from_millis(250),
             artifacts: None,
             metrics: Metrics::default(),
+            tokens: None,
+            tls: None,
         }
     }
 }
@@ -76,6 +88,11 @@ pub async fn serve(
     listener: TcpListener,
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> Result<(), tonic::transport::Error> {
+    let mut server = tonic::transport::Server::builder();
+    if let Some(identity) = &config.tls {
+        server = server.tls_config(identity.server_config())?;
+    }
+    let auth = auth::AuthLayer::new(config.tokens.clone());
     let reaper = tokio::spawn(reap_forever(store.clone(), config.reap_interval, config.metrics.clone()));
     let jobs =
         JobServiceServer::new(JobApi::new(store.clone(), config.clone())).max_decoding_message_size(MAX_SUBMIT_BYTES);
@@ -83,11 +100,8 @@ pub async fn serve(
     // Small request/response pairs: without TCP_NODELAY each reply waits ~40 ms for a delayed ACK
     // (tonic applies its nodelay default only to listeners it binds itself).
     let incoming = TcpIncoming::from(listener).with_nodelay(Some(true));
-    let result = tonic::transport::Server::builder()
-        .add_service(jobs)
-        .add_service(work)
-        .serve_with_incoming_shutdown(incoming, shutdown)
-        .await;
+    let result =
+        server.layer(auth).add_service(jobs).add_service(work).serve_with_incoming_shutdown(incoming, shutdown).await;
     reaper.abort();
     result
 }

@@ -167,6 +167,8 @@ fn validate_output(a: &pb::ArtifactRef) -> Result<NewArtifact, String> {
     {
         return Err(bad("name must be a relative path without empty, '.' or '..' parts"));
     }
+    // A key of a bad shape (a path out of the store) is refused whatever the digest says.
+    vint_artifacts::check_key(&a.key).map_err(|e| bad(&e.to_string()))?;
     let key = vint_artifacts::key_for(&a.sha256).map_err(|e| bad(&e.to_string()))?;
     if a.key != key {
         return Err(bad(&format!("key must be the content key {key}, got {:?}", a.key)));

@@ -63,10 +63,22 @@ async fn an_output_whose_key_is_not_its_content_key_is_refused_and_changes_nothi
         result_json: r#"{"views": 1}"#.into(), // what a noise engine answers
     };
     let other_content_key = vint_artifacts::key_for(&vint_artifacts::sha256_hex(b"other bytes")).unwrap();
-    for wrong_key in [other_content_key, format!("uploads/{sha256}"), format!("{content_key}.tmp"), String::new()] {
+    // A well-formed key of other content, then keys of shapes the store never makes (paths that
+    // would leave the store among them): each names what is wrong with it.
+    let wrong_content = (other_content_key, format!("key must be the content key {content_key}"));
+    let bad_shapes = [
+        format!("uploads/{sha256}"),
+        format!("{content_key}.tmp"),
+        String::new(),
+        format!("/{content_key}"),
+        format!("sha256/../../{sha256}"),
+        format!("sha256\\{}\\{sha256}", &sha256[..2]),
+    ]
+    .map(|key| (key, "artifact key".to_string()));
+    for (wrong_key, expected) in std::iter::once(wrong_content).chain(bad_shapes) {
         let refused = client.complete_task(complete(&wrong_key)).await.unwrap_err();
         assert_eq!(refused.code(), tonic::Code::InvalidArgument, "key {wrong_key:?}: {refused}");
-        assert!(refused.message().contains(&format!("key must be the content key {content_key}")), "{refused}");
+        assert!(refused.message().contains(&expected), "key {wrong_key:?}: {refused}");
         // Nothing was recorded: the task is still the worker's, running, with no outputs.
         let after = store.task(&task.task_id).await.unwrap().unwrap();
         assert_eq!((after.state, after.lease_owner.as_deref()), (TaskState::Running, Some("w")));

@@ -1,12 +1,13 @@
-//! Talking to a coordinator over gRPC: the URL a user gives, the connection, each call's failure
-//! as an exit code, and following a job's progress stream. It prints nothing (`report` does).
+//! Talking to a coordinator over gRPC: the URL a user gives, the connection (TLS and the bearer
+//! token through `vint_connect`), each call's failure as an exit code, and following a job's
+//! progress stream. It prints nothing (`report` does).
 
 use std::time::Duration;
 
 use anyhow::anyhow;
 use futures::StreamExt;
 use tonic::Code;
-use tonic::transport::Channel;
+use vint_connect::{AuthChannel, Remote};
 use vint_proto::v1 as pb;
 use vint_proto::v1::job_service_client::JobServiceClient;
 
@@ -16,12 +17,12 @@ use crate::{Failure, bad_input};
 /// A connected coordinator.
 pub struct Coordinator {
     pub url: String,
-    client: JobServiceClient<Channel>,
+    client: JobServiceClient<AuthChannel>,
 }
 
 /// The coordinator URL for `raw` as a user wrote it (`--coordinator` or `VINT_COORDINATOR`):
-/// `HOST:PORT` gets `http://`; any scheme but `http` is bad input (this build speaks plain
-/// HTTP/2, no TLS: put a TLS proxy in front of a coordinator on an untrusted network).
+/// `HOST:PORT` gets `http://`; `https://` means TLS (trusting `--tls-ca` or the system's roots);
+/// any other scheme is bad input.
 pub fn coordinator_url(raw: &str) -> Result<String, Failure> {
     let raw = raw.trim();
     let bad = |rule: &str| bad_input(anyhow!("--coordinator (or VINT_COORDINATOR): {rule}, got {raw:?}"));
@@ -29,8 +30,10 @@ pub fn coordinator_url(raw: &str) -> Result<String, Failure> {
         return Err(bad("must be a URL like http://HOST:PORT"));
     }
     let url = match raw.split_once("://") {
-        Some((scheme, _)) if scheme.eq_ignore_ascii_case("http") => raw.to_string(),
-        Some(_) => return Err(bad("must be an http:// URL (vintctl speaks plain HTTP/2 to the coordinator)")),
+        Some((scheme, _)) if scheme.eq_ignore_ascii_case("http") || scheme.eq_ignore_ascii_case("https") => {
+            raw.to_string()
+        }
+        Some(_) => return Err(bad("must be an http:// or https:// URL")),
         None => format!("http://{raw}"),
     };
     match url.parse::<tonic::transport::Uri>() {
@@ -40,15 +43,16 @@ pub fn coordinator_url(raw: &str) -> Result<String, Failure> {
 }
 
 impl Coordinator {
-    /// Connects to the coordinator at `raw` (see `coordinator_url`). An unreachable one is a
-    /// failure (exit 1) that says how to get one.
-    pub async fn connect(raw: &str) -> Result<Coordinator, Failure> {
-        let url = coordinator_url(raw)?;
-        let endpoint = Channel::from_shared(url.clone())
-            .map_err(|e| bad_input(anyhow!("--coordinator {url:?}: {e}")))?
-            .connect_timeout(Duration::from_secs(5));
+    /// Connects to the coordinator `remote` names (its URL as `coordinator_url` reads it), with
+    /// its TLS trust and token. An unreachable one is a failure (exit 1) that says how to get one.
+    pub async fn connect(remote: &Remote) -> Result<Coordinator, Failure> {
+        let url = coordinator_url(&remote.url)?;
+        let remote = Remote { url: url.clone(), ..remote.clone() };
+        let endpoint = remote.endpoint().map_err(|e| bad_input(e.into()))?.connect_timeout(Duration::from_secs(5));
+        let bearer = remote.bearer().map_err(|e| bad_input(e.into()))?;
         let channel = endpoint.connect().await.map_err(|e| unreachable(&url, &e))?;
-        Ok(Coordinator { url, client: JobServiceClient::new(channel).max_decoding_message_size(64 << 20) })
+        let client = JobServiceClient::with_interceptor(channel, bearer).max_decoding_message_size(64 << 20);
+        Ok(Coordinator { url, client })
     }
 
     pub async fn submit(&mut self, request: pb::SubmitJobRequest) -> Result<pb::SubmitJobResponse, Failure> {
@@ -104,8 +108,18 @@ impl Coordinator {
 }
 
 /// A call's failure: "not found" and "invalid argument" are the user's (exit 2), the rest exit 1.
+/// A refused token says which flag carries one.
 pub fn rpc_failure(what: &str, s: tonic::Status) -> Failure {
-    let error = anyhow!("{what}: {}", s.message());
+    let error = match s.code() {
+        Code::Unauthenticated => {
+            anyhow!(
+                "{what}: the coordinator refused the call ({}); pass a token with --token or VINT_TOKEN",
+                s.message()
+            )
+        }
+        Code::PermissionDenied => anyhow!("{what}: the coordinator refused the call: {}", s.message()),
+        _ => anyhow!("{what}: {}", s.message()),
+    };
     match s.code() {
         Code::NotFound | Code::InvalidArgument => bad_input(error),
         _ => Failure { code: 1, error },

@@ -7,6 +7,7 @@ use std::path::Path;
 use anyhow::anyhow;
 use serde_json::json;
 use vint_artifacts::ArtifactStore;
+use vint_connect::Remote;
 use vint_core::JobState;
 use vint_proto::v1 as pb;
 use vint_proto::v1::get_lineage_request::Subject;
@@ -55,9 +56,9 @@ pub fn plan(path: &Path, json: bool) -> CliResult {
     Ok(())
 }
 
-pub async fn submit(url: &str, path: &Path, key: Option<String>, json: bool) -> CliResult {
+pub async fn submit(remote: &Remote, path: &Path, key: Option<String>, json: bool) -> CliResult {
     let loaded = load_spec(path)?;
-    let mut coordinator = Coordinator::connect(url).await?;
+    let mut coordinator = Coordinator::connect(remote).await?;
     let request = pb::SubmitJobRequest {
         spec_toml: loaded.text,
         idempotency_key: key.unwrap_or_default(),
@@ -76,27 +77,27 @@ pub async fn submit(url: &str, path: &Path, key: Option<String>, json: bool) -> 
     Ok(())
 }
 
-pub async fn status(url: &str, job: &str, json: bool) -> CliResult {
-    let job = Coordinator::connect(url).await?.job(job).await?;
+pub async fn status(remote: &Remote, job: &str, json: bool) -> CliResult {
+    let job = Coordinator::connect(remote).await?.job(job).await?;
     report::job(&job, json);
     Ok(())
 }
 
-pub async fn jobs(url: &str, limit: u32, json: bool) -> CliResult {
-    let jobs = Coordinator::connect(url).await?.jobs(limit).await?;
+pub async fn jobs(remote: &Remote, limit: u32, json: bool) -> CliResult {
+    let jobs = Coordinator::connect(remote).await?.jobs(limit).await?;
     report::jobs(&jobs, json);
     Ok(())
 }
 
-pub async fn cancel(url: &str, job: &str, json: bool) -> CliResult {
-    let job = Coordinator::connect(url).await?.cancel(job).await?;
+pub async fn cancel(remote: &Remote, job: &str, json: bool) -> CliResult {
+    let job = Coordinator::connect(remote).await?.cancel(job).await?;
     report::job(&job, json);
     Ok(())
 }
 
 /// Follows a job until it ends; exits 1 unless it succeeded, naming the tasks that failed.
-pub async fn watch(url: &str, job: &str, json: bool) -> CliResult {
-    let mut coordinator = Coordinator::connect(url).await?;
+pub async fn watch(remote: &Remote, job: &str, json: bool) -> CliResult {
+    let mut coordinator = Coordinator::connect(remote).await?;
     let last = coordinator.follow(job, &ProgressView::new(json.then_some(JsonProgress::Stdout))).await?;
     job_outcome(&last)
 }
@@ -118,10 +119,10 @@ pub fn job_outcome(p: &pb::JobProgress) -> CliResult {
     Err(Failure { code: 1, error: anyhow!(message) })
 }
 
-pub async fn lineage(url: &str, subject: &str, job: Option<String>, artifact: bool, json: bool) -> CliResult {
+pub async fn lineage(remote: &Remote, subject: &str, job: Option<String>, artifact: bool, json: bool) -> CliResult {
     let subject = if artifact { Subject::ArtifactSha256(subject.into()) } else { Subject::SampleId(subject.into()) };
     let request = pb::GetLineageRequest { job_id: job.unwrap_or_default(), subject: Some(subject) };
-    let lineage = Coordinator::connect(url).await?.lineage(request).await?;
+    let lineage = Coordinator::connect(remote).await?.lineage(request).await?;
     report::lineage(&lineage, json);
     Ok(())
 }
@@ -129,14 +130,14 @@ pub async fn lineage(url: &str, subject: &str, job: Option<String>, artifact: bo
 /// Writes a finished job's packaged samples to `out`. A running job is refused (its dataset is
 /// not there yet); a failed or cancelled one exports what it packaged and says what is missing.
 pub async fn export(
-    url: &str,
+    remote: &Remote,
     job_id: &str,
     out: &Path,
     target: Target,
     store: Option<String>,
     json: bool,
 ) -> CliResult {
-    let ExportedJob { job, state, planned, summary } = export_job(url, job_id, out, target, store).await?;
+    let ExportedJob { job, state, planned, summary } = export_job(remote, job_id, out, target, store).await?;
     let p = job.progress.clone().unwrap_or_default();
     if json {
         let mut doc = report::export_json(&summary);
@@ -184,13 +185,13 @@ pub struct ExportedJob {
 /// Exports a finished job's dataset to `out` in `target`'s layout: what `export` reports on, and
 /// what `stats` computes on. A running job is refused (its dataset is not there yet).
 pub async fn export_job(
-    url: &str,
+    remote: &Remote,
     job_id: &str,
     out: &Path,
     target: Target,
     store: Option<String>,
 ) -> Result<ExportedJob, Failure> {
-    let mut coordinator = Coordinator::connect(url).await?;
+    let mut coordinator = Coordinator::connect(remote).await?;
     let job = coordinator.job(job_id).await?;
     let p = job.progress.clone().unwrap_or_default();
     let state: JobState = job.state.parse().map_err(|e| anyhow!("coordinator answered job {job_id}: {e}"))?;

@@ -51,7 +51,9 @@ pub async fn run(spec_path: &Path, out: &Path, target: Target, state: &Path, wor
     let url = format!("http://{addr}");
 
     let result = async {
-        let mut coordinator = Coordinator::connect(&url).await?;
+        // In-process on loopback with no tokens file: no token, no TLS.
+        let remote = vint_connect::Remote { url: url.clone(), ..vint_connect::Remote::default() };
+        let mut coordinator = Coordinator::connect(&remote).await?;
         let submitted = coordinator
             .submit(pb::SubmitJobRequest { spec_toml: text, idempotency_key: String::new(), assets })
             .await?;
@@ -147,6 +149,10 @@ impl WorkerPool {
             .arg(LOCAL_LEASE_MS.to_string())
             .arg("--worker-id")
             .arg(format!("local-{index}-{}", std::process::id()))
+            // The embedded coordinator checks no token and speaks no TLS: a cluster's settings in
+            // the environment do not apply to it.
+            .env_remove("VINT_TOKEN")
+            .env_remove("VINT_TLS_CA")
             .stdin(Stdio::null())
             .stdout(Stdio::null())
             .stderr(Stdio::from(log))

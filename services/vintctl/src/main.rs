@@ -52,6 +52,14 @@ struct Cli {
     /// diff, study, hands, objects and stats on a directory); HOST:PORT means http://HOST:PORT.
     #[arg(long, global = true, env = "VINT_COORDINATOR", default_value = "http://127.0.0.1:7700")]
     coordinator: String,
+    /// Bearer token for a coordinator started with --auth-tokens (a submit token to submit and
+    /// cancel, a read or submit token for the rest).
+    #[arg(long, global = true, env = "VINT_TOKEN", hide_env_values = true)]
+    token: Option<String>,
+    /// PEM certificate of the authority that signed an https:// coordinator's certificate (default:
+    /// the system's trusted roots).
+    #[arg(long, global = true, env = "VINT_TLS_CA")]
+    tls_ca: Option<PathBuf>,
     #[command(subcommand)]
     command: Option<Command>,
 }
@@ -240,7 +248,8 @@ fn main() -> ExitCode {
             return ExitCode::from(1);
         }
     };
-    match runtime.block_on(dispatch(command, cli.json, &cli.coordinator)) {
+    let remote = vint_connect::Remote { url: cli.coordinator, token: cli.token, tls_ca: cli.tls_ca };
+    match runtime.block_on(dispatch(command, cli.json, &remote)) {
         Ok(()) => ExitCode::SUCCESS,
         Err(f) => {
             report::failure(&f, cli.json);
@@ -261,7 +270,7 @@ fn getting_started(json: bool) -> ExitCode {
     ExitCode::from(2)
 }
 
-async fn dispatch(command: Command, json: bool, coordinator: &str) -> CliResult {
+async fn dispatch(command: Command, json: bool, coordinator: &vint_connect::Remote) -> CliResult {
     match command {
         Command::Validate { spec } => commands::validate(&spec, json),
         Command::Plan { spec } => commands::plan(&spec, json),

@@ -17,7 +17,13 @@ use crate::{CliResult, Failure, bad_input, commands, report};
 /// What `python -m vint_engines stats` writes into OUT besides its figures.
 const STATS_JSON: &str = "stats.json";
 
-pub async fn run(subject: &str, out: &Path, store: Option<String>, coordinator: &str, json: bool) -> CliResult {
+pub async fn run(
+    subject: &str,
+    out: &Path,
+    store: Option<String>,
+    coordinator: &vint_connect::Remote,
+    json: bool,
+) -> CliResult {
     let dir = Path::new(subject);
     if dir.is_dir() {
         return compute(dir, out, json).await;

@@ -26,9 +26,9 @@ use std::time::{Duration, Instant};
 use bytes::Bytes;
 use serde_json::Value;
 use tokio::sync::{Mutex, watch};
-use tonic::transport::{Channel, Endpoint};
 use tracing::Instrument;
 use vint_artifacts::{ArtifactStore, StoredObject};
+use vint_connect::AuthChannel;
 use vint_core::contract::grasp::{self, GRASPS_FILE, GraspResult, MODEL_FILE, TOUCH_FILE};
 use vint_core::contract::noise::{self, NoiseResult, noisy_depth_file};
 use vint_core::contract::package::{self, GRASP_RECORD_FILE, META_FILE, PackageResult};
@@ -56,7 +56,7 @@ pub const ENGINE_MODE: &str = "timing-only";
 
 #[derive(Clone, Debug)]
 pub struct TimingOnlyConfig {
-    pub coordinator: String,
+    pub coordinator: vint_connect::Remote,
     pub worker_id: String,
     pub stages: Vec<Stage>,
     pub lease_ms: u32,
@@ -263,7 +263,7 @@ async fn answer(
 /// The worker's shared state: its coordinator client, payloads, held leases and tally.
 struct Shared {
     config: TimingOnlyConfig,
-    client: WorkServiceClient<Channel>,
+    client: WorkServiceClient<AuthChannel>,
     payloads: Payloads,
     held: std::sync::Mutex<HashSet<(String, u32)>>,
     tally: Arc<Tally>,
@@ -295,9 +295,8 @@ pub async fn run(
     store: ArtifactStore,
     shutdown: impl Future<Output = ()>,
 ) -> Result<Arc<Tally>, WorkerError> {
-    let endpoint = Endpoint::from_shared(config.coordinator.clone())
-        .map_err(|source| WorkerError::BadCoordinatorUrl { url: config.coordinator.clone(), source })?
-        .connect_timeout(Duration::from_secs(5));
+    let endpoint = config.coordinator.endpoint()?.connect_timeout(Duration::from_secs(5));
+    let channel = config.coordinator.lazy_channel(endpoint)?;
     let engine_json = serde_json::json!({
         "name": "vint-timing-only",
         "version": env!("CARGO_PKG_VERSION"),
@@ -320,7 +319,7 @@ pub async fn run(
     let shared = Arc::new(Shared {
         // A package task's lease carries every file of its chunk's renders: a batch of them is
         // tens of MiB.
-        client: WorkServiceClient::new(endpoint.connect_lazy()).max_decoding_message_size(MAX_MESSAGE_BYTES),
+        client: WorkServiceClient::new(channel).max_decoding_message_size(MAX_MESSAGE_BYTES),
         payloads: Payloads { store, stored: Mutex::default(), metrics: config.metrics.clone() },
         held: std::sync::Mutex::default(),
         tally: tally.clone(),
@@ -375,7 +374,7 @@ async fn lease_batch(shared: &Shared) -> Vec<pb::LeasedTask> {
             tasks
         }
         Err(status) => {
-            tracing::warn!(error = %status.message(), code = ?status.code(), "lease failed; coordinator unreachable?");
+            crate::worker::log_lease_failure(&status);
             Vec::new()
         }
     }

@@ -13,10 +13,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
-use tonic::transport::{Channel, Endpoint};
 use tonic::{Code, Status};
 use tracing::Instrument;
 use vint_artifacts::ArtifactStore;
+use vint_connect::AuthChannel;
 use vint_core::{Stage, contract};
 use vint_proto::v1 as pb;
 use vint_proto::v1::work_service_client::WorkServiceClient;
@@ -27,8 +27,8 @@ use crate::package::{self, PackageInput};
 
 #[derive(Clone, Debug)]
 pub struct WorkerConfig {
-    /// Coordinator URL, e.g. `http://127.0.0.1:7700`.
-    pub coordinator: String,
+    /// The coordinator (URL, e.g. `http://127.0.0.1:7700`, TLS trust and token).
+    pub coordinator: vint_connect::Remote,
     pub worker_id: String,
     pub stages: Vec<Stage>,
     pub lease_ms: u32,
@@ -43,8 +43,8 @@ pub struct WorkerConfig {
 
 #[derive(Debug, thiserror::Error)]
 pub enum WorkerError {
-    #[error("invalid coordinator URL {url:?}: {source}")]
-    BadCoordinatorUrl { url: String, source: tonic::transport::Error },
+    #[error(transparent)]
+    Connect(#[from] vint_connect::ConnectError),
     #[error("opening the latency log {path}: {source}")]
     LatencyLog { path: PathBuf, source: std::io::Error },
 }
@@ -74,17 +74,15 @@ struct Finished {
 
 pub struct Worker {
     config: WorkerConfig,
-    client: WorkServiceClient<Channel>,
+    client: WorkServiceClient<AuthChannel>,
     store: ArtifactStore,
     engines: HashMap<Stage, Engine>,
 }
 
 impl Worker {
     pub fn new(config: WorkerConfig, store: ArtifactStore) -> Result<Worker, WorkerError> {
-        let endpoint = Endpoint::from_shared(config.coordinator.clone())
-            .map_err(|source| WorkerError::BadCoordinatorUrl { url: config.coordinator.clone(), source })?
-            .connect_timeout(Duration::from_secs(5));
-        let client = WorkServiceClient::new(endpoint.connect_lazy());
+        let endpoint = config.coordinator.endpoint()?.connect_timeout(Duration::from_secs(5));
+        let client = WorkServiceClient::new(config.coordinator.lazy_channel(endpoint)?);
         Ok(Worker { config, client, store, engines: HashMap::new() })
     }
 
@@ -114,9 +112,7 @@ impl Worker {
                     continue;
                 }
                 Ok(_) => {}
-                Err(status) => {
-                    tracing::warn!(error = %status.message(), code = ?status.code(), "lease failed; coordinator unreachable?")
-                }
+                Err(status) => log_lease_failure(&status),
             }
             tokio::select! {
                 _ = &mut shutdown => break,
@@ -389,8 +385,20 @@ fn task_assets(params: &Value) -> Result<Vec<vint_core::asset::Asset>, TaskFailu
     }
 }
 
+/// A refused lease: a token the coordinator refuses is the operator's to fix (an error that says
+/// how); anything else is most likely a coordinator being restarted.
+pub(crate) fn log_lease_failure(status: &tonic::Status) {
+    match status.code() {
+        tonic::Code::Unauthenticated | tonic::Code::PermissionDenied => tracing::error!(
+            error = %status.message(), code = ?status.code(),
+            "the coordinator refuses this worker: give it a worker token (--token or VINT_TOKEN)"
+        ),
+        _ => tracing::warn!(error = %status.message(), code = ?status.code(), "lease failed; coordinator unreachable?"),
+    }
+}
+
 async fn heartbeat_loop(
-    mut client: WorkServiceClient<Channel>,
+    mut client: WorkServiceClient<AuthChannel>,
     worker_id: String,
     held: pb::TaskAttempt,
     lease_ms: u32,

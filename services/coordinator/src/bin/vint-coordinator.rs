@@ -1,10 +1,15 @@
 //! `vint-coordinator`: the gRPC coordinator as a standalone server (cluster mode).
 
 use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
 
-use anyhow::Context;
+use anyhow::{Context, anyhow};
 use clap::Parser;
 use vint_coordinator::CoordinatorConfig;
+use vint_coordinator::auth::Tokens;
+use vint_coordinator::tls::TlsIdentity;
 use vint_store::{RetryPolicy, Store};
 
 #[derive(Parser)]
@@ -13,13 +18,28 @@ struct Args {
     /// Database URL: postgres://… (cluster) or sqlite://… (single machine).
     #[arg(long, env = "VINT_DATABASE_URL")]
     database: String,
-    /// Address to listen on.
+    /// Address to listen on. Without --auth-tokens only a loopback address is accepted (see
+    /// --insecure-listen-any).
     #[arg(long, env = "VINT_LISTEN", default_value = "127.0.0.1:7700")]
     listen: SocketAddr,
     /// Address to serve HTTP on: Prometheus metrics at /metrics, a health check at /healthz
     /// (200 while the database answers). Off when not given.
     #[arg(long, env = "VINT_HTTP_LISTEN")]
     http_listen: Option<SocketAddr>,
+    /// Tokens file: one `ROLE TOKEN` per line, ROLE one of submit, worker, read (docs/security.md).
+    /// Every call must then carry a token whose role allows it.
+    #[arg(long, env = "VINT_AUTH_TOKENS")]
+    auth_tokens: Option<PathBuf>,
+    /// Listen on a non-loopback address without --auth-tokens: anyone who reaches the port may
+    /// submit, cancel and report tasks.
+    #[arg(long)]
+    insecure_listen_any: bool,
+    /// TLS certificate chain (PEM) for gRPC; needs --tls-key.
+    #[arg(long, env = "VINT_TLS_CERT", requires = "tls_key")]
+    tls_cert: Option<PathBuf>,
+    /// TLS private key (PEM) of --tls-cert.
+    #[arg(long, env = "VINT_TLS_KEY", requires = "tls_cert")]
+    tls_key: Option<PathBuf>,
     /// Artifact store the workers use (file:///… or s3://…): where the user files of submitted
     /// specs are stored. Without it, specs that name files of their own are refused.
     #[arg(long, env = "VINT_STORE")]
@@ -38,23 +58,86 @@ struct Args {
     log_json: bool,
 }
 
-#[tokio::main]
-async fn main() -> anyhow::Result<()> {
+/// Bad input (flags, tokens file, TLS files): the message and exit code 2.
+struct BadInput(anyhow::Error);
+
+fn main() -> ExitCode {
     let args = Args::parse();
     vint_telemetry::init_tracing(args.log_json);
+    let security = match Security::from_args(&args) {
+        Ok(security) => security,
+        Err(BadInput(e)) => {
+            eprintln!("error: {e:#}");
+            return ExitCode::from(2);
+        }
+    };
+    let runtime = match tokio::runtime::Builder::new_multi_thread().enable_all().build() {
+        Ok(runtime) => runtime,
+        Err(e) => {
+            eprintln!("error: cannot start the async runtime: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    match runtime.block_on(run(args, security)) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Who may call and how the wire is protected, checked before anything is opened.
+struct Security {
+    tokens: Option<Arc<Tokens>>,
+    tls: Option<TlsIdentity>,
+}
+
+impl Security {
+    fn from_args(args: &Args) -> Result<Security, BadInput> {
+        let tokens = match &args.auth_tokens {
+            Some(path) => Some(Arc::new(Tokens::load(path).map_err(|e| BadInput(e.into()))?)),
+            None => None,
+        };
+        if tokens.is_none() && !args.listen.ip().is_loopback() && !args.insecure_listen_any {
+            return Err(BadInput(anyhow!(
+                "--listen {}: without --auth-tokens the coordinator listens on loopback only (127.0.0.1 or ::1), \
+                 as anyone who reaches the port could submit, cancel and report tasks. Pass --auth-tokens FILE \
+                 (docs/security.md), or --insecure-listen-any on a network you trust",
+                args.listen
+            )));
+        }
+        let tls = match (&args.tls_cert, &args.tls_key) {
+            (Some(cert), Some(key)) => Some(TlsIdentity::load(cert, key).map_err(|e| BadInput(e.into()))?),
+            _ => None,
+        };
+        Ok(Security { tokens, tls })
+    }
+}
+
+async fn run(args: Args, security: Security) -> anyhow::Result<()> {
     let retry =
         RetryPolicy { max_attempts: args.max_attempts, backoff_base_ms: args.backoff_ms, ..RetryPolicy::default() };
     let store =
         Store::open(&args.database, retry).await.with_context(|| format!("opening database {}", args.database))?;
     let (listener, addr) =
         vint_coordinator::bind(args.listen).await.with_context(|| format!("binding {}", args.listen))?;
-    tracing::info!(%addr, backend = ?store.backend(), "coordinator listening");
+    tracing::info!(%addr, backend = ?store.backend(), auth = security.tokens.is_some(), tls = security.tls.is_some(),
+        "coordinator listening");
+    if security.tokens.is_none() && !addr.ip().is_loopback() {
+        tracing::warn!(%addr, "listening beyond loopback with no tokens (--insecure-listen-any): every call is allowed");
+    }
     println!("listening on {addr}");
     let artifacts = match &args.store {
         Some(url) => Some(vint_artifacts::ArtifactStore::open(url).with_context(|| format!("opening store {url}"))?),
         None => None,
     };
-    let config = CoordinatorConfig { default_lease_ms: args.lease_ms, artifacts, ..CoordinatorConfig::default() };
+    let config = CoordinatorConfig {
+        default_lease_ms: args.lease_ms,
+        artifacts,
+        tokens: security.tokens,
+        tls: security.tls,
+        ..CoordinatorConfig::default()
     let http = match args.http_listen {
         Some(addr) => {
             let (listener, addr) =

@@ -16,9 +16,16 @@ use vint_runtime::worker::{Worker, WorkerConfig};
 #[derive(Parser)]
 #[command(version, about = "vint worker: runs grasp, render, noise and package tasks")]
 struct Args {
-    /// Coordinator URL.
+    /// Coordinator URL (`https://` for a coordinator serving TLS).
     #[arg(long, env = "VINT_COORDINATOR", default_value = "http://127.0.0.1:7700")]
     coordinator: String,
+    /// Bearer token for a coordinator started with --auth-tokens: a worker token.
+    #[arg(long, env = "VINT_TOKEN", hide_env_values = true)]
+    token: Option<String>,
+    /// PEM certificate of the authority that signed an https:// coordinator's certificate (default:
+    /// the system's trusted roots).
+    #[arg(long, env = "VINT_TLS_CA")]
+    tls_ca: Option<PathBuf>,
     /// Artifact store URL: file:///abs/dir or s3://bucket[/prefix].
     #[arg(long, env = "VINT_STORE")]
     store: String,
@@ -111,9 +118,10 @@ async fn main() -> anyhow::Result<()> {
         // Serves until the process exits: the last scrape sees the finished worker.
         tokio::spawn(vint_telemetry::serve_http(listener, metrics.router(), std::future::pending()));
     }
+    let coordinator = vint_connect::Remote { url: args.coordinator, token: args.token, tls_ca: args.tls_ca };
     if args.engine_mode == EngineMode::TimingOnly {
         let config = TimingOnlyConfig {
-            coordinator: args.coordinator,
+            coordinator,
             worker_id,
             stages,
             lease_ms: args.lease_ms,
@@ -130,7 +138,7 @@ async fn main() -> anyhow::Result<()> {
         return Ok(());
     }
     let config = WorkerConfig {
-        coordinator: args.coordinator,
+        coordinator,
         worker_id,
         stages,
         lease_ms: args.lease_ms,
