@@ -124,8 +124,12 @@ async fn run(args: Args, security: Security) -> anyhow::Result<()> {
         vint_coordinator::bind(args.listen).await.with_context(|| format!("binding {}", args.listen))?;
     tracing::info!(%addr, backend = ?store.backend(), auth = security.tokens.is_some(), tls = security.tls.is_some(),
         "coordinator listening");
-    if security.tokens.is_none() && !addr.ip().is_loopback() {
-        tracing::warn!(%addr, "listening beyond loopback with no tokens (--insecure-listen-any): every call is allowed");
+    if !addr.ip().is_loopback() {
+        if security.tokens.is_none() {
+            tracing::warn!(%addr, "listening beyond loopback with no tokens (--insecure-listen-any): every call is allowed");
+        } else if security.tls.is_none() {
+            tracing::warn!(%addr, "listening beyond loopback without TLS: tokens cross the network in clear text");
+        }
     }
     println!("listening on {addr}");
     let artifacts = match &args.store {
