@@ -142,6 +142,7 @@ async fn run(args: Args, security: Security) -> anyhow::Result<()> {
         tokens: security.tokens,
         tls: security.tls,
         ..CoordinatorConfig::default()
+    };
     let http = match args.http_listen {
         Some(addr) => {
             let (listener, addr) =
