@@ -47,6 +47,13 @@ pub struct ArtifactStore {
     url: String,
 }
 
+/// Extra tries of an upload that failed with a transport or server error. object_store retries
+/// on its own only the requests it knows to be idempotent, so a connection dropped mid-request or
+/// mid-response fails a PUT (and with it a whole task: a render re-rendered, an attempt of the
+/// task's budget spent). An upload here is idempotent: its key is its content's hash and it is
+/// written create-if-absent, so a retry finds the object (`AlreadyExists`) or writes the same bytes.
+const PUT_RETRIES: u32 = 2;
+
 /// The object key of content with this digest.
 pub fn key_for(sha256: &str) -> Result<String> {
     if sha256.len() != 64 || !sha256.bytes().all(|b| b.is_ascii_hexdigit() && !b.is_ascii_uppercase()) {
@@ -98,9 +105,18 @@ impl ArtifactStore {
         let key = key_for(&sha256)?;
         let size = bytes.len() as u64;
         let opts = PutOptions { mode: PutMode::Create, ..Default::default() };
-        match self.inner.put_opts(&self.location(&key), PutPayload::from(bytes), opts).await {
-            Ok(_) | Err(object_store::Error::AlreadyExists { .. }) => {}
-            Err(e) => return Err(e.into()),
+        let location = self.location(&key);
+        let mut tries = 0;
+        loop {
+            match self.inner.put_opts(&location, PutPayload::from(bytes.clone()), opts.clone()).await {
+                Ok(_) | Err(object_store::Error::AlreadyExists { .. }) => break,
+                Err(e @ object_store::Error::Generic { .. }) if tries < PUT_RETRIES => {
+                    tries += 1;
+                    tracing::warn!(%key, error = %e, "upload failed; trying again");
+                    tokio::time::sleep(std::time::Duration::from_millis(200 * u64::from(tries))).await;
+                }
+                Err(e) => return Err(e.into()),
+            }
         }
         Ok(StoredObject { sha256, size, key })
     }
