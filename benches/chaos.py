@@ -25,12 +25,12 @@ left alive in a killed worker's process group at the end of the round are counte
 their worker dies). The coordinator runs with --max-attempts 10 (the default is 4): many faults may land
 on one task, and a task that fails for good is a lost sample, which fails the round.
 
-Writes one JSON line per round to --out (faults injected by kind, failed attempts by outcome, wall time,
-identical, orphan and missing objects, stray engines) and prints the tally. Exit status: 0 when every
-round ends identical with the bucket equal to the lineage, 1 otherwise (also past --budget-s: the run
-fails rather than hangs), 2 for bad arguments. Every process it started is killed at exit, also on
-failure and Ctrl-C. A seed fixes the fault schedule (kinds, moments, windows), not the interleaving
-with the job, which the machine decides.
+Writes one JSON line per round to --out (faults injected by kind, failed attempts by outcome, the most
+attempts one task took, wall time, identical, orphan and missing objects, stray engines) and prints the
+tally. Exit status: 0 when every round ends identical with the bucket equal to the lineage, 1 otherwise
+(also past --budget-s: the run fails rather than hangs), 2 for bad arguments. Every process it started
+is killed at exit, also on failure and Ctrl-C. A seed fixes the fault schedule (kinds, moments,
+windows), not the interleaving with the job, which the machine decides.
 """
 
 from __future__ import annotations
@@ -729,6 +729,7 @@ class Round:
         result["faults"] = dict(sorted(self.faults.items()))
         result["s3_requests"] = s3_requests
         result["failed_attempts"] = self.failed_attempts(job)
+        result["most_attempts"] = self.most_attempts(job)
         if state != "succeeded":
             result["error"] = f"job {state}: " + "; ".join(self.failed_tasks(job))
             return result | self.stray_engines()
@@ -756,6 +757,13 @@ class Round:
             f"WHERE t.job_id = {sql_text(job)} AND a.outcome <> 'succeeded' GROUP BY a.outcome ORDER BY 1",
         )
         return {outcome: int(n) for outcome, n in rows}
+
+    def most_attempts(self, job: str) -> int:
+        """The most attempts any task of the job took (the coordinator allows MAX_ATTEMPTS)."""
+        rows = self.run.postgres.query(
+            self.database, f"SELECT coalesce(max(attempt), 0) FROM tasks WHERE job_id = {sql_text(job)}"
+        )
+        return int(rows[0][0])
 
     def failed_tasks(self, job: str) -> list[str]:
         rows = self.run.postgres.query(
@@ -858,7 +866,9 @@ def tally(results: list[dict[str, Any]]) -> str:
         f"rounds: {len(results)}, identical manifests: {sum(1 for r in results if r.get('identical'))}"
         f"/{len(results)}, passed: {sum(1 for r in results if passed(r))}/{len(results)}",
         "faults: " + ", ".join(f"{k} {v}" for k, v in sorted(faults.items())),
-        "failed attempts: " + (", ".join(f"{k} {v}" for k, v in sorted(attempts.items())) or "none"),
+        "failed attempts: "
+        + (", ".join(f"{k} {v}" for k, v in sorted(attempts.items())) or "none")
+        + f"; most attempts of one task: {max((r.get('most_attempts', 0) for r in results), default=0)}",
         f"orphan objects: {sum(r.get('orphan_objects', 0) for r in results)}, missing objects: "
         f"{sum(r.get('missing_objects', 0) for r in results)}, stray engines: "
         f"{sum(r.get('stray_engines', 0) for r in results)}",
