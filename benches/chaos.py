@@ -891,7 +891,11 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--out", type=Path, help="one JSON line per round (default: WORK_DIR/chaos.jsonl)")
     p.add_argument("--bin-dir", type=Path, default=ROOT / "target" / "debug", help="vint binaries")
     p.add_argument("--python", default=sys.executable, help="the engines' Python (default: this one)")
-    p.add_argument("--work-dir", type=Path, help="logs and datasets (default: a temporary directory, kept)")
+    p.add_argument(
+        "--work-dir",
+        type=Path,
+        help="logs, and failed rounds' datasets (default: a temporary directory, kept)",
+    )
     args = p.parse_args(argv)
     for name, low in (("rounds", 1), ("workers", 1)):
         if getattr(args, name) < low:
@@ -955,8 +959,12 @@ def play_round(run: Run, number: int, out: IO[str]) -> dict[str, Any]:
             spent = BudgetSpent(f"the run's budget of {run.budget.seconds:.0f} s (--budget-s) is spent")
     finally:
         r.stop()
+        # Twenty rounds of datasets and killed workers' scratch would fill a small disk; logs stay.
+        shutil.rmtree(directory / "scratch", ignore_errors=True)
     wall_s = round(time.monotonic() - r.started, 1)
     result = {"round": number, "seed": run.args.seed, **result, "wall_s": wall_s, "passed": passed(result)}
+    if result["passed"]:
+        shutil.rmtree(directory / "dataset", ignore_errors=True)
     directory.mkdir(parents=True, exist_ok=True)
     (directory / "faults.log").write_text("\n".join(r.log) + "\n")
     out.write(json.dumps(result) + "\n")
