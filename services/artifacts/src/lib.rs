@@ -189,6 +189,104 @@ mod tests {
         assert!(matches!(store.get(&a.sha256).await, Err(ArtifactError::HashMismatch { .. })));
     }
 
+    /// An in-memory store whose first `failures` puts fail as a dropped connection would, after
+    /// the object is written (the worst case: stored, but the client never hears so).
+    #[derive(Debug)]
+    struct DroppingStore {
+        inner: object_store::memory::InMemory,
+        failures: std::sync::atomic::AtomicU32,
+        puts: std::sync::atomic::AtomicU32,
+    }
+
+    impl std::fmt::Display for DroppingStore {
+        fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            write!(f, "DroppingStore")
+        }
+    }
+
+    #[async_trait::async_trait]
+    impl ObjectStore for DroppingStore {
+        async fn put_opts(
+            &self,
+            location: &ObjectPath,
+            payload: PutPayload,
+            opts: PutOptions,
+        ) -> object_store::Result<object_store::PutResult> {
+            use std::sync::atomic::Ordering::SeqCst;
+            self.puts.fetch_add(1, SeqCst);
+            let written = self.inner.put_opts(location, payload, opts).await;
+            if self.failures.fetch_update(SeqCst, SeqCst, |n| n.checked_sub(1)).is_ok() {
+                return Err(object_store::Error::Generic { store: "dropping", source: "connection reset".into() });
+            }
+            written
+        }
+        async fn put_multipart_opts(
+            &self,
+            location: &ObjectPath,
+            opts: object_store::PutMultipartOptions,
+        ) -> object_store::Result<Box<dyn object_store::MultipartUpload>> {
+            self.inner.put_multipart_opts(location, opts).await
+        }
+        async fn get_opts(
+            &self,
+            location: &ObjectPath,
+            options: object_store::GetOptions,
+        ) -> object_store::Result<object_store::GetResult> {
+            self.inner.get_opts(location, options).await
+        }
+        fn delete_stream(
+            &self,
+            locations: futures::stream::BoxStream<'static, object_store::Result<ObjectPath>>,
+        ) -> futures::stream::BoxStream<'static, object_store::Result<ObjectPath>> {
+            self.inner.delete_stream(locations)
+        }
+        fn list(
+            &self,
+            prefix: Option<&ObjectPath>,
+        ) -> futures::stream::BoxStream<'static, object_store::Result<object_store::ObjectMeta>> {
+            self.inner.list(prefix)
+        }
+        async fn list_with_delimiter(
+            &self,
+            prefix: Option<&ObjectPath>,
+        ) -> object_store::Result<object_store::ListResult> {
+            self.inner.list_with_delimiter(prefix).await
+        }
+        async fn copy_opts(
+            &self,
+            from: &ObjectPath,
+            to: &ObjectPath,
+            options: object_store::CopyOptions,
+        ) -> object_store::Result<()> {
+            self.inner.copy_opts(from, to, options).await
+        }
+    }
+
+    fn dropping(failures: u32) -> (ArtifactStore, Arc<DroppingStore>) {
+        let inner = Arc::new(DroppingStore {
+            inner: object_store::memory::InMemory::new(),
+            failures: failures.into(),
+            puts: 0.into(),
+        });
+        (ArtifactStore { inner: inner.clone(), prefix: String::new(), url: "memory://".into() }, inner)
+    }
+
+    #[tokio::test]
+    async fn an_upload_whose_connection_dropped_is_tried_again() {
+        let (store, inner) = dropping(PUT_RETRIES);
+        let a = store.put_bytes(Bytes::from_static(b"rgb")).await.unwrap();
+        assert_eq!(inner.puts.load(std::sync::atomic::Ordering::SeqCst), PUT_RETRIES + 1);
+        assert_eq!(store.get(&a.sha256).await.unwrap(), Bytes::from_static(b"rgb"));
+        assert_eq!(store.count_objects().await.unwrap(), 1);
+    }
+
+    #[tokio::test]
+    async fn an_upload_that_keeps_failing_gives_up() {
+        let (store, inner) = dropping(PUT_RETRIES + 1);
+        assert!(matches!(store.put_bytes(Bytes::from_static(b"rgb")).await, Err(ArtifactError::Store(_))));
+        assert_eq!(inner.puts.load(std::sync::atomic::Ordering::SeqCst), PUT_RETRIES + 1);
+    }
+
     #[test]
     fn keys_cannot_be_chosen_or_escape_the_store() {
         assert!(key_for("../../etc/passwd").is_err());
