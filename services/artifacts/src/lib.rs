@@ -53,6 +53,13 @@ pub struct ArtifactStore {
     url: String,
 }
 
+/// Extra tries of an upload that failed with a transport or server error. object_store retries
+/// on its own only the requests it knows to be idempotent, so a connection dropped mid-request or
+/// mid-response fails a PUT (and with it a whole task: a render re-rendered, an attempt of the
+/// task's budget spent). An upload here is idempotent: its key is its content's hash and it is
+/// written create-if-absent, so a retry finds the object (`AlreadyExists`) or writes the same bytes.
+const PUT_RETRIES: u32 = 2;
+
 /// The object key of content with this digest.
 pub fn key_for(sha256: &str) -> Result<String> {
     if sha256.len() != 64 || !sha256.bytes().all(|b| b.is_ascii_hexdigit() && !b.is_ascii_uppercase()) {
@@ -138,9 +145,18 @@ impl ArtifactStore {
         let key = key_for(&sha256)?;
         let size = bytes.len() as u64;
         let opts = PutOptions { mode: PutMode::Create, ..Default::default() };
-        match self.inner.put_opts(&self.location(&key)?, PutPayload::from(bytes), opts).await {
-            Ok(_) | Err(object_store::Error::AlreadyExists { .. }) => {}
-            Err(e) => return Err(e.into()),
+        let location = self.location(&key)?;
+        let mut tries = 0;
+        loop {
+            match self.inner.put_opts(&location, PutPayload::from(bytes.clone()), opts.clone()).await {
+                Ok(_) | Err(object_store::Error::AlreadyExists { .. }) => break,
+                Err(e @ object_store::Error::Generic { .. }) if tries < PUT_RETRIES => {
+                    tries += 1;
+                    tracing::warn!(%key, error = %e, "upload failed; trying again");
+                    tokio::time::sleep(std::time::Duration::from_millis(200 * u64::from(tries))).await;
+                }
+                Err(e) => return Err(e.into()),
+            }
         }
         Ok(StoredObject { sha256, size, key })
     }
@@ -211,6 +227,104 @@ mod tests {
         let a = store.put_bytes(Bytes::from_static(b"mask")).await.unwrap();
         std::fs::write(dir.path().join(&a.key), b"MASK").unwrap();
         assert!(matches!(store.get(&a.sha256).await, Err(ArtifactError::HashMismatch { .. })));
+    }
+
+    /// An in-memory store whose first `failures` puts fail as a dropped connection would, after
+    /// the object is written (the worst case: stored, but the client never hears so).
+    #[derive(Debug)]
+    struct DroppingStore {
+        inner: object_store::memory::InMemory,
+        failures: std::sync::atomic::AtomicU32,
+        puts: std::sync::atomic::AtomicU32,
+    }
+
+    impl std::fmt::Display for DroppingStore {
+        fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            write!(f, "DroppingStore")
+        }
+    }
+
+    #[async_trait::async_trait]
+    impl ObjectStore for DroppingStore {
+        async fn put_opts(
+            &self,
+            location: &ObjectPath,
+            payload: PutPayload,
+            opts: PutOptions,
+        ) -> object_store::Result<object_store::PutResult> {
+            use std::sync::atomic::Ordering::SeqCst;
+            self.puts.fetch_add(1, SeqCst);
+            let written = self.inner.put_opts(location, payload, opts).await;
+            if self.failures.fetch_update(SeqCst, SeqCst, |n| n.checked_sub(1)).is_ok() {
+                return Err(object_store::Error::Generic { store: "dropping", source: "connection reset".into() });
+            }
+            written
+        }
+        async fn put_multipart_opts(
+            &self,
+            location: &ObjectPath,
+            opts: object_store::PutMultipartOptions,
+        ) -> object_store::Result<Box<dyn object_store::MultipartUpload>> {
+            self.inner.put_multipart_opts(location, opts).await
+        }
+        async fn get_opts(
+            &self,
+            location: &ObjectPath,
+            options: object_store::GetOptions,
+        ) -> object_store::Result<object_store::GetResult> {
+            self.inner.get_opts(location, options).await
+        }
+        fn delete_stream(
+            &self,
+            locations: futures::stream::BoxStream<'static, object_store::Result<ObjectPath>>,
+        ) -> futures::stream::BoxStream<'static, object_store::Result<ObjectPath>> {
+            self.inner.delete_stream(locations)
+        }
+        fn list(
+            &self,
+            prefix: Option<&ObjectPath>,
+        ) -> futures::stream::BoxStream<'static, object_store::Result<object_store::ObjectMeta>> {
+            self.inner.list(prefix)
+        }
+        async fn list_with_delimiter(
+            &self,
+            prefix: Option<&ObjectPath>,
+        ) -> object_store::Result<object_store::ListResult> {
+            self.inner.list_with_delimiter(prefix).await
+        }
+        async fn copy_opts(
+            &self,
+            from: &ObjectPath,
+            to: &ObjectPath,
+            options: object_store::CopyOptions,
+        ) -> object_store::Result<()> {
+            self.inner.copy_opts(from, to, options).await
+        }
+    }
+
+    fn dropping(failures: u32) -> (ArtifactStore, Arc<DroppingStore>) {
+        let inner = Arc::new(DroppingStore {
+            inner: object_store::memory::InMemory::new(),
+            failures: failures.into(),
+            puts: 0.into(),
+        });
+        (ArtifactStore { inner: inner.clone(), prefix: String::new(), url: "memory://".into() }, inner)
+    }
+
+    #[tokio::test]
+    async fn an_upload_whose_connection_dropped_is_tried_again() {
+        let (store, inner) = dropping(PUT_RETRIES);
+        let a = store.put_bytes(Bytes::from_static(b"rgb")).await.unwrap();
+        assert_eq!(inner.puts.load(std::sync::atomic::Ordering::SeqCst), PUT_RETRIES + 1);
+        assert_eq!(store.get(&a.sha256).await.unwrap(), Bytes::from_static(b"rgb"));
+        assert_eq!(store.count_objects().await.unwrap(), 1);
+    }
+
+    #[tokio::test]
+    async fn an_upload_that_keeps_failing_gives_up() {
+        let (store, inner) = dropping(PUT_RETRIES + 1);
+        assert!(matches!(store.put_bytes(Bytes::from_static(b"rgb")).await, Err(ArtifactError::Store(_))));
+        assert_eq!(inner.puts.load(std::sync::atomic::Ordering::SeqCst), PUT_RETRIES + 1);
     }
 
     #[test]
