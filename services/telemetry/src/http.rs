@@ -148,9 +148,11 @@ mod tests {
         (status, content_type, body.to_string())
     }
 
-    fn registry_with_one_of_each() -> (Registry, Family<Vec<(String, String)>, Counter>, Histogram) {
+    type EventCounter = Family<Vec<(String, String)>, Counter>;
+
+    fn registry_with_one_of_each() -> (Registry, EventCounter, Histogram) {
         let mut registry = Registry::default();
-        let counter = Family::<Vec<(String, String)>, Counter>::default();
+        let counter = EventCounter::default();
         let gauge = Gauge::<i64>::default();
         let histogram = Histogram::new(crate::rpc_seconds_buckets());
         registry.register("vint_test_events", "Events seen", counter.clone());
@@ -231,9 +233,7 @@ mod tests {
         }
         let mut declared = std::collections::HashSet::new();
         let mut family: Option<(String, String)> = None;
-        // A histogram's series (its labels but `le`): its buckets (le, count) and its `_count`.
-        let mut histograms: std::collections::BTreeMap<String, (Vec<(String, f64)>, Option<f64>)> =
-            std::collections::BTreeMap::new();
+        let mut histograms = HistogramSeries::new();
         for (n, line) in lines.iter().enumerate() {
             let at = |why: &str| format!("line {}: {why}: {line:?}", n + 1);
             if line.starts_with("# TYPE ") || *line == "# EOF" {
@@ -295,10 +295,12 @@ mod tests {
         Ok(())
     }
 
+    /// A histogram family's series, by their labels but `le`: their buckets (`le`, count) and
+    /// their `_count`.
+    type HistogramSeries = std::collections::BTreeMap<String, (Vec<(String, f64)>, Option<f64>)>;
+
     /// Each histogram series: buckets in increasing `le`, cumulative, ending at `+Inf` = `_count`.
-    fn check_histograms(
-        histograms: &std::collections::BTreeMap<String, (Vec<(String, f64)>, Option<f64>)>,
-    ) -> Result<(), String> {
+    fn check_histograms(histograms: &HistogramSeries) -> Result<(), String> {
         for (series, (buckets, count)) in histograms {
             let Some(count) = count else { continue };
             let bounds: Vec<f64> = buckets
