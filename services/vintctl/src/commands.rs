@@ -88,6 +88,13 @@ pub async fn jobs(url: &str, limit: u32, json: bool) -> CliResult {
     Ok(())
 }
 
+/// One dashboard view (docs/dashboard.md), of one job or of all.
+pub async fn dashboard(url: &str, view: &str, job: Option<&str>, limit: u32, json: bool) -> CliResult {
+    let table = Coordinator::connect(url).await?.dashboard(view, job, limit).await?;
+    report::dashboard(&table, json);
+    Ok(())
+}
+
 pub async fn cancel(url: &str, job: &str, json: bool) -> CliResult {
     let job = Coordinator::connect(url).await?.cancel(job).await?;
     report::job(&job, json);
