@@ -74,6 +74,7 @@ pub const RPC_ROLES: &[(&str, Role)] = &[
     ("/vint.v1.JobService/GetLineage", Role::Read),
     ("/vint.v1.JobService/ListSamples", Role::Read),
     ("/vint.v1.JobService/GetServerInfo", Role::Read),
+    ("/vint.v1.JobService/QueryDashboard", Role::Read),
     ("/vint.v1.WorkService/LeaseTasks", Role::Worker),
     ("/vint.v1.WorkService/Heartbeat", Role::Worker),
     ("/vint.v1.WorkService/CompleteTask", Role::Worker),

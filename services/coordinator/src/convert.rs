@@ -2,7 +2,7 @@
 
 use tonic::Status;
 use vint_proto::v1 as pb;
-use vint_store::{ArtifactRecord, FailedTask, JobRecord, Progress, StoreError};
+use vint_store::{ArtifactRecord, DashboardTable, FailedTask, JobRecord, Progress, StoreError};
 
 pub fn status(e: StoreError) -> Status {
     match e {
@@ -90,5 +90,27 @@ pub fn failed_task(t: &FailedTask) -> pb::FailedTask {
         attempts: t.attempts,
         last_error,
         failed_upstream: t.failed_upstream(),
+    }
+}
+
+/// A dashboard view's rows as the wire carries them: each value text, integer, real or unset (NULL).
+pub fn dashboard(table: DashboardTable) -> pb::DashboardTable {
+    use pb::dashboard_value::Value as V;
+    let value = |v: serde_json::Value| pb::DashboardValue {
+        value: match v {
+            serde_json::Value::String(s) => Some(V::Text(s)),
+            serde_json::Value::Number(n) => n.as_i64().map(V::Integer).or_else(|| n.as_f64().map(V::Real)),
+            serde_json::Value::Null => None,
+            other => Some(V::Text(other.to_string())),
+        },
+    };
+    pb::DashboardTable {
+        view: table.view.name().to_string(),
+        columns: table.columns,
+        rows: table
+            .rows
+            .into_iter()
+            .map(|row| pb::DashboardRow { values: row.into_iter().map(value).collect() })
+            .collect(),
     }
 }

@@ -1,4 +1,5 @@
-//! The client API (`JobService`): submit, inspect, watch and cancel jobs; lineage and samples.
+//! The client API (`JobService`): submit, inspect, watch and cancel jobs; lineage and samples; the
+//! dashboard's views.
 
 use std::collections::{BTreeMap, BTreeSet};
 
@@ -11,7 +12,7 @@ use vint_core::{DatasetSpec, SampleId};
 use vint_proto::v1 as pb;
 use vint_proto::v1::get_lineage_request::Subject;
 use vint_proto::v1::job_service_server::JobService;
-use vint_store::{JobAsset, JobRecord, LineageEntry, NewJob, Store};
+use vint_store::{DashboardView, JobAsset, JobRecord, LineageEntry, NewJob, Store, UnknownView};
 
 use crate::convert::{self, status};
 use crate::{CoordinatorConfig, now_ms};
@@ -355,6 +356,25 @@ impl JobService for JobApi {
             version: env!("CARGO_PKG_VERSION").to_string(),
             store_url: self.config.artifacts.as_ref().map(|a| a.url().to_string()).unwrap_or_default(),
         }))
+    }
+
+    async fn query_dashboard(
+        &self,
+        request: Request<pb::QueryDashboardRequest>,
+    ) -> Result<Response<pb::DashboardTable>, Status> {
+        let req = request.into_inner();
+        let view: DashboardView = req.view.parse().map_err(|e: UnknownView| Status::invalid_argument(e.to_string()))?;
+        let job = Some(req.job_id.as_str()).filter(|j| !j.is_empty());
+        if let Some(job_id) = job {
+            if !view.per_job() {
+                return Err(Status::invalid_argument(format!(
+                    "job_id: view {view} is not per job, so it takes no job (got {job_id:?})"
+                )));
+            }
+            self.job_record(job_id).await?;
+        }
+        let table = self.store.dashboard(view, job, req.limit).await.map_err(status)?;
+        Ok(Response::new(convert::dashboard(table)))
     }
 
     async fn list_samples(

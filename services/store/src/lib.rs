@@ -27,6 +27,7 @@
 //! dependents they unblock in id order); and the coordinator keeps the planner's statistics
 //! current as a job grows its tables (`Store::refresh_statistics`).
 
+mod dashboard;
 mod depth;
 mod failures;
 pub mod footprint;
@@ -41,6 +42,7 @@ use std::time::Duration;
 use sqlx::any::{AnyPoolOptions, install_default_drivers};
 use sqlx::{AnyPool, Executor};
 
+pub use dashboard::{ColumnType, DashboardTable, DashboardView, MAX_ROWS as DASHBOARD_MAX_ROWS, UnknownView};
 pub use depth::{LIVE_TASK_STATES, QueueDepth};
 pub use failures::FailedTask;
 pub use lineage::ASSET_TASK_KEY;

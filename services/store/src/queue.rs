@@ -49,17 +49,21 @@ impl Store {
             skip_locked = self.backend.skip_locked(),
         );
         let deadline = now_ms + lease_ms;
+        let stages_seen = stages.iter().map(|s| s.as_str()).collect::<Vec<_>>().join(",");
         let mut leased = match self.backend {
-            // One statement: the lease and every leased task's inputs. The attempt is written
-            // when it ends; until then the task's row is its record.
+            // One statement: the worker's row, the lease and every leased task's inputs. The
+            // attempt is written when it ends; until then the task's row is its record.
             Backend::Postgres => {
+                let seen_pg = worker_seen("$2", "$6", "$4");
                 let sql = format!(
-                    "WITH leased AS ({update}) \
+                    "WITH seen AS ({seen}), new_worker AS ({new_worker}), leased AS ({update}) \
                      SELECT leased.*, (SELECT COALESCE(json_agg(json_build_object('task_id', a.task_id, \
                      'key', t.key, 'name', a.name, 'sha256', a.sha256, 'size', a.size, 'media_type', a.media_type, \
                      'object_key', a.object_key) ORDER BY t.key, a.name), '[]')::text FROM task_deps d \
                      JOIN artifacts a ON a.task_id = d.depends_on JOIN tasks t ON t.id = a.task_id \
-                     WHERE d.task_id = leased.id) AS inputs_json FROM leased"
+                     WHERE d.task_id = leased.id) AS inputs_json FROM leased",
+                    seen = seen_pg[0],
+                    new_worker = seen_pg[1],
                 );
                 let rows = sqlx::query(trusted(sql))
                     .bind(TaskState::Running.as_str())
@@ -67,6 +71,7 @@ impl Store {
                     .bind(deadline)
                     .bind(now_ms)
                     .bind(i64::from(capacity))
+                    .bind(&stages_seen)
                     .fetch_all(&self.pool)
                     .await?;
                 let mut leased = Vec::with_capacity(rows.len());
@@ -80,6 +85,14 @@ impl Store {
                 leased
             }
             Backend::Sqlite => {
+                for sql in worker_seen("$1", "$2", "$3") {
+                    sqlx::query(trusted(sql))
+                        .bind(worker_id)
+                        .bind(&stages_seen)
+                        .bind(now_ms)
+                        .execute(&self.pool)
+                        .await?;
+                }
                 let rows = sqlx::query(trusted(update))
                     .bind(TaskState::Running.as_str())
                     .bind(worker_id)
@@ -121,8 +134,20 @@ impl Store {
         // A heartbeat never waits: a held row another statement has locked (its completion in
         // flight, the reaper expiring it) is not renewed and reads as lost. Waiting instead could
         // deadlock with a completion of the same leases locking them in another order.
+        // The worker's last heartbeat (Postgres: in the same statement).
+        let seen = match self.backend {
+            Backend::Postgres => format!("seen AS ({}), ", worker_heartbeat(self.backend, "$4", "$2")),
+            Backend::Sqlite => {
+                sqlx::query(trusted(worker_heartbeat(self.backend, "$1", "$2")))
+                    .bind(worker_id)
+                    .bind(now_ms)
+                    .execute(&self.pool)
+                    .await?;
+                String::new()
+            }
+        };
         let sql = format!(
-            "WITH h AS (SELECT * FROM {held}), \
+            "WITH {seen}h AS (SELECT * FROM {held}), \
              kept AS (SELECT t.id FROM tasks t JOIN h ON h.id = t.id WHERE t.state = $3 AND t.lease_owner = $4 \
                AND t.attempt = h.attempt AND t.lease_deadline_ms >= $2 {lock}) \
              UPDATE tasks SET lease_deadline_ms = $1, updated_ms = $2 FROM kept WHERE tasks.id = kept.id \
@@ -377,6 +402,38 @@ impl Store {
         let rows = sqlx::query(trusted(sql)).bind(TaskState::Running.as_str()).fetch_all(&self.pool).await?;
         rows.iter().map(task_from_row).collect()
     }
+}
+
+/// Records that `worker` (a parameter) asked for tasks of `stages` (comma-separated) at `now_ms`,
+/// for the dashboard's `workers` view (migration 0008): an update, then an insert of a worker not
+/// seen before. An idle worker polls twice a second: its row is written at most once a second
+/// (`WORKER_SEEN_RESOLUTION_MS`) or when its stages change, and a poll that writes nothing locks
+/// nothing (an upsert would lock the row, and make every empty poll a commit that waits for WAL).
+fn worker_seen(worker: &str, stages: &str, now_ms: &str) -> [String; 2] {
+    [
+        format!(
+            "UPDATE workers SET stages = {stages}, last_seen_ms = {now_ms} WHERE id = {worker} \
+             AND (last_seen_ms <= {now_ms} - {WORKER_SEEN_RESOLUTION_MS} OR stages <> {stages})"
+        ),
+        format!(
+            "INSERT INTO workers (id, stages, first_seen_ms, last_seen_ms) SELECT {worker}, {stages}, {now_ms}, {now_ms} \
+             WHERE NOT EXISTS (SELECT 1 FROM workers WHERE id = {worker}) ON CONFLICT (id) DO NOTHING"
+        ),
+    ]
+}
+
+/// How stale a worker's `last_seen_ms` may be before a lease request writes it again.
+const WORKER_SEEN_RESOLUTION_MS: i64 = 1_000;
+
+/// Records that `worker` heartbeated at `now_ms` (its stages stay those of its last lease). Its row
+/// exists since its lease; like the rest of a heartbeat it never waits for a lock: a lease of the
+/// same worker updating the row that instant has just recorded it as seen.
+fn worker_heartbeat(backend: Backend, worker: &str, now_ms: &str) -> String {
+    format!(
+        "UPDATE workers SET last_seen_ms = {now_ms}, last_heartbeat_ms = {now_ms} \
+         WHERE id = (SELECT id FROM workers WHERE id = {worker} {skip_locked})",
+        skip_locked = backend.skip_locked(),
+    )
 }
 
 /// A leased task as the lease statement returns it, without its inputs.

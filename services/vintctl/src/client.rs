@@ -64,6 +64,16 @@ impl Coordinator {
         Ok(self.client.get_job(request).await.map_err(|s| rpc_failure("job", s))?.into_inner())
     }
 
+    pub async fn dashboard(
+        &mut self,
+        view: &str,
+        job_id: Option<&str>,
+        limit: u32,
+    ) -> Result<pb::DashboardTable, Failure> {
+        let request = pb::QueryDashboardRequest { view: view.into(), job_id: job_id.unwrap_or_default().into(), limit };
+        Ok(self.client.query_dashboard(request).await.map_err(|s| rpc_failure("dashboard", s))?.into_inner())
+    }
+
     pub async fn jobs(&mut self, limit: u32) -> Result<Vec<pb::Job>, Failure> {
         let request = pb::ListJobsRequest { limit };
         Ok(self.client.list_jobs(request).await.map_err(|s| rpc_failure("jobs", s))?.into_inner().jobs)

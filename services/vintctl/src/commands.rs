@@ -89,6 +89,13 @@ pub async fn jobs(remote: &Remote, limit: u32, json: bool) -> CliResult {
     Ok(())
 }
 
+/// One dashboard view (docs/dashboard.md), of one job or of all.
+pub async fn dashboard(remote: &Remote, view: &str, job: Option<&str>, limit: u32, json: bool) -> CliResult {
+    let table = Coordinator::connect(remote).await?.dashboard(view, job, limit).await?;
+    report::dashboard(&table, json);
+    Ok(())
+}
+
 pub async fn cancel(remote: &Remote, job: &str, json: bool) -> CliResult {
     let job = Coordinator::connect(remote).await?.cancel(job).await?;
     report::job(&job, json);

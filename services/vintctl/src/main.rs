@@ -39,6 +39,7 @@ Getting started:
 
 On a cluster (a running vint-coordinator; --coordinator URL or VINT_COORDINATOR):
   vintctl submit SPEC, then watch / status / jobs / cancel / lineage / export JOB
+  vintctl dashboard VIEW [--job JOB]                   progress, throughput, failures, workers, … (docs/dashboard.md)
 
 Specs, the cluster and every output are described in README.md.";
 
@@ -121,6 +122,18 @@ enum Command {
     Jobs {
         /// How many jobs, most recent first.
         #[arg(long, default_value_t = 20)]
+        limit: u32,
+    },
+    /// Query a dashboard view (docs/dashboard.md): job_progress, throughput, failures, workers,
+    /// grasp_acceptance, grasp_rejections, active_taxels, render_seconds, bytes_written.
+    Dashboard {
+        /// The view's name.
+        view: String,
+        /// Only this job's rows (default: every job; the workers view is not per job).
+        #[arg(long)]
+        job: Option<String>,
+        /// Most rows shown (at most 10,000; 0: 10,000).
+        #[arg(long, default_value_t = 1000)]
         limit: u32,
     },
     /// Show the chain of tasks, parameters, engine versions and artifact hashes behind a sample
@@ -282,6 +295,9 @@ async fn dispatch(command: Command, json: bool, coordinator: &vint_connect::Remo
         Command::Watch { job } => commands::watch(coordinator, &job, json).await,
         Command::Cancel { job } => commands::cancel(coordinator, &job, json).await,
         Command::Jobs { limit } => commands::jobs(coordinator, limit, json).await,
+        Command::Dashboard { view, job, limit } => {
+            commands::dashboard(coordinator, &view, job.as_deref(), limit, json).await
+        }
         Command::Lineage { subject, job, artifact } => {
             commands::lineage(coordinator, &subject, job, artifact, json).await
         }

@@ -480,3 +480,62 @@ mod tests {
         );
     }
 }
+
+/// A dashboard view's rows: with `json`, an array of objects keyed by column (raw values, times in
+/// Unix ms); else an aligned table, times as local time and NULL as `-`.
+pub fn dashboard(table: &pb::DashboardTable, json: bool) {
+    if json {
+        let rows: Vec<Value> = table
+            .rows
+            .iter()
+            .map(|row| {
+                let cells = table.columns.iter().zip(&row.values).map(|(c, v)| (c.clone(), dashboard_json(v)));
+                Value::Object(cells.collect())
+            })
+            .collect();
+        print_json(&Value::Array(rows));
+        return;
+    }
+    if table.rows.is_empty() {
+        println!("{}: no rows", table.view);
+        return;
+    }
+    let cells: Vec<Vec<String>> = table
+        .rows
+        .iter()
+        .map(|row| table.columns.iter().zip(&row.values).map(|(c, v)| dashboard_text(c, v)).collect())
+        .collect();
+    let header: Vec<String> = table.columns.iter().map(|c| c.to_uppercase()).collect();
+    let widths: Vec<usize> = (0..header.len())
+        .map(|i| cells.iter().map(|r| r[i].chars().count()).chain([header[i].len()]).max().unwrap_or(0))
+        .collect();
+    let line = |cells: &[String]| {
+        let padded: Vec<String> = cells.iter().zip(&widths).map(|(c, w)| format!("{c:<w$}")).collect();
+        println!("{}", padded.join("  ").trim_end());
+    };
+    line(&header);
+    for row in &cells {
+        line(row);
+    }
+}
+
+fn dashboard_json(v: &pb::DashboardValue) -> Value {
+    use pb::dashboard_value::Value as V;
+    match &v.value {
+        Some(V::Text(s)) => json!(s),
+        Some(V::Integer(n)) => json!(n),
+        Some(V::Real(x)) => json!(x),
+        None => Value::Null,
+    }
+}
+
+fn dashboard_text(column: &str, v: &pb::DashboardValue) -> String {
+    use pb::dashboard_value::Value as V;
+    match &v.value {
+        Some(V::Text(s)) => s.clone(),
+        Some(V::Integer(ms)) if column.ends_with("_ms") => local_time(*ms),
+        Some(V::Integer(n)) => n.to_string(),
+        Some(V::Real(x)) => format!("{x:.3}"),
+        None => "-".to_string(),
+    }
+}

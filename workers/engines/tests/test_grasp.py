@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from conftest import new_dir
 
-from vint_engines.grasp.engine import GraspEngine
+from vint_engines.grasp.engine import GraspEngine, grasp_result
 from vint_engines.grasp.hands import ALLEGRO, TRX3
 from vint_engines.grasp.scene import ObjectSpec, build_scene
 from vint_engines.grasp.trial import SURFACE_DRAWS, Approach, Physics, Rollout, TrialRejected
@@ -57,6 +57,23 @@ def engine() -> GraspEngine:
 @pytest.fixture(scope="module")
 def eight_trials(engine: GraspEngine, tmp_path_factory: pytest.TempPathFactory) -> tuple[str, dict[str, Any]]:
     return run_grasp(engine, grasp_params(SEEDS), tmp_path_factory.mktemp("grasp"))
+
+
+def test_the_result_counts_each_accepted_trials_active_taxels_per_region() -> None:
+    active = [{"region": "tip"}, {"region": "tip"}, {"region": "palm"}]
+    records = [
+        {"grasp_index": 3, "accepted": True, "touch": {"active": active}},
+        {"grasp_index": 4, "accepted": False, "reason": "dropped: lift"},
+        {"grasp_index": 5, "accepted": True, "touch": {"active": []}},
+    ]
+    assert grasp_result(records, ("palm", "tip", "pulp", "tip")) == {
+        "accepted": [3, 5],
+        "rejected": {"dropped": 1},
+        "active_taxels": [
+            {"grasp_index": 3, "by_region": {"palm": 1, "pulp": 0, "tip": 2}},
+            {"grasp_index": 5, "by_region": {"palm": 0, "pulp": 0, "tip": 0}},
+        ],
+    }
 
 
 def test_most_trials_on_the_can_are_accepted(eight_trials: tuple[str, dict[str, Any]]) -> None:

@@ -284,4 +284,17 @@ pub struct GraspResult {
     /// Rejected trials by reason class (`no_contact`, `dropped`, `diverged`, …).
     #[serde(default)]
     pub rejected: BTreeMap<String, u32>,
+    /// Each accepted trial's active taxels per region of the hand's layout (`tip`, `pulp`,
+    /// `palm`; every region, 0 included), in the order of `accepted`: the dashboard's
+    /// `active_taxels` view reads them without opening `touch.json`.
+    #[serde(default)]
+    pub active_taxels: Vec<ActiveTaxels>,
+}
+
+/// An accepted trial's active taxels, counted per region of the hand's taxel layout.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ActiveTaxels {
+    pub grasp_index: u32,
+    pub by_region: BTreeMap<String, u32>,
 }

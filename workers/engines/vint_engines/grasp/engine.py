@@ -12,7 +12,7 @@ import hashlib
 import json
 import platform
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -99,7 +99,7 @@ class GraspEngine:
         result.add(touch_path, "application/json")
         result.add(write_object_model(scene, task.out_dir), MODEL_MEDIA_TYPE)
         accepted = [record for record in records if record["accepted"]]
-        result.result = grasp_result(records)
+        result.result = grasp_result(records, layout.regions)
         result.metrics.update(
             trials=len(records),
             accepted=len(accepted),
@@ -252,16 +252,30 @@ class GraspTask:
         )
 
 
-def grasp_result(records: list[dict[str, Any]]) -> dict[str, Any]:
-    """The stage's result (`GraspResult`): the accepted grasp indices, and the rejected trials
-    counted by reason class (`penetration: 5.1 mm` counts as `penetration`)."""
+def grasp_result(records: list[dict[str, Any]], regions: Sequence[str]) -> dict[str, Any]:
+    """The stage's result (`GraspResult`): the accepted grasp indices, the rejected trials
+    counted by reason class (`penetration: 5.1 mm` counts as `penetration`), and each accepted
+    trial's active taxels per region of the layout (`regions`: every taxel's region)."""
     rejected: dict[str, int] = {}
     for record in records:
         if not record["accepted"]:
             reason = str(record["reason"] or "unknown")
             kind = "dropped_shake" if reason == "dropped: shake" else reason.split(":", 1)[0].strip()
             rejected[kind] = rejected.get(kind, 0) + 1
+    accepted = [record for record in records if record["accepted"]]
     return {
-        "accepted": [record["grasp_index"] for record in records if record["accepted"]],
+        "accepted": [record["grasp_index"] for record in accepted],
         "rejected": rejected,
+        "active_taxels": [
+            {"grasp_index": record["grasp_index"], "by_region": active_by_region(record, regions)}
+            for record in accepted
+        ],
     }
+
+
+def active_by_region(record: dict[str, Any], regions: Sequence[str]) -> dict[str, int]:
+    """A trial's active taxels counted per region, every region of the layout included."""
+    counts = dict.fromkeys(sorted(set(regions)), 0)
+    for taxel in record.get("touch", {}).get("active", []):
+        counts[taxel["region"]] += 1
+    return counts
