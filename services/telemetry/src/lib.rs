@@ -8,3 +8,6 @@ pub fn init_tracing(json: bool) {
     let builder = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr);
     let _ = if json { builder.json().try_init() } else { builder.try_init() };
 }
+
+mod redact;
+pub use redact::{REDACTED, redact_url};
