@@ -95,7 +95,8 @@ async fn main() -> anyhow::Result<()> {
         format!("{}-{}-{}", host.trim(), std::process::id(), &uuid::Uuid::new_v4().simple().to_string()[..6])
     });
     let scratch = args.scratch.unwrap_or_else(|| std::env::temp_dir().join(format!("vint-worker-{worker_id}")));
-    let store = ArtifactStore::open(&args.store).with_context(|| format!("opening artifact store {}", args.store))?;
+    let store = ArtifactStore::open(&args.store)
+        .with_context(|| format!("opening artifact store {}", vint_telemetry::redact_url(&args.store)))?;
     if args.engine_mode == EngineMode::TimingOnly {
         let config = TimingOnlyConfig {
             coordinator: args.coordinator,
