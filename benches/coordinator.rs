@@ -299,7 +299,9 @@ async fn run_case(case: &Case, repeat: usize, settings: &Settings) -> Run {
         }
         Backend::Sqlite => (format!("sqlite://{}", scratch.path().join("vint.db").display()), None),
     };
-    let store = Store::open(&url, RetryPolicy::default()).await.unwrap_or_else(|e| panic!("opening {url}: {e}"));
+    let store = Store::open(&url, RetryPolicy::default())
+        .await
+        .unwrap_or_else(|e| panic!("opening {}: {e}", vint_telemetry::redact_url(&url)));
 
     let job_id = format!("bench-{}-b{}-r{repeat}", case.backend.name(), case.batch);
     let spec_toml = bench_spec(case.tasks);

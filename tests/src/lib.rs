@@ -72,9 +72,9 @@ pub async fn postgres_database(tag: &str) -> String {
     static N: AtomicU64 = AtomicU64::new(0);
     let admin = postgres_admin_url();
     sqlx::any::install_default_drivers();
-    let mut conn = <sqlx::AnyConnection as sqlx::Connection>::connect(&admin)
-        .await
-        .unwrap_or_else(|e| panic!("Postgres is required for these tests ({admin}): {e}"));
+    let mut conn = <sqlx::AnyConnection as sqlx::Connection>::connect(&admin).await.unwrap_or_else(|e| {
+        panic!("Postgres is required for these tests ({}): {e}", vint_telemetry::redact_url(&admin))
+    });
     let n = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().as_nanos() % 1_000_000_000;
     let db = format!("vint_test_{}_{tag}_{n}_{}", std::process::id(), N.fetch_add(1, Ordering::Relaxed));
     sqlx::Executor::execute(&mut conn, sqlx::AssertSqlSafe(format!("CREATE DATABASE {db}"))).await.expect("create db");
@@ -105,15 +105,22 @@ impl Proc {
     }
 
     pub fn sigterm_and_wait(&mut self) {
+        self.sigterm_and_wait_for(Duration::from_secs(15));
+    }
+
+    /// Sends SIGTERM and waits up to `within` for the process to exit: its exit status, or `None`
+    /// if it was still running (then it is SIGKILLed).
+    pub fn sigterm_and_wait_for(&mut self, within: Duration) -> Option<std::process::ExitStatus> {
         let _ = nix::sys::signal::kill(nix::unistd::Pid::from_raw(self.pid()), nix::sys::signal::Signal::SIGTERM);
-        let deadline = Instant::now() + Duration::from_secs(15);
+        let deadline = Instant::now() + within;
         while Instant::now() < deadline {
-            if let Ok(Some(_)) = self.child.try_wait() {
-                return;
+            if let Ok(Some(status)) = self.child.try_wait() {
+                return Some(status);
             }
-            std::thread::sleep(Duration::from_millis(50));
+            std::thread::sleep(Duration::from_millis(20));
         }
         self.sigkill();
+        None
     }
 }
 
@@ -163,9 +170,22 @@ pub fn start_worker(
     scratch: &Path,
     env: &[(String, String)],
 ) -> Proc {
+    start_worker_with_lease(coordinator, store, id, logs, scratch, env, 3_000)
+}
+
+/// `start_worker` asking for leases of `lease_ms`.
+pub fn start_worker_with_lease(
+    coordinator: &str,
+    store: &str,
+    id: &str,
+    logs: &Path,
+    scratch: &Path,
+    env: &[(String, String)],
+    lease_ms: u32,
+) -> Proc {
     let child = Command::new(bin("vint-worker"))
         .envs(env.iter().map(|(k, v)| (k, v)))
-        .args(["--coordinator", coordinator, "--store", store, "--worker-id", id, "--lease-ms", "3000"])
+        .args(["--coordinator", coordinator, "--store", store, "--worker-id", id, "--lease-ms", &lease_ms.to_string()])
         .arg("--python")
         .arg(python())
         .arg("--scratch")

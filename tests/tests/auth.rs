@@ -35,6 +35,7 @@ const ALLOWED: &[(&str, &[&str])] = &[
     ("/vint.v1.WorkService/Heartbeat", &["worker"]),
     ("/vint.v1.WorkService/CompleteTask", &["worker"]),
     ("/vint.v1.WorkService/CompleteTasks", &["worker"]),
+    ("/vint.v1.WorkService/ReleaseTasks", &["worker"]),
     ("/vint.v1.WorkService/FailTask", &["worker"]),
 ];
 
@@ -124,6 +125,7 @@ async fn call(channel: Channel, token: Option<&str>, rpc: &str) -> Code {
         "Heartbeat" => work.heartbeat(pb::HeartbeatRequest::default()).await.map(drop),
         "CompleteTask" => work.complete_task(pb::CompleteTaskRequest::default()).await.map(drop),
         "CompleteTasks" => work.complete_tasks(pb::CompleteTasksRequest::default()).await.map(drop),
+        "ReleaseTasks" => work.release_tasks(pb::ReleaseTasksRequest::default()).await.map(drop),
         "FailTask" => work.fail_task(pb::FailTaskRequest::default()).await.map(drop),
         other => panic!("this test does not know how to call {other}: add it"),
     };

@@ -1,6 +1,6 @@
 //! The cluster path: Postgres, a standalone coordinator, separate worker processes — and the
-//! faults it must survive: a worker SIGKILLed mid-task, a coordinator restarted mid-job, a worker
-//! whose lease expired trying to complete.
+//! faults it must survive: a worker SIGKILLed mid-task, a worker SIGTERMed mid-task (a rollout),
+//! a coordinator restarted mid-job, a worker whose lease expired trying to complete.
 
 use std::collections::BTreeSet;
 use std::path::Path;
@@ -211,6 +211,56 @@ async fn a_worker_killed_mid_task_loses_nothing_and_duplicates_nothing() {
     let (_rows, distinct) = store.artifact_stats(&job).await.unwrap();
     let objects = vint_artifacts::ArtifactStore::open(&c.store_url).unwrap().count_objects().await.unwrap();
     assert_eq!(objects as u64, distinct, "no orphaned or duplicated objects");
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_worker_sigtermed_mid_task_gives_its_lease_back_at_once_and_exits_0() {
+    let c = Cluster::new("sigterm").await;
+    let _coordinator = c.coordinator_proc("coordinator");
+    let job = c.submit();
+    let store = c.store().await;
+    // A lease far longer than the test: only a hand-back can requeue the task in time.
+    let lease_ms = 600_000;
+    let scratch = c.dir.path().join("scratch");
+    let mut victim =
+        start_worker_with_lease(&c.coordinator, &c.store_url, "victim", &c.logs(), &scratch, &c.env, lease_ms);
+    let deadline = std::time::Instant::now() + Duration::from_secs(120);
+    let held = loop {
+        let running = store.running_tasks().await.unwrap();
+        if let Some(t) = running.iter().find(|t| t.lease_owner.as_deref() == Some("victim") && t.stage == Stage::Render)
+        {
+            break t.clone();
+        }
+        assert!(std::time::Instant::now() < deadline, "the victim never ran a render task");
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    };
+    let engines = children_of(victim.pid());
+    let stopped = std::time::Instant::now();
+    let status = victim.sigterm_and_wait_for(Duration::from_secs(10));
+    let status = status.expect("the worker did not exit within 10 s of SIGTERM");
+    assert!(status.success(), "the worker exited {status}");
+    eprintln!("worker stopped in {:?}", stopped.elapsed());
+    for pid in engines {
+        // Gone, or a zombie for the moment init takes to reap it.
+        let alive = || {
+            std::fs::read_to_string(format!("/proc/{pid}/stat"))
+                .is_ok_and(|stat| stat.rsplit(')').next().is_some_and(|rest| !rest.trim_start().starts_with('Z')))
+        };
+        assert!(!alive(), "engine {pid} outlived its worker");
+    }
+    // Back in the queue now, not after the lease: its attempt ended `released`, by the victim.
+    let task = store.task(&held.id).await.unwrap().unwrap();
+    assert_eq!(task.state, vint_core::TaskState::Queued, "{task:?}");
+    let attempts = store.attempts(&held.id).await.unwrap();
+    let last = attempts.last().unwrap();
+    assert_eq!((last.attempt, last.worker_id.as_str()), (held.attempt, "victim"));
+    assert_eq!(last.outcome, Some(AttemptOutcome::Released), "{attempts:?}");
+
+    let _survivor = c.worker("survivor");
+    c.watch(&job);
+    let attempts = store.attempts(&held.id).await.unwrap();
+    assert_eq!(attempts.last().unwrap().outcome, Some(AttemptOutcome::Succeeded), "{attempts:?}");
+    assert_same_as_embedded(&c.export(&job));
 }
 
 #[tokio::test(flavor = "multi_thread")]

@@ -21,6 +21,7 @@ use sha2::{Digest, Sha256};
 
 #[derive(Debug, thiserror::Error)]
 pub enum ArtifactError {
+    /// The URL, with any password redacted.
     #[error("unsupported artifact store URL {0:?}: expected file:///absolute/dir or s3://bucket[/prefix]")]
     UnsupportedUrl(String),
     #[error("object store: {0}")]
@@ -106,7 +107,7 @@ impl ArtifactStore {
     pub fn open(url: &str) -> Result<ArtifactStore> {
         if let Some(dir) = url.strip_prefix("file://") {
             if !dir.starts_with('/') {
-                return Err(ArtifactError::UnsupportedUrl(url.to_string()));
+                return Err(ArtifactError::UnsupportedUrl(vint_telemetry::redact_url(url)));
             }
             std::fs::create_dir_all(dir).map_err(|source| ArtifactError::Io { path: dir.to_string(), source })?;
             let fs = LocalFileSystem::new_with_prefix(dir)?;
@@ -115,13 +116,13 @@ impl ArtifactStore {
         if let Some(rest) = url.strip_prefix("s3://") {
             let (bucket, prefix) = rest.split_once('/').unwrap_or((rest, ""));
             if bucket.is_empty() {
-                return Err(ArtifactError::UnsupportedUrl(url.to_string()));
+                return Err(ArtifactError::UnsupportedUrl(vint_telemetry::redact_url(url)));
             }
             let s3 = AmazonS3Builder::from_env().with_bucket_name(bucket).build()?;
             let prefix = prefix.trim_matches('/').to_string();
             return Ok(ArtifactStore { inner: Arc::new(s3), prefix, url: url.to_string() });
         }
-        Err(ArtifactError::UnsupportedUrl(url.to_string()))
+        Err(ArtifactError::UnsupportedUrl(vint_telemetry::redact_url(url)))
     }
 
     pub fn url(&self) -> &str {

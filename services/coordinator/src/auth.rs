@@ -79,6 +79,7 @@ pub const RPC_ROLES: &[(&str, Role)] = &[
     ("/vint.v1.WorkService/Heartbeat", Role::Worker),
     ("/vint.v1.WorkService/CompleteTask", Role::Worker),
     ("/vint.v1.WorkService/CompleteTasks", Role::Worker),
+    ("/vint.v1.WorkService/ReleaseTasks", Role::Worker),
     ("/vint.v1.WorkService/FailTask", Role::Worker),
 ];
 

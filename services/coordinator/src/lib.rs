@@ -16,6 +16,7 @@
 pub mod auth;
 mod convert;
 mod http;
+mod health;
 mod jobs_api;
 mod metrics;
 mod planner;
@@ -55,6 +56,11 @@ pub struct CoordinatorConfig {
     pub tokens: Option<Arc<auth::Tokens>>,
     /// Certificate and key to serve TLS with; `None` serves plain HTTP/2.
     pub tls: Option<tls::TlsIdentity>,
+    /// After shutdown is asked for, how long RPCs in flight may take to finish (a `WatchJob`
+    /// stream never does) before the server closes anyway.
+    pub shutdown_grace: Duration,
+    /// How often the gRPC health service asks the database whether it answers.
+    pub health_interval: Duration,
 }
 
 impl Default for CoordinatorConfig {
@@ -67,6 +73,8 @@ impl Default for CoordinatorConfig {
             metrics: Metrics::default(),
             tokens: None,
             tls: None,
+            shutdown_grace: Duration::from_secs(10),
+            health_interval: Duration::from_secs(5),
         }
     }
 }
@@ -81,7 +89,9 @@ const MAX_MESSAGE_BYTES: usize = 8 << 20;
 /// Largest job submission: a spec and its user files.
 const MAX_SUBMIT_BYTES: usize = vint_core::asset::MAX_ASSETS_TOTAL_BYTES as usize + (2 << 20);
 
-/// Serves both APIs on `listener` until `shutdown` resolves, with the lease reaper running.
+/// Serves both APIs and `grpc.health.v1.Health` on `listener` until `shutdown` resolves, with the
+/// lease reaper running. Then it stops accepting connections, lets the RPCs in flight finish
+/// for at most `config.shutdown_grace`, and stops the reaper and the health checks.
 pub async fn serve(
     store: Store,
     config: CoordinatorConfig,
@@ -94,15 +104,41 @@ pub async fn serve(
     }
     let auth = auth::AuthLayer::new(config.tokens.clone());
     let reaper = tokio::spawn(reap_forever(store.clone(), config.reap_interval, config.metrics.clone()));
+    let (health_reporter, health) = tonic_health::server::health_reporter();
+    let health_checks = tokio::spawn(health::report_forever(store.clone(), health_reporter, config.health_interval));
+    let (asked_tx, asked) = tokio::sync::oneshot::channel::<()>();
+    let shutdown = async move {
+        shutdown.await;
+        let _ = asked_tx.send(());
+    };
+    let grace = config.shutdown_grace;
     let jobs =
         JobServiceServer::new(JobApi::new(store.clone(), config.clone())).max_decoding_message_size(MAX_SUBMIT_BYTES);
     let work = WorkServiceServer::new(WorkApi::new(store, config)).max_decoding_message_size(MAX_MESSAGE_BYTES);
     // Small request/response pairs: without TCP_NODELAY each reply waits ~40 ms for a delayed ACK
     // (tonic applies its nodelay default only to listeners it binds itself).
     let incoming = TcpIncoming::from(listener).with_nodelay(Some(true));
-    let result =
-        server.layer(auth).add_service(jobs).add_service(work).serve_with_incoming_shutdown(incoming, shutdown).await;
+    let server = server
+        .layer(auth)
+        .add_service(health)
+        .add_service(jobs)
+        .add_service(work)
+        .serve_with_incoming_shutdown(incoming, shutdown);
+    let result = tokio::select! {
+        result = server => result,
+        () = async {
+            if asked.await.is_ok() {
+                tokio::time::sleep(grace).await;
+            } else {
+                std::future::pending::<()>().await;
+            }
+        } => {
+            tracing::warn!(grace_ms = grace.as_millis() as u64, "RPCs still in flight after the shutdown grace; closing");
+            Ok(())
+        }
+    };
     reaper.abort();
+    health_checks.abort();
     result
 }
 

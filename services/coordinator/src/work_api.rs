@@ -1,4 +1,4 @@
-//! The worker API (`WorkService`): lease, heartbeat, complete and fail tasks.
+//! The worker API (`WorkService`): lease, heartbeat, complete, fail and release tasks.
 //!
 //! Every change is fenced in the store on (task, worker, attempt); this layer validates what a
 //! worker reports (artifact keys must be the content keys of their hashes, names must be plain
@@ -280,5 +280,24 @@ impl WorkService for WorkApi {
         }
         tracing::warn!(task = %req.task_id, attempt = req.attempt, retryable = req.retryable, will_retry, message = %req.message, "task failed");
         Ok(Response::new(pb::FailTaskResponse { will_retry }))
+    }
+
+    async fn release_tasks(
+        &self,
+        request: Request<pb::ReleaseTasksRequest>,
+    ) -> Result<Response<pb::ReleaseTasksResponse>, Status> {
+        let req = request.into_inner();
+        if req.tasks.len() > MAX_BATCH {
+            return Err(Status::invalid_argument(format!(
+                "tasks: {} leases in one call, at most {MAX_BATCH}",
+                req.tasks.len()
+            )));
+        }
+        let held: Vec<(String, u32)> = req.tasks.iter().map(|t| (t.task_id.clone(), t.attempt)).collect();
+        let released = self.store.release(&req.worker_id, &held, now_ms()).await.map_err(status)?;
+        tracing::info!(worker = %req.worker_id, asked = held.len(), released = released.len(), "leases given back");
+        Ok(Response::new(pb::ReleaseTasksResponse {
+            released: released.into_iter().map(|(task_id, attempt)| pb::TaskAttempt { task_id, attempt }).collect(),
+        }))
     }
 }

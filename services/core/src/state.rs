@@ -6,8 +6,8 @@
 //!     │                      ▲  │                      │
 //!     │                      │  │ cancel               │ fail(retryable) or lease expired,
 //!     │                      │  ▼                      │ attempts left: back to queued with
-//!     │ cancel               │ cancelled ◄─────────────┤ backoff (not_before)
-//!     │ upstream failed      └─────────────────────────┤
+//!     │ cancel               │ cancelled ◄─────────────┤ backoff (not_before); released by its
+//!     │ upstream failed      └─────────────────────────┤ worker: back to queued at once
 //!     ▼                                                │ fail(permanent) or attempts exhausted
 //!  failed / cancelled ◄────────────────────────────────┘
 //! ```
@@ -124,15 +124,19 @@ pub enum AttemptOutcome {
     LeaseExpired,
     /// The job was cancelled while the attempt ran.
     Cancelled,
+    /// The worker gave the task back unfinished (it was shutting down): the task is queued again
+    /// at once, and the attempt does not count against its `max_attempts`.
+    Released,
 }
 
 impl AttemptOutcome {
-    pub const ALL: [AttemptOutcome; 5] = [
+    pub const ALL: [AttemptOutcome; 6] = [
         AttemptOutcome::Succeeded,
         AttemptOutcome::Retry,
         AttemptOutcome::Failed,
         AttemptOutcome::LeaseExpired,
         AttemptOutcome::Cancelled,
+        AttemptOutcome::Released,
     ];
 
     pub fn as_str(self) -> &'static str {
@@ -142,6 +146,7 @@ impl AttemptOutcome {
             AttemptOutcome::Failed => "failed",
             AttemptOutcome::LeaseExpired => "lease_expired",
             AttemptOutcome::Cancelled => "cancelled",
+            AttemptOutcome::Released => "released",
         }
     }
 
@@ -153,6 +158,7 @@ impl AttemptOutcome {
             AttemptOutcome::Failed => &[TaskState::Failed],
             AttemptOutcome::LeaseExpired => &[TaskState::Queued, TaskState::Failed],
             AttemptOutcome::Cancelled => &[TaskState::Cancelled],
+            AttemptOutcome::Released => &[TaskState::Queued],
         }
     }
 }

@@ -65,10 +65,4 @@ impl Store {
         }
         Ok(depth)
     }
-
-    /// Answers when the database does: one trivial round trip, for health checks.
-    pub async fn ping(&self) -> Result<()> {
-        sqlx::query("SELECT 1").execute(&self.pool).await?;
-        Ok(())
-    }
 }

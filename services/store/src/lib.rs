@@ -40,7 +40,7 @@ use std::str::FromStr;
 use std::time::Duration;
 
 use sqlx::any::{AnyPoolOptions, install_default_drivers};
-use sqlx::{AnyPool, Executor};
+use sqlx::{AnyPool, Executor, Row};
 
 pub use dashboard::{ColumnType, DashboardTable, DashboardView, MAX_ROWS as DASHBOARD_MAX_ROWS, UnknownView};
 pub use depth::{LIVE_TASK_STATES, QueueDepth};
@@ -113,8 +113,14 @@ pub enum StoreError {
     Database(#[from] sqlx::Error),
     #[error("migration failed: {0}")]
     Migrate(#[from] sqlx::migrate::MigrateError),
+    /// The URL, with any password redacted.
     #[error("unsupported database URL {0:?}: expected postgres://… or sqlite://…")]
     UnsupportedUrl(String),
+    #[error(
+        "the database's schema is behind this binary: migrations {missing:?} are not applied \
+         (run `vint-coordinator --migrate-only` with a role that may change the schema)"
+    )]
+    SchemaBehind { missing: Vec<i64> },
     #[error(
         "task {task_id} attempt {attempt}: lease not held by worker {worker_id} (expired, cancelled or taken over)"
     )]
@@ -151,13 +157,21 @@ pub struct Store {
 impl Store {
     /// Connects to `postgres://…` or `sqlite://…` (created if missing) and applies migrations.
     pub async fn open(url: &str, retry: RetryPolicy) -> Result<Store> {
+        let store = Store::connect(url, retry).await?;
+        store.migrate().await?;
+        Ok(store)
+    }
+
+    /// Connects without touching the schema (no DDL): for coordinator replicas whose role may
+    /// not change it, which check it with `require_current_schema` instead.
+    pub async fn connect(url: &str, retry: RetryPolicy) -> Result<Store> {
         install_default_drivers();
         let backend = if url.starts_with("postgres://") || url.starts_with("postgresql://") {
             Backend::Postgres
         } else if url.starts_with("sqlite:") {
             Backend::Sqlite
         } else {
-            return Err(StoreError::UnsupportedUrl(url.to_string()));
+            return Err(StoreError::UnsupportedUrl(vint_telemetry::redact_url(url)));
         };
         let pool = match backend {
             Backend::Postgres => {
@@ -201,9 +215,7 @@ impl Store {
                     .await?
             }
         };
-        let store = Store { pool, backend, retry };
-        store.migrate().await?;
-        Ok(store)
+        Ok(Store { pool, backend, retry })
     }
 
     pub fn backend(&self) -> Backend {
@@ -214,11 +226,64 @@ impl Store {
         self.retry
     }
 
-    async fn migrate(&self) -> Result<()> {
-        match self.backend {
-            Backend::Postgres => sqlx::migrate!("../../migrations/postgres").run(&self.pool).await?,
-            Backend::Sqlite => sqlx::migrate!("../../migrations/sqlite").run(&self.pool).await?,
+    /// Applies the migrations the database lacks (DDL).
+    pub async fn migrate(&self) -> Result<()> {
+        self.migrator().run(&self.pool).await?;
+        Ok(())
+    }
+
+    /// Refuses (`SchemaBehind`) a database that lacks any of this binary's migrations; changes
+    /// nothing. A database ahead of the binary (migrated by a newer release during a rollout)
+    /// passes: migrations only add to the schema.
+    pub async fn require_current_schema(&self) -> Result<()> {
+        let applied = self.applied_migrations().await?;
+        let missing: Vec<i64> = self.migrator().iter().map(|m| m.version).filter(|v| !applied.contains(v)).collect();
+        if missing.is_empty() { Ok(()) } else { Err(StoreError::SchemaBehind { missing }) }
+    }
+
+    /// The versions of the migrations applied to the database (none before the first).
+    async fn applied_migrations(&self) -> Result<Vec<i64>> {
+        let exists = match self.backend {
+            Backend::Postgres => {
+                "SELECT COUNT(*) AS n FROM pg_tables WHERE tablename = '_sqlx_migrations' \
+                                  AND schemaname = current_schema()"
+            }
+            Backend::Sqlite => {
+                "SELECT COUNT(*) AS n FROM sqlite_master WHERE type = 'table' AND name = '_sqlx_migrations'"
+            }
+        };
+        let n: i64 = sqlx::query(exists).fetch_one(&self.pool).await?.try_get("n")?;
+        if n == 0 {
+            return Ok(Vec::new());
         }
+        let rows = sqlx::query("SELECT version FROM _sqlx_migrations WHERE success ORDER BY version")
+            .fetch_all(&self.pool)
+            .await?;
+        rows.iter().map(|row| Ok(row.try_get::<i64, _>("version")?)).collect()
+    }
+
+    fn migrator(&self) -> sqlx::migrate::Migrator {
+        match self.backend {
+            Backend::Postgres => sqlx::migrate!("../../migrations/postgres"),
+            Backend::Sqlite => sqlx::migrate!("../../migrations/sqlite"),
+        }
+    }
+
+    /// Whether this store's connections to Postgres are encrypted (TLS), as the server sees one of
+    /// them; `None` on SQLite. With the URL's default `sslmode=prefer` a connection is encrypted
+    /// when the server offers TLS and in clear when it does not; `require`, `verify-ca` and
+    /// `verify-full` refuse to connect in clear.
+    pub async fn encrypted(&self) -> Result<Option<bool>> {
+        if self.backend != Backend::Postgres {
+            return Ok(None);
+        }
+        let row = sqlx::query("SELECT ssl FROM pg_stat_ssl WHERE pid = pg_backend_pid()").fetch_one(&self.pool).await?;
+        Ok(Some(row.try_get::<bool, _>("ssl")?))
+    }
+
+    /// Whether the database answers a trivial query: the coordinator's health.
+    pub async fn ping(&self) -> Result<()> {
+        sqlx::query("SELECT 1").execute(&self.pool).await?;
         Ok(())
     }
 

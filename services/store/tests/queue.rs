@@ -121,6 +121,73 @@ store_test!(wrong_worker_or_attempt_cannot_complete, |store: Store| async move {
     assert_eq!(state_of(&store, "j/grasp/a").await, TaskState::Running);
 });
 
+store_test!(a_released_task_is_queued_again_at_once_and_its_attempt_says_released, |store: Store| async move {
+    let tasks = [task("grasp/a", Stage::Grasp, &[]), task("grasp/b", Stage::Grasp, &[])];
+    store.submit_job(&job("j"), &tasks, 0).await.unwrap();
+    let leased = store.lease("w", &[Stage::Grasp], 2, 60_000, 10).await.unwrap();
+    let held: Vec<(String, u32)> = leased.iter().map(|t| (t.id.clone(), t.attempt)).collect();
+    let released = store.release("w", &held, 20).await.unwrap();
+    assert_eq!(released, held, "both leases given back");
+    for (id, _) in &held {
+        assert_eq!(state_of(&store, id).await, TaskState::Queued);
+        let attempts = store.attempts(id).await.unwrap();
+        assert_eq!(attempts.len(), 1, "{attempts:?}");
+        assert_eq!(attempts[0].outcome, Some(AttemptOutcome::Released));
+        assert_eq!((attempts[0].worker_id.as_str(), attempts[0].started_ms, attempts[0].ended_ms), ("w", 10, Some(20)));
+    }
+    // No backoff: another worker leases them in the same millisecond, as their second attempts.
+    let again = store.lease("w2", &[Stage::Grasp], 2, 60_000, 20).await.unwrap();
+    assert_eq!(
+        again.iter().map(|t| (t.id.clone(), t.attempt)).collect::<Vec<_>>(),
+        [("j/grasp/a".to_string(), 2), ("j/grasp/b".to_string(), 2)]
+    );
+});
+
+store_test!(a_release_by_anyone_but_the_lease_holder_at_its_attempt_is_refused, |store: Store| async move {
+    submit_chain(&store, "j").await;
+    let leased = store.lease("w1", &[Stage::Grasp], 1, 1_000, 0).await.unwrap().remove(0);
+    let id = leased.id.clone();
+    assert!(store.release("w2", &[(id.clone(), 1)], 1).await.unwrap().is_empty(), "another worker");
+    assert!(store.release("w1", &[(id.clone(), 2)], 1).await.unwrap().is_empty(), "another attempt");
+    assert!(store.release("w1", &[("j/grasp/missing".into(), 1)], 1).await.unwrap().is_empty(), "no such task");
+    assert!(store.release("w1", &[(id.clone(), 1)], 1_001).await.unwrap().is_empty(), "an expired lease");
+    assert_eq!(state_of(&store, &id).await, TaskState::Running);
+    assert!(store.attempts(&id).await.unwrap()[0].outcome.is_none(), "the attempt still runs");
+    // The holder itself can, and only once; a completion after it is refused.
+    assert_eq!(store.release("w1", &[(id.clone(), 1)], 1_000).await.unwrap(), [(id.clone(), 1)]);
+    assert!(store.release("w1", &[(id.clone(), 1)], 1_000).await.unwrap().is_empty());
+    let late = store.complete(&completion(fence(&leased, "w1"), &[]), &[], 1_000).await.unwrap_err();
+    assert!(matches!(late, StoreError::LeaseLost { .. }), "{late}");
+    assert_eq!(store.attempts(&id).await.unwrap().len(), 1, "the attempt is written once");
+});
+
+store_test!(releases_do_not_bring_a_task_closer_to_failing_for_good, |store: Store| async move {
+    submit_chain(&store, "j").await;
+    let mut now = 0;
+    let lease = |now: i64| {
+        let store = store.clone();
+        async move { store.lease("w", &[Stage::Grasp], 1, 1_000, now).await.unwrap().remove(0) }
+    };
+    for _ in 0..10 {
+        let t = lease(now).await;
+        assert_eq!(store.release("w", &[(t.id.clone(), t.attempt)], now).await.unwrap().len(), 1);
+        now += 1;
+    }
+    // Still every retry a fresh task has (RETRY.max_attempts = 3): two retryable failures requeue
+    // it, the third fails it for good.
+    for n in 1..=RETRY.max_attempts {
+        now += RETRY.backoff_cap_ms;
+        let t = lease(now).await;
+        assert_eq!(t.attempt, 10 + n);
+        let will_retry = store.fail(&fence(&t, "w"), true, "transient", now).await.unwrap();
+        assert_eq!(will_retry, n < RETRY.max_attempts, "failure {n} after 10 releases");
+    }
+    assert_eq!(state_of(&store, "j/grasp/a").await, TaskState::Failed);
+    let outcomes: Vec<_> = store.attempts("j/grasp/a").await.unwrap().iter().map(|a| a.outcome).collect();
+    assert_eq!(outcomes.iter().filter(|o| **o == Some(AttemptOutcome::Released)).count(), 10);
+    assert_eq!(outcomes.last(), Some(&Some(AttemptOutcome::Failed)));
+});
+
 store_test!(heartbeat_extends_leases_and_reports_lost_ones, |store: Store| async move {
     submit_chain(&store, "j").await;
     let leased = store.lease("w", &[Stage::Grasp], 1, 1_000, 0).await.unwrap();

@@ -415,10 +415,24 @@ store_test!(
         };
         assert_eq!(c, expected);
 
-        // Cancel: every unfinished task is cancelled, whatever its state, and the running attempt ends.
+        // A release (its worker shutting down) queues the task again at once.
         let render_c = store.lease("w3", &[Stage::Render], 1, 1_000, 2_411).await.unwrap().remove(0);
         assert_eq!(render_c.key, "render/c");
         watch.after("lease", &store).await;
+        let released = store.release("w3", &[(render_c.id.clone(), render_c.attempt)], 2_411).await.unwrap();
+        assert_eq!(released, [(render_c.id.clone(), 1)]);
+        let c = watch.after("release", &store).await;
+        let expected = Changes {
+            moved: moved(&[("j/render/c", Running, Queued)]),
+            ended: ended(&[("j/render/c", O::Released)]),
+            ..Changes::default()
+        };
+        assert_eq!(c, expected);
+
+        // Cancel: every unfinished task is cancelled, whatever its state, and the running attempt ends.
+        let render_c = store.lease("w3", &[Stage::Render], 1, 1_000, 2_411).await.unwrap().remove(0);
+        assert_eq!((render_c.key.as_str(), render_c.attempt), ("render/c", 2), "leased again without a backoff");
+        watch.after("lease after a release", &store).await;
         store.cancel_job("j", 2_412).await.unwrap();
         let c = watch.after("cancel", &store).await;
         let expected = Changes {

@@ -29,3 +29,6 @@ pub fn rpc_seconds_buckets() -> impl Iterator<Item = f64> {
 pub fn task_seconds_buckets() -> impl Iterator<Item = f64> {
     prometheus_client::metrics::histogram::exponential_buckets(0.01, 2.0, 19)
 }
+
+mod redact;
+pub use redact::{REDACTED, redact_url};

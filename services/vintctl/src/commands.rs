@@ -248,5 +248,5 @@ async fn artifact_store(coordinator: &mut Coordinator, flag: Option<String>) -> 
             info.store_url
         }
     };
-    ArtifactStore::open(&url).map_err(|e| bad_input(anyhow!("--store {url:?}: {e}")))
+    ArtifactStore::open(&url).map_err(|e| bad_input(anyhow!("--store {:?}: {e}", vint_telemetry::redact_url(&url))))
 }

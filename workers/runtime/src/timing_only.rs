@@ -15,7 +15,8 @@
 //! Tasks go in batches both ways: one `LeaseTasks` for up to `batch` tasks and one
 //! `CompleteTasks` for all of them, with the next lease already in flight (prefetch) while a
 //! batch is answered, and `concurrency` such loops per process. One heartbeat renews every lease
-//! the process holds.
+//! the process holds. Asked to stop, it answers the batches it is answering and gives back the
+//! leases of those it has not started (the prefetched ones).
 
 use std::collections::{BTreeSet, HashMap, HashSet};
 use std::future::Future;
@@ -289,7 +290,8 @@ impl Shared {
     }
 }
 
-/// Serves tasks until `shutdown` resolves; the batches in flight are answered first.
+/// Serves tasks until `shutdown` resolves; the batches being answered are answered first, the
+/// leases of the others given back.
 pub async fn run(
     config: TimingOnlyConfig,
     store: ArtifactStore,
@@ -387,12 +389,13 @@ async fn serve_loop(shared: Arc<Shared>, slot: u32, mut stop: watch::Receiver<bo
         shared.config.metrics.beat();
         let (tasks, lease_ms) = next.await.unwrap_or_default();
         let stopping = *stop.borrow();
+        if stopping {
+            give_back(&shared, &tasks).await;
+            return;
+        }
         if tasks.is_empty() {
-            if stopping {
-                return;
-            }
             tokio::select! {
-                _ = stop.changed() => {}
+                _ = stop.changed() => return,
                 _ = tokio::time::sleep(idle) => {}
             }
             idle = (idle * 2).min(shared.config.max_idle_poll);
@@ -401,15 +404,22 @@ async fn serve_loop(shared: Arc<Shared>, slot: u32, mut stop: watch::Receiver<bo
         }
         idle = Duration::from_millis(20);
         // Prefetch: the next batch is leased while this one is answered.
-        next = tokio::spawn(if stopping {
-            futures::future::Either::Left(async { (Vec::new(), 0.0) })
-        } else {
-            futures::future::Either::Right(lease(shared.clone()))
-        });
+        next = tokio::spawn(lease(shared.clone()));
         let n = tasks.len();
         let span = tracing::debug_span!("batch", worker = %shared.config.worker_id, slot, tasks = n);
         let complete_ms = answer_batch(&shared, tasks).instrument(span).await;
         shared.log_batch(slot, n, lease_ms, complete_ms);
+    }
+}
+
+/// Gives back the leases of a batch not started.
+async fn give_back(shared: &Shared, tasks: &[pb::LeasedTask]) {
+    let held: Vec<pb::TaskAttempt> =
+        tasks.iter().map(|t| pb::TaskAttempt { task_id: t.task_id.clone(), attempt: t.attempt }).collect();
+    crate::worker::release(&shared.client, &shared.config.worker_id, &held).await;
+    let mut held = shared.held.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    for t in tasks {
+        held.remove(&(t.task_id.clone(), t.attempt));
     }
 }
 

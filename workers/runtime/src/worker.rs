@@ -3,7 +3,9 @@
 //!
 //! A worker keeps one engine per stage it has served, alive between tasks. It survives a
 //! coordinator restart (RPCs are retried with backoff) and never completes a task whose lease it
-//! has lost. It holds no durable state: kill it at any moment and its task is leased again.
+//! has lost. It holds no durable state: kill it at any moment and its task is leased again. Asked
+//! to stop (SIGTERM), it does not wait for a task that may run for half an hour: it kills the
+//! engine and gives the lease back (`ReleaseTasks`), so the task is queued again at once.
 
 use std::collections::HashMap;
 use std::future::Future;
@@ -65,6 +67,15 @@ impl TaskFailure {
     }
 }
 
+/// How serving one task ended.
+#[derive(Debug, PartialEq, Eq)]
+enum Served {
+    /// Reported (or found lost): the worker goes on.
+    Done,
+    /// Shutdown came first: the task was given back and the worker stops.
+    Stopped,
+}
+
 struct Finished {
     outputs: Vec<pb::ArtifactRef>,
     engine_json: String,
@@ -86,7 +97,8 @@ impl Worker {
         Ok(Worker { config, client, store, engines: HashMap::new() })
     }
 
-    /// Serves tasks until `shutdown` resolves; the task in flight is finished first.
+    /// Serves tasks until `shutdown` resolves. A task still running then is stopped (its engine
+    /// killed) and its lease given back; one already being reported is reported first.
     pub async fn run(mut self, shutdown: impl Future<Output = ()>) {
         tokio::pin!(shutdown);
         let stages: Vec<String> = self.config.stages.iter().map(|s| s.as_str().to_string()).collect();
@@ -106,8 +118,16 @@ impl Worker {
             match leased {
                 Ok(resp) if !resp.get_ref().tasks.is_empty() => {
                     idle = Duration::from_millis(50);
+                    let mut stopped = false;
                     for task in resp.into_inner().tasks {
-                        self.serve(task).await;
+                        if stopped {
+                            self.release(&task).await;
+                        } else {
+                            stopped = self.serve(task, shutdown.as_mut()).await == Served::Stopped;
+                        }
+                    }
+                    if stopped {
+                        break;
                     }
                     continue;
                 }
@@ -126,7 +146,9 @@ impl Worker {
         tracing::info!(worker = %self.config.worker_id, "worker stopped");
     }
 
-    async fn serve(&mut self, task: pb::LeasedTask) {
+    /// Runs one task and reports it, unless `shutdown` resolves while it runs: then its engines
+    /// are killed and the lease is given back.
+    async fn serve(&mut self, task: pb::LeasedTask, shutdown: std::pin::Pin<&mut impl Future<Output = ()>>) -> Served {
         let span = tracing::info_span!("task", job = %task.job_id, task = %task.key, stage = %task.stage, attempt = task.attempt);
         async {
             let lost = Arc::new(AtomicBool::new(false));
@@ -139,18 +161,31 @@ impl Worker {
                 self.config.metrics.clone(),
             ));
             let dir = self.config.scratch.join(format!("{}-a{}", sanitize(&task.task_id), task.attempt));
-            let outcome = self.execute(&task, &dir).await;
+            let outcome = tokio::select! {
+                outcome = self.execute(&task, &dir) => Some(outcome),
+                () = shutdown => None,
+            };
+            let Some(outcome) = outcome else {
+                // The engine may be mid-task: its protocol state is unknown, and a new process
+                // takes it up wherever the task is leased next.
+                self.engines.clear();
+                heartbeat.abort();
+                let _ = tokio::fs::remove_dir_all(&dir).await;
+                self.release(&task).await;
+                return Served::Stopped;
+            };
             heartbeat.abort();
             let _ = tokio::fs::remove_dir_all(&dir).await;
             if lost.load(Ordering::SeqCst) {
                 tracing::warn!("lease lost while running; result discarded");
                 self.record(&task, TaskOutcome::LeaseLost);
-                return;
+                return Served::Done;
             }
             match outcome {
                 Ok(done) => self.complete(&task, done).await,
                 Err(failure) => self.fail(&task, failure).await,
             }
+            Served::Done
         }
         .instrument(span)
         .await
@@ -331,6 +366,12 @@ impl Worker {
         self.record(task, outcome);
     }
 
+    /// Gives `task`'s lease back.
+    async fn release(&self, task: &pb::LeasedTask) {
+        let held = [pb::TaskAttempt { task_id: task.task_id.clone(), attempt: task.attempt }];
+        release(&self.client, &self.config.worker_id, &held).await;
+    }
+
     async fn fail(&mut self, task: &pb::LeasedTask, failure: TaskFailure) {
         tracing::warn!(retryable = failure.retryable, error = %failure.message, "task failed");
         let request = pb::FailTaskRequest {
@@ -419,6 +460,27 @@ async fn heartbeat_loop(
             Ok(_) => {}
             Err(s) => tracing::warn!(error = %s.message(), "heartbeat failed"),
         }
+    }
+}
+
+/// Longest a hand-back may take: the worker is shutting down within its grace period, and a
+/// lease not given back still expires.
+const RELEASE_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// Gives back `held` leases of `worker_id` (one RPC, bounded by `RELEASE_TIMEOUT`); logs what
+/// could not be.
+pub(crate) async fn release(client: &WorkServiceClient<AuthChannel>, worker_id: &str, held: &[pb::TaskAttempt]) {
+    if held.is_empty() {
+        return;
+    }
+    let request = pb::ReleaseTasksRequest { worker_id: worker_id.to_string(), tasks: held.to_vec() };
+    match tokio::time::timeout(RELEASE_TIMEOUT, client.clone().release_tasks(request)).await {
+        Ok(Ok(resp)) => {
+            let released = resp.into_inner().released.len();
+            tracing::info!(released, lost = held.len().saturating_sub(released), "leases given back");
+        }
+        Ok(Err(s)) => tracing::warn!(error = %s.message(), "could not give the leases back; they will expire instead"),
+        Err(_) => tracing::warn!("the coordinator did not take the leases back in time; they will expire instead"),
     }
 }
 

@@ -10,7 +10,7 @@ use clap::Parser;
 use vint_coordinator::CoordinatorConfig;
 use vint_coordinator::auth::Tokens;
 use vint_coordinator::tls::TlsIdentity;
-use vint_store::{RetryPolicy, Store};
+use vint_store::{RetryPolicy, Store, StoreError};
 
 #[derive(Parser)]
 #[command(version, about = "vint coordinator: schedules grasp, render, noise and package tasks over gRPC")]
@@ -56,6 +56,14 @@ struct Args {
     /// Log as JSON lines.
     #[arg(long)]
     log_json: bool,
+    /// Apply the database migrations and exit (a Kubernetes Job or init container whose role may
+    /// change the schema). Without it or --no-migrate, the coordinator migrates at start.
+    #[arg(long, conflicts_with = "no_migrate")]
+    migrate_only: bool,
+    /// Never change the schema (replicas whose role has no DDL rights): refuse to start, exit
+    /// code 2, while the database lacks any of this binary's migrations.
+    #[arg(long)]
+    no_migrate: bool,
 }
 
 /// Bad input (flags, tokens file, TLS files): the message and exit code 2.
@@ -118,8 +126,25 @@ impl Security {
 async fn run(args: Args, security: Security) -> anyhow::Result<()> {
     let retry =
         RetryPolicy { max_attempts: args.max_attempts, backoff_base_ms: args.backoff_ms, ..RetryPolicy::default() };
-    let store =
-        Store::open(&args.database, retry).await.with_context(|| format!("opening database {}", args.database))?;
+    let database = vint_telemetry::redact_url(&args.database);
+    let store = Store::connect(&args.database, retry).await.with_context(|| format!("opening database {database}"))?;
+    if args.no_migrate {
+        match store.require_current_schema().await {
+            Err(e @ StoreError::SchemaBehind { .. }) => {
+                eprintln!("error: database {database}: {e}");
+                std::process::exit(2);
+            }
+            checked => checked.with_context(|| format!("reading the schema version of {database}"))?,
+        }
+    } else {
+        store.migrate().await.with_context(|| format!("migrating database {database}"))?;
+    }
+    if args.migrate_only {
+        tracing::info!(database = %database, "migrations applied");
+        println!("migrated {database}");
+        store.close().await;
+        return Ok(());
+    }
     let (listener, addr) =
         vint_coordinator::bind(args.listen).await.with_context(|| format!("binding {}", args.listen))?;
     tracing::info!(%addr, backend = ?store.backend(), auth = security.tokens.is_some(), tls = security.tls.is_some(),
@@ -133,7 +158,10 @@ async fn run(args: Args, security: Security) -> anyhow::Result<()> {
     }
     println!("listening on {addr}");
     let artifacts = match &args.store {
-        Some(url) => Some(vint_artifacts::ArtifactStore::open(url).with_context(|| format!("opening store {url}"))?),
+        Some(url) => Some(
+            vint_artifacts::ArtifactStore::open(url)
+                .with_context(|| format!("opening store {}", vint_telemetry::redact_url(url)))?,
+        ),
         None => None,
     };
     let config = CoordinatorConfig {
@@ -143,23 +171,46 @@ async fn run(args: Args, security: Security) -> anyhow::Result<()> {
         tls: security.tls,
         ..CoordinatorConfig::default()
     };
+    // One signal stops both listeners.
+    let (stop_tx, stop) = tokio::sync::watch::channel(false);
+    tokio::spawn(async move {
+        shutdown_signal().await;
+        let _ = stop_tx.send(true);
+    });
+    let stopped = |mut stop: tokio::sync::watch::Receiver<bool>| async move {
+        let _ = stop.wait_for(|s| *s).await;
+    };
     let http = match args.http_listen {
         Some(addr) => {
             let (listener, addr) =
                 vint_coordinator::bind(addr).await.with_context(|| format!("binding --http-listen {addr}"))?;
             tracing::info!(%addr, "serving /metrics and /healthz");
             let router = vint_coordinator::http_router(store.clone(), &config.metrics);
-            Some(tokio::spawn(vint_telemetry::serve_http(listener, router, std::future::pending())))
+            Some(tokio::spawn(vint_telemetry::serve_http(listener, router, stopped(stop.clone()))))
         }
         None => None,
     };
-    let shutdown = async {
-        let _ = tokio::signal::ctrl_c().await;
-        tracing::info!("shutting down");
-    };
-    vint_coordinator::serve(store, config, listener, shutdown).await?;
+    vint_coordinator::serve(store.clone(), config, listener, stopped(stop)).await?;
     if let Some(http) = http {
         http.abort();
     }
+    store.close().await;
+    tracing::info!("coordinator stopped");
     Ok(())
+}
+
+/// Resolves on SIGINT or SIGTERM (what Kubernetes sends before SIGKILL).
+async fn shutdown_signal() {
+    use tokio::signal::unix::{SignalKind, signal};
+    match signal(SignalKind::terminate()) {
+        Ok(mut term) => tokio::select! {
+            _ = tokio::signal::ctrl_c() => {}
+            _ = term.recv() => {}
+        },
+        Err(e) => {
+            tracing::warn!(error = %e, "cannot listen for SIGTERM; stopping on Ctrl-C only");
+            let _ = tokio::signal::ctrl_c().await;
+        }
+    }
+    tracing::info!("shutting down");
 }

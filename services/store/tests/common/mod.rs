@@ -29,19 +29,29 @@ pub async fn sqlite_db() -> TestDb {
 }
 
 pub async fn postgres_db() -> TestDb {
-    let admin = std::env::var("VINT_TEST_POSTGRES_URL")
-        .unwrap_or_else(|_| "postgres://postgres@127.0.0.1:5432/postgres".to_string());
+    let url = empty_postgres_database().await;
+    TestDb { store: Store::open(&url, RETRY).await.unwrap(), url, _dir: None }
+}
+
+/// The admin URL of the test server: `VINT_TEST_POSTGRES_URL`, or the local default.
+pub fn postgres_admin_url() -> String {
+    std::env::var("VINT_TEST_POSTGRES_URL")
+        .unwrap_or_else(|_| "postgres://postgres@127.0.0.1:5432/postgres".to_string())
+}
+
+/// A new, empty Postgres database (no migrations applied); returns its URL.
+pub async fn empty_postgres_database() -> String {
+    let admin = postgres_admin_url();
     // vint_test_<pid>_<tag>_<nanos>_<n>, as vint_tests::postgres_database names them: scripts/test.sh
     // reads the pid to drop the databases of test processes that no longer run.
     let db = format!("vint_test_{}_store_{}", std::process::id(), uuid_like());
     sqlx::any::install_default_drivers();
-    let mut conn = <sqlx::AnyConnection as sqlx::Connection>::connect(&admin)
-        .await
-        .unwrap_or_else(|e| panic!("Postgres is required for the store tests ({admin}): {e}"));
+    let mut conn = <sqlx::AnyConnection as sqlx::Connection>::connect(&admin).await.unwrap_or_else(|e| {
+        panic!("Postgres is required for the store tests ({}): {e}", vint_telemetry::redact_url(&admin))
+    });
     sqlx::Executor::execute(&mut conn, sqlx::AssertSqlSafe(format!("CREATE DATABASE {db}"))).await.unwrap();
     let base = admin.rsplit_once('/').map(|(b, _)| b.to_string()).unwrap();
-    let url = format!("{base}/{db}");
-    TestDb { store: Store::open(&url, RETRY).await.unwrap(), url, _dir: None }
+    format!("{base}/{db}")
 }
 
 fn uuid_like() -> String {

@@ -108,7 +108,8 @@ async fn main() -> anyhow::Result<()> {
         format!("{}-{}-{}", host.trim(), std::process::id(), &uuid::Uuid::new_v4().simple().to_string()[..6])
     });
     let scratch = args.scratch.unwrap_or_else(|| std::env::temp_dir().join(format!("vint-worker-{worker_id}")));
-    let store = ArtifactStore::open(&args.store).with_context(|| format!("opening artifact store {}", args.store))?;
+    let store = ArtifactStore::open(&args.store)
+        .with_context(|| format!("opening artifact store {}", vint_telemetry::redact_url(&args.store)))?;
     let max_idle_poll = Duration::from_millis(500);
     let metrics = WorkerMetrics::new(liveness_limit(args.lease_ms, max_idle_poll));
     if let Some(addr) = args.metrics_listen {
