@@ -437,50 +437,6 @@ fn symmetry_summary(o: &vint_core::catalog::ObjectEntry) -> String {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn durations_read_as_people_say_them() {
-        assert_eq!(duration(850), "850ms");
-        assert_eq!(duration(42_400), "42s");
-        assert_eq!(duration(185_000), "3m 05s");
-        assert_eq!(duration(7_800_000), "2h 10m");
-        assert_eq!(duration(100 * 3_600_000), "4d 4h");
-        assert_eq!(duration(-5), "0ms");
-    }
-
-    #[test]
-    fn failed_tasks_read_root_cause_first_and_count_the_rest() {
-        let task = |key: &str, attempts, error: &str| pb::FailedTask {
-            key: key.into(),
-            stage: key.split('/').next().unwrap_or_default().into(),
-            attempts,
-            last_error: error.into(),
-            failed_upstream: attempts == 0,
-        };
-        let p = pb::JobProgress {
-            tasks_failed: 5,
-            failed_tasks: vec![
-                task("grasp/cup/gripper/c00000", 1, "engine: object.cup: not a closed surface"),
-                task("render/cup/gripper/g000001", 3, "engine: out of memory"),
-                task("package/cup/gripper/c00000", 0, "upstream task j1/render/cup/gripper/g000001 failed"),
-            ],
-            ..Default::default()
-        };
-        assert_eq!(
-            failed_task_lines(&p),
-            [
-                "grasp/cup/gripper/c00000 (grasp, 1 attempt): engine: object.cup: not a closed surface",
-                "render/cup/gripper/g000001 (render, 3 attempts): engine: out of memory",
-                "package/cup/gripper/c00000 (package, never ran): upstream task j1/render/cup/gripper/g000001 failed",
-                "… and 2 more (vintctl status --json lists the first 3)",
-            ]
-        );
-    }
-}
-
 /// A dashboard view's rows: with `json`, an array of objects keyed by column (raw values, times in
 /// Unix ms); else an aligned table, times as local time and NULL as `-`.
 pub fn dashboard(table: &pb::DashboardTable, json: bool) {
@@ -537,5 +493,49 @@ fn dashboard_text(column: &str, v: &pb::DashboardValue) -> String {
         Some(V::Integer(n)) => n.to_string(),
         Some(V::Real(x)) => format!("{x:.3}"),
         None => "-".to_string(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn durations_read_as_people_say_them() {
+        assert_eq!(duration(850), "850ms");
+        assert_eq!(duration(42_400), "42s");
+        assert_eq!(duration(185_000), "3m 05s");
+        assert_eq!(duration(7_800_000), "2h 10m");
+        assert_eq!(duration(100 * 3_600_000), "4d 4h");
+        assert_eq!(duration(-5), "0ms");
+    }
+
+    #[test]
+    fn failed_tasks_read_root_cause_first_and_count_the_rest() {
+        let task = |key: &str, attempts, error: &str| pb::FailedTask {
+            key: key.into(),
+            stage: key.split('/').next().unwrap_or_default().into(),
+            attempts,
+            last_error: error.into(),
+            failed_upstream: attempts == 0,
+        };
+        let p = pb::JobProgress {
+            tasks_failed: 5,
+            failed_tasks: vec![
+                task("grasp/cup/gripper/c00000", 1, "engine: object.cup: not a closed surface"),
+                task("render/cup/gripper/g000001", 3, "engine: out of memory"),
+                task("package/cup/gripper/c00000", 0, "upstream task j1/render/cup/gripper/g000001 failed"),
+            ],
+            ..Default::default()
+        };
+        assert_eq!(
+            failed_task_lines(&p),
+            [
+                "grasp/cup/gripper/c00000 (grasp, 1 attempt): engine: object.cup: not a closed surface",
+                "render/cup/gripper/g000001 (render, 3 attempts): engine: out of memory",
+                "package/cup/gripper/c00000 (package, never ran): upstream task j1/render/cup/gripper/g000001 failed",
+                "… and 2 more (vintctl status --json lists the first 3)",
+            ]
+        );
     }
 }
