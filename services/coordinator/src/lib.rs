@@ -15,8 +15,8 @@
 
 pub mod auth;
 mod convert;
-mod http;
 mod health;
+mod http;
 mod jobs_api;
 mod metrics;
 mod planner;
