@@ -237,6 +237,24 @@ async fn dashboard_views_agree_with_the_task_table_on_a_finished_tiny_job() {
         .collect();
     assert_eq!(shown, bytes);
 
+    // occlusion: the exported samples' own camera records, binned in tenths (bin 9 holds 1).
+    let mut bins: BTreeMap<(String, i64), i64> = BTreeMap::new();
+    let out = tmp.path().join("out");
+    for line in verify_dataset(&out) {
+        let sample = line["sample_id"].as_str().unwrap();
+        let meta: Value = serde_json::from_slice(&std::fs::read(out.join(sample).join("meta.json")).unwrap()).unwrap();
+        let occlusion = meta["visibility"]["occlusion"].as_f64().unwrap();
+        let bin = ((occlusion * 10.0).floor() as i64).min(9);
+        *bins.entry((meta["object"]["name"].as_str().unwrap().to_string(), bin)).or_default() += 1;
+    }
+    let shown: BTreeMap<(String, i64), i64> = view(&store, DashboardView::Occlusion, j)
+        .await
+        .iter()
+        .map(|r| ((r["object"].as_str().unwrap().to_string(), r["bin"].as_i64().unwrap()), r["views"].as_i64().unwrap()))
+        .collect();
+    assert!(!bins.is_empty(), "the tiny run exported no samples");
+    assert_eq!(shown, bins, "views per object and occlusion tenth");
+
     // vintctl dashboard, through a coordinator over the same database, prints the store's rows.
     let port = free_port();
     let _coordinator = start_coordinator(&url, port, &tmp.path().join("logs"), "coordinator");

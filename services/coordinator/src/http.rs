@@ -1,18 +1,21 @@
 //! The coordinator's HTTP side (`--http-listen`): `/metrics` and `/healthz`, on the telemetry
-//! crate's router. Healthy means the database answers: the coordinator holds nothing else.
+//! crate's router, and the web dashboard (`dashboard.rs`). Healthy means the database answers:
+//! the coordinator holds nothing else.
 
 use std::time::Duration;
 
 use vint_store::Store;
 
-use crate::Metrics;
+use crate::CoordinatorConfig;
 
 /// Longest `/healthz` waits for the database before it answers 503.
 const DATABASE_CHECK_TIMEOUT: Duration = Duration::from_secs(2);
 
-/// The coordinator's HTTP routes.
-pub fn router(store: Store, metrics: &Metrics) -> vint_telemetry::Router {
-    vint_telemetry::router(metrics.registry(), DatabaseHealth(store))
+/// The coordinator's HTTP routes: `/metrics` and `/healthz` open (Prometheus and the kubelet),
+/// `/dashboard` behind a `read` token when `config` has tokens.
+pub fn router(store: Store, config: &CoordinatorConfig) -> vint_telemetry::Router {
+    vint_telemetry::router(config.metrics.registry(), DatabaseHealth(store.clone()))
+        .merge(crate::dashboard::router(store, config.tokens.clone()))
 }
 
 /// Healthy while the database answers a trivial query within `DATABASE_CHECK_TIMEOUT`.

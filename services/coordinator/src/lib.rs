@@ -15,6 +15,7 @@
 
 pub mod auth;
 mod convert;
+mod dashboard;
 mod health;
 mod http;
 mod jobs_api;

@@ -39,14 +39,13 @@ async fn leases_completions_failures_and_refusals_are_counted_by_stage() {
     store.submit_job(&job, &[noise("noise/a"), noise("noise/b")], vint_coordinator::now_ms()).await.unwrap();
 
     let config = vint_coordinator::CoordinatorConfig::default();
-    let metrics = config.metrics.clone();
+    let router = vint_coordinator::http_router(store.clone(), &config);
     let (listener, addr) = vint_coordinator::bind(([127, 0, 0, 1], 0).into()).await.unwrap();
     let (_stop, stopped) = tokio::sync::oneshot::channel::<()>();
     tokio::spawn(vint_coordinator::serve(store.clone(), config, listener, async {
         let _ = stopped.await;
     }));
     let (http_listener, http) = vint_coordinator::bind(([127, 0, 0, 1], 0).into()).await.unwrap();
-    let router = vint_coordinator::http_router(store.clone(), &metrics);
     tokio::spawn(vint_telemetry::serve_http(http_listener, router, std::future::pending()));
 
     let mut client = WorkServiceClient::connect(format!("http://{addr}")).await.unwrap();

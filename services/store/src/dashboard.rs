@@ -46,12 +46,14 @@ pub enum DashboardView {
     RenderSeconds,
     /// Files and bytes recorded per job and stage.
     BytesWritten,
+    /// Rendered views per job and object by occlusion, in tenths (migration 0010).
+    Occlusion,
 }
 
 use ColumnType::{Integer, Real, Text};
 
 impl DashboardView {
-    pub const ALL: [DashboardView; 9] = [
+    pub const ALL: [DashboardView; 10] = [
         DashboardView::JobProgress,
         DashboardView::Throughput,
         DashboardView::Failures,
@@ -61,6 +63,7 @@ impl DashboardView {
         DashboardView::ActiveTaxels,
         DashboardView::RenderSeconds,
         DashboardView::BytesWritten,
+        DashboardView::Occlusion,
     ];
 
     /// The view's name, as `vintctl dashboard` and the RPC take it.
@@ -75,6 +78,7 @@ impl DashboardView {
             DashboardView::ActiveTaxels => "active_taxels",
             DashboardView::RenderSeconds => "render_seconds",
             DashboardView::BytesWritten => "bytes_written",
+            DashboardView::Occlusion => "occlusion",
         }
     }
 
@@ -158,6 +162,7 @@ impl DashboardView {
                 ("seconds_per_view", Real),
             ],
             DashboardView::BytesWritten => &[("job_id", Text), ("stage", Text), ("files", Integer), ("bytes", Integer)],
+            DashboardView::Occlusion => &[("job_id", Text), ("object", Text), ("bin", Integer), ("views", Integer)],
         }
     }
 
@@ -172,6 +177,7 @@ impl DashboardView {
             DashboardView::GraspRejections => "job_id, object, hand, reason",
             DashboardView::ActiveTaxels => "job_id, hand, region",
             DashboardView::RenderSeconds => "job_id, width, height, samples, device",
+            DashboardView::Occlusion => "job_id, object, bin",
         }
     }
 

@@ -115,6 +115,16 @@ impl Security {
                 args.listen
             )));
         }
+        if let Some(http) = args.http_listen.filter(|a| !a.ip().is_loopback())
+            && tokens.is_none()
+            && !args.insecure_listen_any
+        {
+            return Err(BadInput(anyhow!(
+                "--http-listen {http}: without --auth-tokens the dashboard (every job's progress, failures and \
+                 workers) is served on loopback only. Pass --auth-tokens FILE, or --insecure-listen-any on a network \
+                 you trust"
+            )));
+        }
         let tls = match (&args.tls_cert, &args.tls_key) {
             (Some(cert), Some(key)) => Some(TlsIdentity::load(cert, key).map_err(|e| BadInput(e.into()))?),
             _ => None,
@@ -184,8 +194,8 @@ async fn run(args: Args, security: Security) -> anyhow::Result<()> {
         Some(addr) => {
             let (listener, addr) =
                 vint_coordinator::bind(addr).await.with_context(|| format!("binding --http-listen {addr}"))?;
-            tracing::info!(%addr, "serving /metrics and /healthz");
-            let router = vint_coordinator::http_router(store.clone(), &config.metrics);
+            tracing::info!(%addr, "serving /metrics, /healthz and /dashboard");
+            let router = vint_coordinator::http_router(store.clone(), &config);
             Some(tokio::spawn(vint_telemetry::serve_http(listener, router, stopped(stop.clone()))))
         }
         None => None,

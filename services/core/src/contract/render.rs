@@ -253,13 +253,18 @@ pub fn reads(file: &str) -> bool {
 }
 
 /// What a render engine answers.
-#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct RenderResult {
     /// Views rendered.
     pub views: u32,
     /// The device Cycles rendered on (`CPU`, `OPTIX`, `CUDA`).
     pub device: String,
+    /// Each view's occlusion, in the order of the task's views: the share of the object the hand
+    /// hides, 1 when none of it is in view (`occlusion` of the view's camera record). Empty from
+    /// an engine that does not report it (the timing-only worker renders nothing).
+    #[serde(default)]
+    pub occlusion: Vec<f64>,
 }
 
 #[cfg(test)]

@@ -258,6 +258,7 @@ class RenderEngine:
             tracing = PathTracing(tracing.samples, tracing.denoise, bounces)
         result = TaskResult()
         geometry_s = rgb_s = 0.0
+        occluded: dict[int, float] = {}
         for view in self._render_order(views):
             started = time.perf_counter()
             camera = view.camera or sample_on_hemisphere(
@@ -277,9 +278,15 @@ class RenderEngine:
                 image = self.scene.render_rgb(tracing, view.seed)
                 result.add(write_png(task.out_dir / f"v{view.index:02d}_rgb.png", image), "image/png")
                 rgb_s += time.perf_counter() - started
-            self._write_view(task.out_dir, view, camera, settings, outputs, object_pose, geometry, result)
+            occluded[view.index] = self._write_view(
+                task.out_dir, view, camera, settings, outputs, object_pose, geometry, result
+            )
         n = len(views)
-        result.result = {"views": n, "device": self.scene.device}
+        result.result = {
+            "views": n,
+            "device": self.scene.device,
+            "occlusion": [occluded[view.index] for view in views],
+        }
         result.metrics.update(
             views=n,
             render_ms_per_view=round(1e3 * (geometry_s + rgb_s) / n, 3),
@@ -315,7 +322,8 @@ class RenderEngine:
         object_pose: tuple[np.ndarray, np.ndarray],
         geometry: Geometry,
         result: TaskResult,
-    ) -> None:
+    ) -> float:
+        """Writes one view's files and camera record; returns its occlusion."""
         prefix = f"v{view.index:02d}"
         visible = geometry.index == OBJECT_PASS_INDEX
         if "depth" in outputs:
@@ -354,6 +362,7 @@ class RenderEngine:
         path = out_dir / f"{prefix}_camera.json"
         path.write_text(json.dumps(record, indent=1))
         result.add(path, "application/json")
+        return float(record["occlusion"])
 
 
 def hdri(environment: Environment, assets: dict[str, StagedAsset]) -> Hdri:
