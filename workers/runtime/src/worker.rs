@@ -111,10 +111,25 @@ impl Worker {
                 capacity: 1,
                 lease_ms: self.config.lease_ms,
             };
-            let leased = tokio::select! {
-                _ = &mut shutdown => break,
-                r = self.client.lease_tasks(request) => r,
+            let mut client = self.client.clone();
+            let lease = client.lease_tasks(request);
+            tokio::pin!(lease);
+            let (leased, stopping) = tokio::select! {
+                r = &mut lease => (r, false),
+                // The coordinator may have granted the lease in flight: take it, to give it back.
+                () = &mut shutdown => {
+                    let r = tokio::time::timeout(RELEASE_TIMEOUT, &mut lease).await;
+                    (r.unwrap_or_else(|_| Err(Status::deadline_exceeded("lease in flight at shutdown"))), true)
+                }
             };
+            if stopping {
+                if let Ok(resp) = leased {
+                    for task in resp.into_inner().tasks {
+                        self.release(&task).await;
+                    }
+                }
+                break;
+            }
             match leased {
                 Ok(resp) if !resp.get_ref().tasks.is_empty() => {
                     idle = Duration::from_millis(50);
