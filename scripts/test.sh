@@ -6,7 +6,8 @@
 # Sets up the engines' Python environment (scripts/setup-python.sh), finds a Postgres, then runs
 # cargo fmt, ruff, the deploy manifests' checks, clippy, cargo build (the end-to-end tests start the
 # built binaries), cargo test and pytest, stopping at the first failure. Nothing is skipped: a missing
-# Postgres, Rust tool, kustomize (kubectl) or engine library is a failure.
+# Postgres, Rust tool, kustomize (kubectl), Chromium or engine library is a failure (Postgres and
+# Chromium are apt-installed when absent, as root).
 #
 # Postgres, first that applies:
 #   1. $VINT_TEST_POSTGRES_URL, if set (an admin URL: the tests create databases through it);
@@ -213,6 +214,28 @@ drop_stale_test_databases() {
     [[ "$dropped" -eq 0 ]] || log "dropped $dropped stale test database(s)"
 }
 
+# --- headless Chromium (the web dashboard's browser test) ----------------------------------------
+
+# Chromium for tests/tests/dashboard.rs: $VINT_CHROMIUM, else `chromium` on PATH, else Debian's
+# package installed with apt-get (as root), else a failure.
+require_chromium() {
+    if [[ -n "${VINT_CHROMIUM:-}" ]]; then
+        [[ -x "$VINT_CHROMIUM" ]] || die "VINT_CHROMIUM=$VINT_CHROMIUM is not an executable"
+        return 0
+    fi
+    command -v chromium >/dev/null && return 0
+    if [[ "$(id -u)" -ne 0 ]] || ! command -v apt-get >/dev/null; then
+        die "chromium not found and it cannot be installed here (needs root and apt-get).
+  Install Debian's chromium package, or set VINT_CHROMIUM to a Chromium or Chrome binary."
+    fi
+    log "!!! chromium not found: INSTALLING the Debian package 'chromium' (apt-get) !!!"
+    if ! DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null 2>&1; then
+        apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null ||
+            die "apt-get install chromium failed"
+    fi
+    command -v chromium >/dev/null || die "apt-get installed chromium but it is not on PATH"
+}
+
 # --- steps ---------------------------------------------------------------------------------------
 
 # deploy/: every kustomize overlay rendered (kubectl >= 1.27 or kustomize v5 on PATH) and checked
@@ -248,6 +271,7 @@ log "Python environment ready ($((SECONDS - started))s)"
 
 choose_postgres
 drop_stale_test_databases
+require_chromium
 export VINT_TEST_POSTGRES_URL
 export VINT_PYTHON="$ROOT/.venv/bin/python"
 export VINT_REQUIRE_ENGINES=1

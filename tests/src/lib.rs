@@ -216,6 +216,49 @@ pub fn http_get(port: u16, path: &str) -> Option<(u16, String, String)> {
     Some((status, content_type, body.to_string()))
 }
 
+/// `GET path` on 127.0.0.1:`port` with an `Authorization` header: (status, body).
+pub fn http_get_authorized(port: u16, path: &str, authorization: &str) -> Option<(u16, String)> {
+    use std::io::{Read, Write};
+    let mut stream = std::net::TcpStream::connect(("127.0.0.1", port)).ok()?;
+    stream.set_read_timeout(Some(Duration::from_secs(10))).ok()?;
+    let request = format!("GET {path} HTTP/1.0\r\nHost: 127.0.0.1\r\nAuthorization: {authorization}\r\n\r\n");
+    stream.write_all(request.as_bytes()).ok()?;
+    let mut raw = String::new();
+    stream.read_to_string(&mut raw).ok()?;
+    let (head, body) = raw.split_once("\r\n\r\n")?;
+    Some((head.split(' ').nth(1)?.parse().ok()?, body.to_string()))
+}
+
+/// Headless Chromium (`VINT_CHROMIUM`, else `chromium` on PATH: scripts/test.sh installs Debian's
+/// package). A test that needs it fails without it.
+pub fn chromium() -> PathBuf {
+    if let Some(path) = std::env::var_os("VINT_CHROMIUM") {
+        return PathBuf::from(path);
+    }
+    let found = std::env::var_os("PATH")
+        .into_iter()
+        .flat_map(|p| std::env::split_paths(&p).collect::<Vec<_>>())
+        .map(|dir| dir.join("chromium"))
+        .find(|p| p.is_file());
+    found.expect("chromium not found: scripts/test.sh installs it (apt-get install chromium), or set VINT_CHROMIUM")
+}
+
+/// Runs headless Chromium on `url` with `args` (e.g. `--dump-dom`), letting the page's scripts run
+/// for up to `budget_ms` of virtual time; returns stdout.
+pub fn chromium_run(url: &str, args: &[&str], budget_ms: u32) -> String {
+    let profile = tempfile::tempdir().unwrap();
+    let o = Command::new(chromium())
+        .args(["--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--no-first-run"])
+        .arg(format!("--user-data-dir={}", profile.path().display()))
+        .arg(format!("--virtual-time-budget={budget_ms}"))
+        .args(args)
+        .arg(url)
+        .output()
+        .expect("start chromium");
+    assert!(o.status.success(), "chromium {args:?} {url}: {}", String::from_utf8_lossy(&o.stderr));
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
 /// Runs vintctl to completion.
 pub fn vintctl(args: &[&str]) -> Output {
     vintctl_with_env(args, &[])

@@ -336,3 +336,72 @@ fn over_tls_a_client_trusting_the_private_ca_makes_an_authenticated_call() {
     let o = vintctl(&["jobs", "--coordinator", &format!("http://127.0.0.1:{port}"), "--token", READ]);
     assert!(!o.status.success(), "plain HTTP/2 to a TLS coordinator: {}", stdout(&o));
 }
+
+/// The HTTP side: `/healthz` and `/metrics` are open (the kubelet and Prometheus); the dashboard
+/// and its API need a `read` token (a `submit` one will do), as a bearer or as HTTP Basic's
+/// password (what a browser sends); without tokens the HTTP listener is loopback-only too.
+#[test]
+fn the_dashboard_needs_a_read_token_and_health_and_metrics_stay_open() {
+    let dir = tempfile::tempdir().unwrap();
+    let tokens = write_tokens(dir.path());
+    let (port, http) = (free_port(), free_port());
+    let listen = format!("127.0.0.1:{http}");
+    let _coordinator = coordinator(
+        dir.path(),
+        port,
+        "127.0.0.1",
+        &["--auth-tokens", tokens.to_str().unwrap(), "--http-listen", &listen],
+    );
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while http_get(http, "/healthz").is_none_or(|(status, _, _)| status != 200) {
+        assert!(Instant::now() < deadline, "/healthz never answered 200");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let (status, _, metrics) = http_get(http, "/metrics").unwrap();
+    assert!(status == 200 && metrics.contains("vint_queue_tasks"), "{status}: {metrics}");
+
+    for path in
+        ["/dashboard", "/dashboard/api/jobs", "/dashboard/api/view/job_progress", "/dashboard/chart/throughput.svg"]
+    {
+        let (status, _, body) = http_get(http, path).unwrap();
+        assert_eq!(status, 401, "{path} without a token: {body}");
+        for (authorization, expected) in [
+            (format!("Bearer {UNKNOWN}"), 401),
+            (format!("Bearer {WORKER}"), 403),
+            (format!("Bearer {READ}"), 200),
+            (format!("Bearer {SUBMIT}"), 200),
+            (format!("Basic {}", base64_encode(&format!("anyone:{READ}"))), 200),
+            (format!("Basic {}", base64_encode(&format!("anyone:{WORKER}"))), 403),
+        ] {
+            let (status, body) = http_get_authorized(http, path, &authorization).unwrap();
+            let shown = authorization.split(' ').next().unwrap();
+            assert_eq!(status, expected, "{path} with a {shown} header: {body}");
+            assert!(!body.contains(READ) && !body.contains(WORKER), "a token was echoed: {body}");
+        }
+    }
+
+    let database = format!("sqlite://{}?mode=rwc", dir.path().join("refused.db").display());
+    let (listen, http_any) = (format!("127.0.0.1:{}", free_port()), format!("0.0.0.0:{}", free_port()));
+    let (code, err) = coordinator_refusal(&["--database", &database, "--listen", &listen, "--http-listen", &http_any]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("--http-listen 0.0.0.0") && err.contains("--auth-tokens"), "{err}");
+}
+
+/// Standard base64 with padding (RFC 4648), written out so the test does not lean on the crate the
+/// coordinator decodes with.
+fn base64_encode(text: &str) -> String {
+    const ALPHABET: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut out = String::new();
+    for chunk in text.as_bytes().chunks(3) {
+        let b = [chunk[0], *chunk.get(1).unwrap_or(&0), *chunk.get(2).unwrap_or(&0)];
+        let n = (u32::from(b[0]) << 16) | (u32::from(b[1]) << 8) | u32::from(b[2]);
+        for i in 0..4 {
+            if i <= chunk.len() {
+                out.push(ALPHABET[((n >> (18 - 6 * i)) & 63) as usize] as char);
+            } else {
+                out.push('=');
+            }
+        }
+    }
+    out
+}

@@ -250,14 +250,23 @@ async fn dashboard_views_agree_with_the_task_table_on_a_finished_tiny_job() {
     let shown: BTreeMap<(String, i64), i64> = view(&store, DashboardView::Occlusion, j)
         .await
         .iter()
-        .map(|r| ((r["object"].as_str().unwrap().to_string(), r["bin"].as_i64().unwrap()), r["views"].as_i64().unwrap()))
+        .map(|r| {
+            ((r["object"].as_str().unwrap().to_string(), r["bin"].as_i64().unwrap()), r["views"].as_i64().unwrap())
+        })
         .collect();
     assert!(!bins.is_empty(), "the tiny run exported no samples");
     assert_eq!(shown, bins, "views per object and occlusion tenth");
 
     // vintctl dashboard, through a coordinator over the same database, prints the store's rows.
-    let port = free_port();
-    let _coordinator = start_coordinator(&url, port, &tmp.path().join("logs"), "coordinator");
+    let (port, http) = (free_port(), free_port());
+    let http_listen = format!("127.0.0.1:{http}");
+    let _coordinator = start_coordinator_with_args(
+        &url,
+        port,
+        &tmp.path().join("logs"),
+        "coordinator",
+        &["--http-listen", &http_listen],
+    );
     let address = format!("http://127.0.0.1:{port}");
     for v in DashboardView::ALL {
         let job_args: &[&str] = if v.per_job() { &["--job", &job] } else { &[] };
@@ -278,5 +287,121 @@ async fn dashboard_views_agree_with_the_task_table_on_a_finished_tiny_job() {
         let o = vintctl(&[&["--coordinator", address.as_str()][..], bad].concat());
         assert_eq!(o.status.code(), Some(2), "{bad:?}: {}", stderr(&o));
     }
+
+    // The web dashboard in headless Chromium shows the views' numbers (docs/dashboard.md).
+    let page = format!("http://127.0.0.1:{http}/dashboard?job={job}&refresh=0");
+    let dom = chromium_run(&page, &["--dump-dom"], 10_000);
+    assert!(dom.contains("data-ready=\"1\""), "the page never finished loading: {dom}");
+    let tables = page_tables(&dom);
+    for name in [
+        "job_progress",
+        "failures",
+        "workers",
+        "bytes_written",
+        "grasp_acceptance",
+        "grasp_rejections",
+        "active_taxels",
+        "occlusion",
+        "render_seconds",
+    ] {
+        let v: DashboardView = name.parse().unwrap();
+        let table = store.dashboard(v, v.per_job().then_some(job.as_str()), 0).await.unwrap();
+        let shown = tables.get(name).map(Vec::as_slice).unwrap_or_default();
+        assert_eq!(shown.len(), table.rows.len(), "{name}: the page shows {shown:?}");
+        for (row, cells) in table.rows.iter().zip(shown) {
+            for (column, value) in table.columns.iter().zip(row) {
+                let Some((data, text)) = cells.get(column) else {
+                    assert_eq!(column, "job_id", "{name}: the page leaves out {column}");
+                    continue;
+                };
+                let at = format!("{name}.{column}");
+                match value {
+                    Value::Null => assert_eq!((data.as_str(), text.as_str()), ("null", ""), "{at}"),
+                    Value::String(v) => assert_eq!((data, text), (v, v), "{at}"),
+                    Value::Number(n) => {
+                        let v = n.as_f64().unwrap();
+                        assert_eq!(data.parse::<f64>().unwrap(), v, "{at}: data-value");
+                        if column.ends_with("_ms") {
+                            assert!(text.ends_with('Z') && text.len() == 20, "{at}: a UTC time, not {text:?}");
+                        } else if n.is_f64() {
+                            assert!((text.parse::<f64>().unwrap() - v).abs() <= 0.0005 + 1e-9, "{at}: {text} vs {v}");
+                        } else {
+                            assert_eq!(text.parse::<f64>().unwrap(), v, "{at}");
+                        }
+                    }
+                    other => panic!("{at}: a view cell is never {other}"),
+                }
+            }
+        }
+    }
+    let progress = view(&store, DashboardView::JobProgress, j).await;
+    let total = |c: &str| progress.iter().map(|r| r[c].as_i64().unwrap()).sum::<i64>().to_string();
+    let listed = tables["jobs"].iter().find(|r| r["job_id"].0 == job).expect("the job is listed");
+    assert_eq!((listed["tasks"].0.clone(), listed["succeeded"].0.clone()), (total("tasks"), total("succeeded")));
+    for chart in ["throughput", "acceptance", "taxels", "occlusion"] {
+        let tag = dom.split("<img").find(|t| t.contains(&format!("data-chart=\"{chart}\""))).unwrap_or_default();
+        assert!(tag.contains("data-loaded=\"1\""), "chart {chart} did not load: {tag}");
+    }
+
+    // Screenshot: the charts are painted (their bars and lines are the first series colour) and the
+    // picture is kept in target/test-artifacts/ for a person to look at.
+    let shot = tmp.path().join("dashboard.png");
+    chromium_run(&page, &[&format!("--screenshot={}", shot.display()), "--window-size=1400,2600"], 10_000);
+    let (width, height, painted) = series_pixels(&shot, [31, 95, 191]);
+    assert_eq!((width, height), (1400, 2600));
+    assert!(painted > 3_000, "only {painted} pixels of the charts' colour: were the charts drawn?");
+    let kept = repo_root().join("target/test-artifacts");
+    std::fs::create_dir_all(&kept).unwrap();
+    std::fs::copy(&shot, kept.join("dashboard.png")).unwrap();
     store.close().await;
+}
+
+/// One table cell as the page shows it: its `data-value` and its text.
+type Cell = (String, String);
+
+/// The tables of the dumped page, by `data-view`: each row's cells by `data-col`.
+fn page_tables(dom: &str) -> BTreeMap<String, Vec<BTreeMap<String, Cell>>> {
+    let mut tables = BTreeMap::new();
+    for chunk in dom.split("<table data-view=\"").skip(1) {
+        let (name, rest) = chunk.split_once('"').unwrap();
+        let body = rest.split("</table>").next().unwrap();
+        let mut rows = Vec::new();
+        for tr in body.split("<tr").skip(1) {
+            let mut cells = BTreeMap::new();
+            for td in tr.split("<td").skip(1) {
+                let (tag, inner) = td.split_once('>').unwrap();
+                let (Some(col), Some(value)) = (attribute(tag, "data-col"), attribute(tag, "data-value")) else {
+                    continue;
+                };
+                let text = inner.split("</td>").next().unwrap();
+                cells.insert(col, (value, unescape(text)));
+            }
+            if !cells.is_empty() {
+                rows.push(cells);
+            }
+        }
+        tables.insert(name.to_string(), rows);
+    }
+    tables
+}
+
+fn attribute(tag: &str, name: &str) -> Option<String> {
+    let start = tag.find(&format!("{name}=\""))? + name.len() + 2;
+    let end = tag[start..].find('"')?;
+    Some(unescape(&tag[start..start + end]))
+}
+
+fn unescape(text: &str) -> String {
+    text.replace("&lt;", "<").replace("&gt;", ">").replace("&quot;", "\"").replace("&#39;", "'").replace("&amp;", "&")
+}
+
+/// The PNG's size and how many of its pixels are exactly `rgb`.
+fn series_pixels(path: &std::path::Path, rgb: [u8; 3]) -> (u32, u32, usize) {
+    let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap()));
+    let mut reader = decoder.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    let channels = info.color_type.samples();
+    let pixels = buf[..info.buffer_size()].chunks(channels).filter(|p| p[..3] == rgb).count();
+    (info.width, info.height, pixels)
 }

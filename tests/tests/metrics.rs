@@ -6,7 +6,7 @@
 //! The worker runs in timing-only mode: the metrics are the same for real engines, and the job
 //! takes seconds.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -164,6 +164,51 @@ async fn metrics_parse_as_prometheus_text_and_count_what_the_store_holds() {
     assert!(worker_metrics.sum("vint_worker_uploaded_bytes_total", &[]) > 0.0);
     assert_eq!(http_get(worker_http, "/healthz").map(|(status, _, _)| status), Some(200));
 
+    // deploy/grafana/vint.json: every metric its PromQL names is exported by the coordinator or a
+    // worker, and every SQL query it runs answers on this job's database.
+    let grafana: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(repo_root().join("deploy/grafana/vint.json")).unwrap()).unwrap();
+    let targets: Vec<&serde_json::Value> = grafana["panels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|p| p["targets"].as_array().into_iter().flatten())
+        .collect();
+    // A family is exported if either exposition declares it (`# TYPE`), whether or not it has a
+    // sample yet: the timing-only worker runs no engine, so its engine histograms stay empty.
+    let mut exported: BTreeSet<String> = BTreeSet::new();
+    for port in [http, worker_http] {
+        let text = std::fs::read_to_string(dir.path().join(format!("metrics-{port}.txt"))).unwrap();
+        exported.extend(text.lines().filter_map(|l| l.strip_prefix("# TYPE ")?.split(' ').next().map(String::from)));
+    }
+    let (mut exprs, mut queries) = (0, 0);
+    let variables = grafana["templating"]["list"].as_array().unwrap().iter();
+    let variable_queries =
+        variables.filter(|v| v["type"] == "query").map(|v| serde_json::json!({"rawSql": v["query"]}));
+    let variable_queries: Vec<serde_json::Value> = variable_queries.collect();
+    for target in targets.iter().copied().chain(&variable_queries) {
+        if let Some(expr) = target["expr"].as_str() {
+            exprs += 1;
+            for name in metric_names(expr) {
+                let family = ["_bucket", "_count", "_sum", "_total"]
+                    .iter()
+                    .find_map(|suffix| name.strip_suffix(suffix).filter(|f| exported.contains(*f)))
+                    .unwrap_or(&name);
+                assert!(exported.contains(family), "the Grafana query {expr:?} names {name}, which nothing exports");
+            }
+        }
+        if let Some(sql) = target["rawSql"].as_str() {
+            queries += 1;
+            // Counted in a subquery: it runs in full, and sqlx's Any driver need not decode
+            // Grafana's timestamp columns.
+            let sql = format!("SELECT COUNT(*) FROM ({}) AS panel", sql.replace("$job", &job));
+            let mut conn = <sqlx::AnyConnection as sqlx::Connection>::connect(&database).await.unwrap();
+            let rows = sqlx::Executor::fetch_all(&mut conn, sqlx::AssertSqlSafe(sql.clone())).await;
+            assert!(rows.is_ok(), "the Grafana query {sql:?} fails: {:?}", rows.err());
+        }
+    }
+    assert!(exprs >= 9 && queries >= 10, "{exprs} PromQL and {queries} SQL queries");
+
     // Health is the database's: gone, the coordinator answers 503 and says why.
     store.close().await;
     let admin = postgres_admin_url();
@@ -177,4 +222,16 @@ async fn metrics_parse_as_prometheus_text_and_count_what_the_store_holds() {
         http_get(http, "/healthz").is_some_and(|(status, _, body)| status == 503 && body.contains("database"))
     })
     .await;
+}
+
+/// The `vint_*` metric names a PromQL expression reads.
+fn metric_names(expr: &str) -> Vec<String> {
+    let mut names = Vec::new();
+    let mut rest = expr;
+    while let Some(at) = rest.find("vint_") {
+        let name: String = rest[at..].chars().take_while(|c| c.is_ascii_alphanumeric() || *c == '_').collect();
+        rest = &rest[at + name.len()..];
+        names.push(name);
+    }
+    names
 }

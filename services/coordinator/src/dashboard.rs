@@ -37,7 +37,8 @@ const SCRIPT: &str = include_str!("dashboard/app.js");
 const JOBS_LISTED: u32 = 50;
 const CHART_SIZE: (u32, u32) = (560, 260);
 /// Series colours, by stage for throughput (grasp, render, noise, package) and for bars.
-const PALETTE: [RGBColor; 4] = [RGBColor(31, 95, 191), RGBColor(47, 125, 79), RGBColor(196, 120, 24), RGBColor(130, 70, 160)];
+const PALETTE: [RGBColor; 4] =
+    [RGBColor(31, 95, 191), RGBColor(47, 125, 79), RGBColor(196, 120, 24), RGBColor(130, 70, 160)];
 
 /// The dashboard's routes over `store`, each behind a `read` token when there are `tokens`.
 pub fn router(store: Store, tokens: Option<Arc<Tokens>>) -> Router {
@@ -59,7 +60,10 @@ async fn require_read(State(tokens): State<Option<Arc<Tokens>>>, request: Reques
         Ok(_) => next.run(request).await,
         Err(Denied::Unauthenticated(message)) => (
             StatusCode::UNAUTHORIZED,
-            [(header::WWW_AUTHENTICATE, "Basic realm=\"vint dashboard: a read token as the password\", charset=\"UTF-8\"")],
+            [(
+                header::WWW_AUTHENTICATE,
+                "Basic realm=\"vint dashboard: a read token as the password\", charset=\"UTF-8\"",
+            )],
             message,
         )
             .into_response(),
@@ -164,7 +168,10 @@ impl Chart {
 
 async fn chart(State(store): State<Store>, Path(file): Path<String>, Query(q): Query<JobQuery>) -> Response {
     let Some(chart) = Chart::parse(&file) else {
-        return (StatusCode::NOT_FOUND, format!("{file:?} is not a chart (throughput|acceptance|taxels|occlusion .svg)"))
+        return (
+            StatusCode::NOT_FOUND,
+            format!("{file:?} is not a chart (throughput|acceptance|taxels|occlusion .svg)"),
+        )
             .into_response();
     };
     let table = match store.dashboard(chart.view(), q.job.as_deref(), 0).await {
@@ -172,7 +179,9 @@ async fn chart(State(store): State<Store>, Path(file): Path<String>, Query(q): Q
         Err(e) => return store_error(&e),
     };
     match draw(chart, &table) {
-        Ok(svg) => ([(header::CONTENT_TYPE, "image/svg+xml"), (header::CACHE_CONTROL, "no-store")], svg).into_response(),
+        Ok(svg) => {
+            ([(header::CONTENT_TYPE, "image/svg+xml"), (header::CACHE_CONTROL, "no-store")], svg).into_response()
+        }
         Err(message) => {
             tracing::error!(chart = ?chart, %message, "drawing a dashboard chart failed");
             (StatusCode::INTERNAL_SERVER_ERROR, message).into_response()
@@ -193,7 +202,10 @@ fn labels(table: &DashboardTable, columns: &[&str]) -> Vec<String> {
         .rows
         .iter()
         .map(|r| {
-            idx.iter().map(|&i| r.get(i).and_then(Value::as_str).unwrap_or("").to_string()).collect::<Vec<_>>().join("/")
+            idx.iter()
+                .map(|&i| r.get(i).and_then(Value::as_str).unwrap_or("").to_string())
+                .collect::<Vec<_>>()
+                .join("/")
         })
         .collect()
 }
@@ -211,8 +223,15 @@ fn draw(chart: Chart, table: &DashboardTable) -> Result<String, String> {
             }
             lines(&series, "minutes since the first", "tasks ended per minute")
         }
-        Chart::Acceptance => bars(&labels(table, &["object", "hand"]), &numbers(table, "acceptance"), "accepted share", Some(1.0)),
-        Chart::Taxels => bars(&labels(table, &["hand", "region"]), &numbers(table, "mean_per_grasp"), "active taxels per grasp", None),
+        Chart::Acceptance => {
+            bars(&labels(table, &["object", "hand"]), &numbers(table, "acceptance"), "accepted share", Some(1.0))
+        }
+        Chart::Taxels => bars(
+            &labels(table, &["hand", "region"]),
+            &numbers(table, "mean_per_grasp"),
+            "active taxels per grasp",
+            None,
+        ),
         Chart::Occlusion => {
             // Every tenth, empty ones too, so the histogram's axis is always 0 to 1.
             let mut views = [0.0; 10];

@@ -286,8 +286,10 @@ def test_extreme_cameras_give_valid_views(
         camera_view(3, look_at(p_obj + np.array([0.0, 0.0, 0.3]), p_obj + np.array([0.0, 0.0, 1.0]))),
     ]
     out = new_dir(workdir, "extreme")
-    render(engine, grasp, out, ALL, views)
+    reply = render(engine, grasp, out, ALL, views)
     loaded = [load(out, v) for v in range(4)]
+    # The reply's occlusion list (what the dashboard's occlusion view reads) is the camera records'.
+    assert reply["result"]["occlusion"] == [view["camera"]["occlusion"] for view in loaded]
     for view in loaded:
         assert_valid_view(view)
         assert cv2.imread(str(out / "v00_rgb.png")).shape == (64, 64, 3)

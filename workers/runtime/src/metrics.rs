@@ -243,6 +243,24 @@ impl WorkerMetrics {
         self.registry.clone()
     }
 
+    /// Creates the per-stage series of `stages` at zero, so a scrape (and a dashboard query) sees
+    /// every stage this worker serves before its first task, and a stage with no engine runs yet
+    /// reads as none rather than as missing.
+    pub fn serving(&self, stages: &[Stage]) {
+        for stage in stages {
+            let labels = StageLabels { stage: stage.as_str() };
+            drop(self.engine_seconds.get_or_create(&labels));
+            drop(self.fetch_seconds.get_or_create(&labels));
+            drop(self.upload_seconds.get_or_create(&labels));
+            for reason in RestartReason::ALL {
+                drop(
+                    self.engine_restarts
+                        .get_or_create(&RestartLabels { stage: stage.as_str(), reason: reason.as_str() }),
+                );
+            }
+        }
+    }
+
     /// The worker's loop came around (a lease poll, a heartbeat).
     pub fn beat(&self) {
         self.liveness.beat();

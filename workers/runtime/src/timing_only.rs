@@ -208,7 +208,11 @@ async fn answer(
                     files.push(payloads.file(name, kind, view_file_bytes(file, pixels), key).await.map_err(store)?);
                 }
             }
-            serde_json::to_value(RenderResult { views: p.views.len() as u32, device: ENGINE_MODE.into(), occlusion: Vec::new() })
+            serde_json::to_value(RenderResult {
+                views: p.views.len() as u32,
+                device: ENGINE_MODE.into(),
+                occlusion: Vec::new(),
+            })
         }
         Stage::Noise => {
             let p: noise::Params = serde_json::from_value(params).map_err(contract)?;

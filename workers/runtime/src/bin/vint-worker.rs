@@ -112,6 +112,7 @@ async fn main() -> anyhow::Result<()> {
         .with_context(|| format!("opening artifact store {}", vint_telemetry::redact_url(&args.store)))?;
     let max_idle_poll = Duration::from_millis(500);
     let metrics = WorkerMetrics::new(liveness_limit(args.lease_ms, max_idle_poll));
+    metrics.serving(&stages);
     if let Some(addr) = args.metrics_listen {
         let listener =
             tokio::net::TcpListener::bind(addr).await.with_context(|| format!("binding --metrics-listen {addr}"))?;
