@@ -311,7 +311,8 @@ fn over_tls_a_client_trusting_the_private_ca_makes_an_authenticated_call() {
     std::fs::write(&cert, certified.cert.pem()).unwrap();
     std::fs::write(&key, certified.signing_key.serialize_pem()).unwrap();
     let tokens = write_tokens(dir.path());
-    let port = free_port();
+    let (port, http) = (free_port(), free_port());
+    let http_listen = format!("127.0.0.1:{http}");
     let flags = [
         "--auth-tokens",
         tokens.to_str().unwrap(),
@@ -319,6 +320,8 @@ fn over_tls_a_client_trusting_the_private_ca_makes_an_authenticated_call() {
         cert.to_str().unwrap(),
         "--tls-key",
         key.to_str().unwrap(),
+        "--http-listen",
+        &http_listen,
     ];
     let _coordinator = coordinator(dir.path(), port, "127.0.0.1", &flags);
     let https = format!("https://127.0.0.1:{port}");
@@ -335,6 +338,43 @@ fn over_tls_a_client_trusting_the_private_ca_makes_an_authenticated_call() {
     assert!(!o.status.success(), "the system's roots do not trust a private CA: {}", stdout(&o));
     let o = vintctl(&["jobs", "--coordinator", &format!("http://127.0.0.1:{port}"), "--token", READ]);
     assert!(!o.status.success(), "plain HTTP/2 to a TLS coordinator: {}", stdout(&o));
+
+    // The HTTP listener speaks HTTPS with the same certificate, and still wants its token.
+    let ca = certified.cert.der().to_vec();
+    assert_eq!(https_get(http, "/dashboard/api/jobs", &ca, &format!("Bearer {READ}")), (200, "[]".to_string()));
+    assert_eq!(https_get(http, "/dashboard/api/jobs", &ca, &format!("Bearer {WORKER}")).0, 403);
+    assert_eq!(https_get(http, "/healthz", &ca, "Bearer -").0, 200);
+    assert!(http_get(http, "/healthz").is_none(), "plain HTTP to the HTTPS listener got an answer");
+}
+
+/// `GET path` over HTTPS on 127.0.0.1:`port`, trusting only the certificate `ca` (DER), with an
+/// `Authorization` header: (status, body).
+fn https_get(port: u16, path: &str, ca: &[u8], authorization: &str) -> (u16, String) {
+    use std::io::{Read, Write};
+    use std::sync::Arc;
+    let mut roots = rustls::RootCertStore::empty();
+    roots.add(rustls::pki_types::CertificateDer::from(ca.to_vec())).unwrap();
+    let provider = Arc::new(rustls::crypto::aws_lc_rs::default_provider());
+    let config = rustls::ClientConfig::builder_with_provider(provider)
+        .with_safe_default_protocol_versions()
+        .unwrap()
+        .with_root_certificates(roots)
+        .with_no_client_auth();
+    let name = rustls::pki_types::ServerName::try_from("localhost").unwrap();
+    let connection = rustls::ClientConnection::new(Arc::new(config), name).unwrap();
+    let tcp = std::net::TcpStream::connect(("127.0.0.1", port)).unwrap();
+    tcp.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    let mut tls = rustls::StreamOwned::new(connection, tcp);
+    let request = format!(
+        "GET {path} HTTP/1.1\r\nHost: localhost\r\nAuthorization: {authorization}\r\nConnection: close\r\n\r\n"
+    );
+    tls.write_all(request.as_bytes()).unwrap();
+    let mut raw = Vec::new();
+    // The server may close without a TLS close_notify: what was read before that is the answer.
+    let _ = tls.read_to_end(&mut raw);
+    let raw = String::from_utf8_lossy(&raw);
+    let (head, body) = raw.split_once("\r\n\r\n").unwrap_or_else(|| panic!("no HTTP answer: {raw:?}"));
+    (head.split(' ').nth(1).unwrap().parse().unwrap(), body.to_string())
 }
 
 /// The HTTP side: `/healthz` and `/metrics` are open (the kubelet and Prometheus); the dashboard

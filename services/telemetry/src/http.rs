@@ -3,8 +3,9 @@
 //! with the reason, from the process's own `HealthCheck`).
 //!
 //! It runs on the axum that tonic already builds on, so a process compiles one HTTP stack. A
-//! process may add its own routes to the `Router` before serving it. Nothing here authenticates:
-//! bind it where only the cluster (Prometheus, probes) can reach it.
+//! process may add its own routes to the `Router` before serving it, and serve it as plain HTTP
+//! (`serve_http`) or HTTPS (`serve_https`, rustls). Nothing here authenticates: bind it where only
+//! the cluster (Prometheus, probes) can reach it, or put the process's own checks on its routes.
 
 use std::future::Future;
 use std::sync::Arc;
@@ -35,6 +36,69 @@ pub fn router(registry: Arc<Registry>, health: impl HealthCheck) -> Router {
     Router::new()
         .route("/metrics", get(move || metrics(registry.clone())))
         .route("/healthz", get(move || healthz(health.clone())))
+}
+
+/// The TLS configuration `serve_https` serves with: a PEM certificate chain (the server's first)
+/// and its PEM private key; an error names the file and what is wrong with it.
+pub fn tls_server_config(
+    cert_path: &std::path::Path,
+    key_path: &std::path::Path,
+) -> Result<Arc<rustls::ServerConfig>, String> {
+    use rustls::pki_types::pem::PemObject;
+    use rustls::pki_types::{CertificateDer, PrivateKeyDer};
+    let certs = CertificateDer::pem_file_iter(cert_path)
+        .and_then(|certs| certs.collect::<Result<Vec<_>, _>>())
+        .map_err(|e| format!("{}: not a PEM certificate chain: {e}", cert_path.display()))?;
+    let key = PrivateKeyDer::from_pem_file(key_path)
+        .map_err(|e| format!("{}: not a PEM private key: {e}", key_path.display()))?;
+    let provider = Arc::new(rustls::crypto::aws_lc_rs::default_provider());
+    let mut config = rustls::ServerConfig::builder_with_provider(provider)
+        .with_safe_default_protocol_versions()
+        .and_then(|b| b.with_no_client_auth().with_single_cert(certs, key))
+        .map_err(|e| format!("{} with {}: {e}", cert_path.display(), key_path.display()))?;
+    config.alpn_protocols = vec![b"http/1.1".to_vec()];
+    Ok(Arc::new(config))
+}
+
+/// Serves `router` over HTTPS (HTTP/1.1 in TLS with `tls`) on `listener` until `shutdown`
+/// resolves. A client that fails its handshake is dropped; the others are not disturbed.
+pub async fn serve_https(
+    listener: TcpListener,
+    router: Router,
+    tls: Arc<rustls::ServerConfig>,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> std::io::Result<()> {
+    let acceptor = tokio_rustls::TlsAcceptor::from(tls);
+    tokio::pin!(shutdown);
+    loop {
+        let (stream, peer) = tokio::select! {
+            () = &mut shutdown => return Ok(()),
+            accepted = listener.accept() => match accepted {
+                Ok(accepted) => accepted,
+                Err(e) => {
+                    tracing::warn!(error = %e, "accepting an HTTPS connection failed");
+                    continue;
+                }
+            },
+        };
+        let (acceptor, router) = (acceptor.clone(), router.clone());
+        tokio::spawn(async move {
+            let stream = match acceptor.accept(stream).await {
+                Ok(stream) => stream,
+                Err(e) => {
+                    tracing::debug!(%peer, error = %e, "TLS handshake failed");
+                    return;
+                }
+            };
+            let service = hyper_util::service::TowerToHyperService::new(router);
+            let served = hyper::server::conn::http1::Builder::new()
+                .serve_connection(hyper_util::rt::TokioIo::new(stream), service)
+                .await;
+            if let Err(e) = served {
+                tracing::debug!(%peer, error = %e, "HTTPS connection ended with an error");
+            }
+        });
+    }
 }
 
 /// Serves `router` on `listener` until `shutdown` resolves.

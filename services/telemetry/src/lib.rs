@@ -9,7 +9,11 @@
 pub mod http;
 
 pub use axum::Router;
-pub use http::{Health, HealthCheck, Liveness, OPENMETRICS_CONTENT_TYPE, router, serve_http};
+pub use http::{
+    Health, HealthCheck, Liveness, OPENMETRICS_CONTENT_TYPE, router, serve_http, serve_https, tls_server_config,
+};
+/// The TLS configuration of an HTTPS listener (`tls_server_config`, `serve_https`).
+pub use rustls::ServerConfig as TlsServerConfig;
 
 /// Logs to stderr, filtered by `RUST_LOG` (default `info`), as text or JSON lines.
 pub fn init_tracing(json: bool) {

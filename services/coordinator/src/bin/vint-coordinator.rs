@@ -34,7 +34,7 @@ struct Args {
     /// submit, cancel and report tasks.
     #[arg(long)]
     insecure_listen_any: bool,
-    /// TLS certificate chain (PEM) for gRPC; needs --tls-key.
+    /// TLS certificate chain (PEM) for gRPC and the --http-listen listener (HTTPS); needs --tls-key.
     #[arg(long, env = "VINT_TLS_CERT", requires = "tls_key")]
     tls_cert: Option<PathBuf>,
     /// TLS private key (PEM) of --tls-cert.
@@ -99,6 +99,8 @@ fn main() -> ExitCode {
 struct Security {
     tokens: Option<Arc<Tokens>>,
     tls: Option<TlsIdentity>,
+    /// The same certificate and key for the HTTP listener (HTTPS).
+    http_tls: Option<Arc<vint_telemetry::TlsServerConfig>>,
 }
 
 impl Security {
@@ -125,11 +127,17 @@ impl Security {
                  you trust"
             )));
         }
-        let tls = match (&args.tls_cert, &args.tls_key) {
-            (Some(cert), Some(key)) => Some(TlsIdentity::load(cert, key).map_err(|e| BadInput(e.into()))?),
-            _ => None,
+        let (tls, http_tls) = match (&args.tls_cert, &args.tls_key) {
+            (Some(cert), Some(key)) => (
+                Some(TlsIdentity::load(cert, key).map_err(|e| BadInput(e.into()))?),
+                Some(
+                    vint_telemetry::tls_server_config(cert, key)
+                        .map_err(|e| BadInput(anyhow!("--tls-cert/--tls-key: {e}")))?,
+                ),
+            ),
+            _ => (None, None),
         };
-        Ok(Security { tokens, tls })
+        Ok(Security { tokens, tls, http_tls })
     }
 }
 
@@ -194,9 +202,17 @@ async fn run(args: Args, security: Security) -> anyhow::Result<()> {
         Some(addr) => {
             let (listener, addr) =
                 vint_coordinator::bind(addr).await.with_context(|| format!("binding --http-listen {addr}"))?;
-            tracing::info!(%addr, "serving /metrics, /healthz and /dashboard");
             let router = vint_coordinator::http_router(store.clone(), &config);
-            Some(tokio::spawn(vint_telemetry::serve_http(listener, router, stopped(stop.clone()))))
+            Some(match security.http_tls {
+                Some(tls) => {
+                    tracing::info!(%addr, "serving /metrics, /healthz and /dashboard over HTTPS");
+                    tokio::spawn(vint_telemetry::serve_https(listener, router, tls, stopped(stop.clone())))
+                }
+                None => {
+                    tracing::info!(%addr, "serving /metrics, /healthz and /dashboard");
+                    tokio::spawn(vint_telemetry::serve_http(listener, router, stopped(stop.clone())))
+                }
+            })
         }
         None => None,
     };
