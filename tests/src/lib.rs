@@ -200,10 +200,21 @@ pub fn start_worker_with_lease(
 /// An HTTP/1.0 GET of `path` on 127.0.0.1:`port`: the status, the content type and the body.
 /// `None` while nothing accepts connections there.
 pub fn http_get(port: u16, path: &str) -> Option<(u16, String, String)> {
+    http_request(port, path, "")
+}
+
+/// `GET path` on 127.0.0.1:`port` with an `Authorization` header: (status, body).
+pub fn http_get_authorized(port: u16, path: &str, authorization: &str) -> Option<(u16, String)> {
+    let (status, _, body) = http_request(port, path, &format!("Authorization: {authorization}\r\n"))?;
+    Some((status, body))
+}
+
+/// An HTTP/1.0 GET with `headers` (each line ending in CRLF): status, content type, body.
+fn http_request(port: u16, path: &str, headers: &str) -> Option<(u16, String, String)> {
     use std::io::{Read, Write};
     let mut stream = std::net::TcpStream::connect(("127.0.0.1", port)).ok()?;
     stream.set_read_timeout(Some(Duration::from_secs(10))).ok()?;
-    stream.write_all(format!("GET {path} HTTP/1.0\r\nHost: 127.0.0.1\r\n\r\n").as_bytes()).ok()?;
+    stream.write_all(format!("GET {path} HTTP/1.0\r\nHost: 127.0.0.1\r\n{headers}\r\n").as_bytes()).ok()?;
     let mut raw = String::new();
     stream.read_to_string(&mut raw).ok()?;
     let (head, body) = raw.split_once("\r\n\r\n")?;
@@ -214,19 +225,6 @@ pub fn http_get(port: u16, path: &str) -> Option<(u16, String, String)> {
         .unwrap_or_default()
         .to_string();
     Some((status, content_type, body.to_string()))
-}
-
-/// `GET path` on 127.0.0.1:`port` with an `Authorization` header: (status, body).
-pub fn http_get_authorized(port: u16, path: &str, authorization: &str) -> Option<(u16, String)> {
-    use std::io::{Read, Write};
-    let mut stream = std::net::TcpStream::connect(("127.0.0.1", port)).ok()?;
-    stream.set_read_timeout(Some(Duration::from_secs(10))).ok()?;
-    let request = format!("GET {path} HTTP/1.0\r\nHost: 127.0.0.1\r\nAuthorization: {authorization}\r\n\r\n");
-    stream.write_all(request.as_bytes()).ok()?;
-    let mut raw = String::new();
-    stream.read_to_string(&mut raw).ok()?;
-    let (head, body) = raw.split_once("\r\n\r\n")?;
-    Some((head.split(' ').nth(1)?.parse().ok()?, body.to_string()))
 }
 
 /// Headless Chromium (`VINT_CHROMIUM`, else `chromium` on PATH: scripts/test.sh installs Debian's
