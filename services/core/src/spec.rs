@@ -145,8 +145,11 @@ pub struct RenderSettings {
     /// Default 32: the cheapest setting within 35 dB PSNR of a 1024-sample reference in the render
     /// study (docs/studies/render/render_study.md).
     pub samples: u32,
-    /// OpenImageDenoise on the RGB image.
+    /// OpenImageDenoise on the RGB image (guided by albedo and normals): on by default, since it is
+    /// what removes fireflies (docs/rendering.md).
     pub denoise: bool,
+    /// Cycles' clamp on indirect light (0: off).
+    pub clamp_indirect: f64,
     /// Light-path caps; the renderer lowers them to what the scene's materials can use.
     pub bounces: Bounces,
     /// Views rendered under each environment: a grasp has `views_per_environment × environments`
@@ -161,6 +164,10 @@ pub struct RenderSettings {
     pub elevation_deg: [f64; 2],
     /// Camera roll range about the optical axis.
     pub roll_deg: [f64; 2],
+    /// How far off the image centre the object may be framed (fraction of the way to the edge).
+    pub offcentre: f64,
+    /// The table and the arm's flange around the grasp (`[render.scene]`).
+    pub scene: render_contract::Scene,
 }
 
 /// Views of one grasp at most: view ids are two digits (`v00`..`v99`).
@@ -298,6 +305,9 @@ pub fn number_fields() -> Vec<NumberField> {
         pair(float("render.radius_m", render_contract::RADIUS_M)),
         pair(float("render.elevation_deg", render_contract::ELEVATION_DEG)),
         pair(float("render.roll_deg", render_contract::ROLL_DEG)),
+        float("render.offcentre", render_contract::OFFCENTRE),
+        float("render.clamp_indirect", render_contract::CLAMP_INDIRECT),
+        float("render.scene.table_gap_m", render_contract::TABLE_GAP_M),
         float("split.train", split::TRAIN),
         float("split.val", split::VAL),
         float("split.test", split::TEST),
@@ -537,7 +547,8 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
     let render = RenderSettings {
         resolution,
         samples: r.count(&mut rd, "render", "samples", render_contract::SAMPLES),
-        denoise: r.boolean(&mut rd, "render.denoise", "denoise", false),
+        denoise: r.boolean(&mut rd, "render.denoise", "denoise", true),
+        clamp_indirect: r.number(&mut rd, "render", "clamp_indirect", render_contract::CLAMP_INDIRECT),
         bounces: read_bounces(r, &mut rd),
         views_per_environment: r.count(&mut rd, "render", "views_per_environment", VIEWS_PER_ENVIRONMENT),
         environments: read_environments(r, &mut rd),
@@ -563,6 +574,8 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
             render_contract::ROLL_DEG,
             render_contract::ROLL_DEG_DEFAULT,
         ),
+        offcentre: r.number(&mut rd, "render", "offcentre", render_contract::OFFCENTRE),
+        scene: read_scene(r, &mut rd),
     };
     if !render.environments.is_empty() && render.views_per_grasp() > MAX_VIEWS_PER_GRASP {
         r.error(
@@ -581,6 +594,7 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
             "resolution",
             "samples",
             "denoise",
+            "clamp_indirect",
             "bounces",
             "views_per_environment",
             "environments",
@@ -589,6 +603,8 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
             "radius_m",
             "elevation_deg",
             "roll_deg",
+            "offcentre",
+            "scene",
         ],
     );
 
@@ -852,6 +868,26 @@ fn read_bounces(r: &mut Reader, rd: &mut Table) -> Bounces {
     };
     r.finish(b, "render.bounces", &["total", "diffuse", "glossy", "transmission", "transparent"]);
     bounces
+}
+
+/// `[render.scene]`: the table and the flange around the grasp.
+fn read_scene(r: &mut Reader, rd: &mut Table) -> render_contract::Scene {
+    let mut t = match rd.remove("scene") {
+        None => Table::new(),
+        Some(Value::Table(t)) => t,
+        Some(v) => {
+            r.error("render.scene", v, "must be a table");
+            Table::new()
+        }
+    };
+    let defaults = render_contract::Scene::default();
+    let scene = render_contract::Scene {
+        table: r.boolean(&mut t, "render.scene.table", "table", defaults.table),
+        table_gap_m: r.number(&mut t, "render.scene", "table_gap_m", render_contract::TABLE_GAP_M),
+        flange: r.boolean(&mut t, "render.scene.flange", "flange", defaults.flange),
+    };
+    r.finish(t, "render.scene", &["table", "table_gap_m", "flange"]);
+    scene
 }
 
 /// ` (did you mean `NAME`?)` for the known name nearest to an unknown `name`, or nothing.

@@ -483,11 +483,18 @@ const ENVIRONMENT_RULE: &str = "one of Blender's bundled HDRIs (city, courtyard,
 #[test]
 fn cycles_settings_have_defaults_and_ranges() {
     let spec = DatasetSpec::parse(TINY).unwrap();
-    assert!(!spec.render.denoise);
+    assert!(spec.render.denoise, "the denoiser is what removes fireflies: on by default");
+    assert_eq!(spec.render.clamp_indirect, 10.0);
+    assert_eq!(spec.render.roll_deg, [-5.0, 5.0], "a robot's camera is mounted upright");
+    assert_eq!((spec.render.scene.table, spec.render.scene.flange), (true, true));
     assert_eq!((spec.render.bounces.total, spec.render.bounces.transmission), (12, 12));
-    let text = tiny_with("samples = 16", "samples = 16\ndenoise = true\nbounces = { glossy = 2, transparent = 0 }");
+    let text = tiny_with(
+        "samples = 16",
+        "samples = 16\ndenoise = false\nbounces = { glossy = 2, transparent = 0 }\nscene = { table = false }",
+    );
     let spec = DatasetSpec::parse(&text).unwrap();
-    assert!(spec.render.denoise);
+    assert!(!spec.render.denoise);
+    assert!(!spec.render.scene.table && spec.render.scene.flange);
     assert_eq!((spec.render.bounces.glossy, spec.render.bounces.transparent), (2, 0));
     assert_single_error(
         &tiny_with("samples = 16", "samples = 16\nbounces = { diffuse = 5000 }"),
@@ -496,6 +503,18 @@ fn cycles_settings_have_defaults_and_ranges() {
     assert_single_error(
         &tiny_with("samples = 16", "samples = 16\ndenoise = 1"),
         "render.denoise: must be true or false, got 1",
+    );
+    assert_single_error(
+        &tiny_with("samples = 16", "samples = 16\noffcentre = 0.95"),
+        "render.offcentre: must be in [0, 0.9], got 0.95",
+    );
+    assert_single_error(
+        &tiny_with("samples = 16", "samples = 16\nscene = { table_gap_m = -0.1 }"),
+        "render.scene.table_gap_m: must be in [0, 1], got -0.1",
+    );
+    assert_single_error(
+        &tiny_with("samples = 16", "samples = 16\nscene = { tabel = true }"),
+        "render.scene.tabel: unknown key (did you mean `table`? known keys: table, table_gap_m, flange), got true",
     );
 }
 

@@ -165,7 +165,8 @@ def test_object_depth_and_masks_match_a_zbuffer_of_the_model_mesh(views: Path, g
 
 
 def test_segmentation_ids_name_the_hand_links_they_show(views: Path, grasp: dict[str, Any]) -> None:
-    """camera.json maps ids to names (0 background, 1 object, 2.. links in grasps.json order);
+    """camera.json maps ids to names (0 background, 1 object, 2.. links in grasps.json order, then
+    the arm's flange and link and the table);
     every pixel labelled with a link back-projects onto that link's primitives, and surface
     points of a link that the depth shows at their pixel carry the link's id (points inside or
     within a millimetre of another link or the object are left out: links overlap at their joints
@@ -178,7 +179,9 @@ def test_segmentation_ids_name_the_hand_links_they_show(views: Path, grasp: dict
         view = load(views, v)
         camera = view["camera"]
         names = {str(2 + k): f"hand/{link['name']}" for k, link in enumerate(links)}
-        expected = {"0": "background", "1": "object", **names}
+        n = len(links)
+        scene = {str(2 + n): "arm/flange", str(3 + n): "arm/link", str(4 + n): "scene/table"}
+        expected = {"0": "background", "1": "object", **names, **scene}
         assert camera["segmentation"] == expected
         seg, depth = view["segmentation"], view["depth"]
         assert seg.dtype == np.uint8 and set(np.unique(seg)) <= {int(k) for k in expected}
@@ -402,7 +405,9 @@ def test_a_noise_task_reads_the_rendered_segmentation_and_camera_record(
     )
     record = json.loads((out / "v00_camera.json").read_text())
     links = grasp["doc"]["hand"]["links"]
-    assert record["materials"] == {"1": "metal", **{str(2 + k): "rubber" for k in range(len(links))}}
+    n = len(links)
+    scene = {str(2 + n): "metal", str(3 + n): "plastic", str(4 + n): "wood"}  # flange, arm link, table
+    assert record["materials"] == {"1": "metal", **{str(2 + k): "rubber" for k in range(n)}, **scene}
 
     params = {"noise": {"mode": "wfov_unbinned"}, "views": [{"view_index": 0, "seed": 9}]}
     names = ("v00_depth.npy", "v00_segmentation.png", "v00_camera.json")

@@ -322,7 +322,7 @@ fn sample_meta(id: &SampleId, grasps: &Value, camera: &Value, record_sha256: &st
             "camera": "OpenCV: x right, y down, z forward; R_w2c/t_w2c map world to camera",
             "depth": "float32 metres along the optical axis, 0 = no return",
             "masks": "mask.png: the object's visible pixels; mask_full.png: the object alone, as if the hand were not there",
-            "segmentation": "segmentation.png: 0 background, 1 object, 2.. hand links; camera.segmentation maps id to name",
+            "segmentation": "segmentation.png: 0 background, 1 object, 2.. hand links, then the arm's flange and link and the table when shown; camera.segmentation maps id to name",
             "occlusion": "1 - visible_px / full_px: the share of the object the hand hides (1 when out of view)",
             "grasp": "grasp.record: the grasp's record shared by its views (link poses, joints, contacts, touch)",
         },

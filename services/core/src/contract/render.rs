@@ -21,10 +21,19 @@ pub const RADIUS_M_DEFAULT: [f64; 2] = [0.5, 0.65];
 /// Each end of the camera's elevation range above the horizontal plane (degrees).
 pub const ELEVATION_DEG: Bound<f64> = Bound::new(-90.0, 90.0, 15.0);
 pub const ELEVATION_DEG_DEFAULT: [f64; 2] = [15.0, 75.0];
-/// Each end of the camera's roll about its optical axis (degrees): the full turn by default, so
-/// an object's orientation in the image covers every direction, not only "world up is image up".
-pub const ROLL_DEG: Bound<f64> = Bound::new(-180.0, 180.0, -180.0);
-pub const ROLL_DEG_DEFAULT: [f64; 2] = [-180.0, 180.0];
+/// Each end of the camera's roll about its optical axis (degrees). A robot's camera is mounted
+/// upright, so by default world up stays near image up: a jitter of ±5° (a mount's tolerance).
+/// [-180, 180] turns views through every direction.
+pub const ROLL_DEG: Bound<f64> = Bound::new(-180.0, 180.0, -5.0);
+pub const ROLL_DEG_DEFAULT: [f64; 2] = [-5.0, 5.0];
+/// How far from the image centre the object's centre may land, as a fraction of the way to the
+/// image edge (0: always centred). The renderer shrinks the draw so the object's bounding sphere
+/// stays in the frame with `FRAME_MARGIN` of the image left over.
+pub const OFFCENTRE: Bound<f64> = Bound::new(0.0, 0.9, 0.6);
+/// Cycles' clamp on indirect light (`sample_clamp_indirect`, Cycles' default 10; 0 is off).
+pub const CLAMP_INDIRECT: Bound<f64> = Bound::new(0.0, 1000.0, 10.0);
+/// The table top's gap below the lowest point of the hand, the object and the arm's flange (m).
+pub const TABLE_GAP_M: Bound<f64> = Bound::new(0.0, 1.0, 0.05);
 /// Each of Cycles' light-path caps.
 pub const BOUNCES: Bound<u32> = Bound::new(0, 1024, 12);
 /// An environment's turn about world +z (degrees) and strength.
@@ -69,8 +78,11 @@ pub struct Settings {
     pub height: u32,
     #[schemars(range(min = SAMPLES.min, max = SAMPLES.max))]
     pub samples: u32,
-    /// OpenImageDenoise on the RGB image.
+    /// OpenImageDenoise on the RGB image, guided by the albedo and normal passes.
     pub denoise: bool,
+    /// Cycles' clamp on indirect light; 0 is off.
+    #[schemars(range(min = CLAMP_INDIRECT.min, max = CLAMP_INDIRECT.max))]
+    pub clamp_indirect: f64,
     pub bounces: Bounces,
     /// Lower the caps to what the scene's materials can use (exact); false only to measure it.
     pub prune_bounces: bool,
@@ -89,6 +101,32 @@ pub struct Settings {
     /// as image up.
     #[schemars(inner(range(min = ROLL_DEG.min, max = ROLL_DEG.max)))]
     pub roll_deg: [f64; 2],
+    /// How far off the image centre the object may be framed (fraction of the way to the edge).
+    #[schemars(range(min = OFFCENTRE.min, max = OFFCENTRE.max))]
+    pub offcentre: f64,
+    /// What stands around the grasp.
+    pub scene: Scene,
+}
+
+/// The scene around the grasp. The grasp itself happens in free space (`docs/physics.md`); these
+/// pieces are seen by the camera (and by depth and segmentation), never by the physics.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+#[schemars(rename = "RenderScene")]
+pub struct Scene {
+    /// A wooden table top under the hand, catching its shadow.
+    pub table: bool,
+    /// The table top's gap below the lowest point of the hand, object and flange (m).
+    #[schemars(range(min = TABLE_GAP_M.min, max = TABLE_GAP_M.max))]
+    pub table_gap_m: f64,
+    /// The robot arm's flange and last link at the hand's wrist.
+    pub flange: bool,
+}
+
+impl Default for Scene {
+    fn default() -> Scene {
+        Scene { table: true, table_gap_m: TABLE_GAP_M.default, flange: true }
+    }
 }
 
 impl Default for Settings {
@@ -97,7 +135,8 @@ impl Default for Settings {
             width: WIDTH_PX.default,
             height: HEIGHT_PX.default,
             samples: SAMPLES.default,
-            denoise: false,
+            denoise: true,
+            clamp_indirect: CLAMP_INDIRECT.default,
             bounces: Bounces::default(),
             prune_bounces: true,
             fov_deg: FOV_DEG.default,
@@ -105,6 +144,8 @@ impl Default for Settings {
             radius_m: RADIUS_M_DEFAULT,
             elevation_deg: ELEVATION_DEG_DEFAULT,
             roll_deg: ROLL_DEG_DEFAULT,
+            offcentre: OFFCENTRE.default,
+            scene: Scene::default(),
         }
     }
 }

@@ -23,6 +23,7 @@ from vint_engines import __version__, contract
 from vint_engines.assets import StagedAsset, asset_file, staged_assets
 from vint_engines.grasp.hands import GraspHand, hand_dims, load_mjcf_hand
 from vint_engines.grasp.hands.catalog import CATALOG_DIR, read_hand_catalog
+from vint_engines.grasp.hands.model import Vec3
 from vint_engines.grasp.scene import (
     GraspScene,
     ObjectSpec,
@@ -82,6 +83,7 @@ class GraspEngine:
                 "dof": hand.dof,
                 "fingers": hand.finger_count,
                 "links": hand_geometry(scene),
+                "mount": mount_record(hand.mount),
                 "taxels": layout_info,
             },
             "trials": [without_readings(record) for record in records],
@@ -279,3 +281,11 @@ def active_by_region(record: dict[str, Any], regions: Sequence[str]) -> dict[str
     for taxel in record.get("touch", {}).get("active", []):
         counts[taxel["region"]] += 1
     return counts
+
+
+def mount_record(mount: tuple[Vec3, Vec3] | None) -> dict[str, Any] | None:
+    """grasps.json's `hand.mount`: where the renderer attaches the arm's flange (palm frame)."""
+    if mount is None:
+        return None
+    point, axis = mount
+    return {"link": "palm", "p": list(point), "axis": list(axis)}

@@ -21,6 +21,8 @@ _CV_TO_BLENDER = np.diag([1.0, -1.0, -1.0])
 
 # Look-at targets jitter uniformly within this many metres per axis around the object centre.
 TARGET_JITTER_M = 0.01
+# A framed object's bounding circle keeps this share of the image's half-size from the edge.
+FRAME_MARGIN = 0.05
 
 
 @dataclass(frozen=True)
@@ -110,4 +112,51 @@ def rolled(camera: CameraPose, angle: float) -> CameraPose:
     towards its y axis, so what it sees turns by `angle` counter-clockwise on screen."""
     c, s = math.cos(angle), math.sin(angle)
     turn = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+    return CameraPose(turn @ camera.R_w2c, turn @ camera.t_w2c)
+
+
+def framed(
+    rng: np.random.Generator,
+    camera: CameraPose,
+    target: Mat,
+    radius_m: float,
+    intrinsics: Intrinsics,
+    offcentre: float,
+) -> CameraPose:
+    """`camera` turned about its own centre so that `target` lands at a random pixel instead of
+    near the image centre: uniformly within `offcentre` of the way to the image edge on each axis,
+    but never so far that a sphere of `radius_m` around `target` leaves the image (less a margin of
+    `FRAME_MARGIN` of the half-size). The turn is the smallest one that moves the target's ray onto
+    the chosen pixel's ray, so the roll barely changes. Two uniform draws, always made (a fixed
+    draw order); `offcentre` 0 returns the camera as it was."""
+    a, b = rng.uniform(-1.0, 1.0, size=2)
+    if offcentre <= 0.0:
+        return camera
+    seen = camera.R_w2c @ np.asarray(target, dtype=np.float64) + camera.t_w2c
+    distance = float(np.linalg.norm(seen))
+    if distance <= radius_m or seen[2] <= 0.0:
+        return camera  # inside the object's sphere, or looking away: nothing to frame
+    f = intrinsics.focal_px
+    radius_px = f * math.tan(math.asin(radius_m / distance))
+    half_w, half_h = intrinsics.width / 2, intrinsics.height / 2
+    margin_px = FRAME_MARGIN * min(half_w, half_h)
+    reach_x = max(0.0, min(offcentre * half_w, half_w - radius_px - margin_px))
+    reach_y = max(0.0, min(offcentre * half_h, half_h - radius_px - margin_px))
+    K = intrinsics.matrix()
+    pixel = np.array([K[0, 2] + a * reach_x, K[1, 2] + b * reach_y, 1.0])
+    wanted = np.linalg.solve(K, pixel)
+    return turned_onto(camera, seen / distance, wanted / np.linalg.norm(wanted))
+
+
+def turned_onto(camera: CameraPose, ray: Mat, wanted: Mat) -> CameraPose:
+    """`camera` turned about its centre by the smallest rotation that takes the camera-frame
+    direction `ray` to `wanted` (both unit vectors)."""
+    axis = np.cross(ray, wanted)
+    sin = float(np.linalg.norm(axis))
+    cos = float(np.dot(ray, wanted))
+    if sin < 1e-12:
+        return camera
+    k = axis / sin
+    cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    turn = np.eye(3) + sin * cross + (1.0 - cos) * (cross @ cross)
     return CameraPose(turn @ camera.R_w2c, turn @ camera.t_w2c)

@@ -20,7 +20,7 @@ import shutil
 import tempfile
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -33,8 +33,9 @@ from vint_engines.assets import StagedAsset, asset_file, staged_assets
 from vint_engines.objects import MODEL_FILE
 from vint_engines.poses import quat_to_matrix, read_pose
 from vint_engines.protocol import BadInput, Json, TaskRequest, TaskResult
-from vint_engines.render.camera import CameraPose, Intrinsics, look_at, sample_on_hemisphere
+from vint_engines.render.camera import CameraPose, Intrinsics, framed, look_at, sample_on_hemisphere
 from vint_engines.render.cycles import Bounces, PathTracing
+from vint_engines.render.dressing import SceneDressing
 from vint_engines.render.scene import OBJECT_PASS_INDEX, BlenderScene, Geometry, Hdri, environments
 
 GRASPS_INPUT = "grasps.json"
@@ -52,6 +53,8 @@ class RenderSettings:
     radius_m: tuple[float, float]
     elevation_deg: tuple[float, float]
     roll_deg: tuple[float, float]
+    offcentre: float
+    scene: SceneDressing
 
     @staticmethod
     def parse(obj: Any, where: str = "params.render") -> RenderSettings:
@@ -66,12 +69,19 @@ class RenderSettings:
                 samples=fields["samples"],
                 denoise=fields["denoise"],
                 bounces=Bounces(**fields["bounces"]),
+                clamp_indirect=float(fields["clamp_indirect"]),
             ),
             prune_bounces=fields["prune_bounces"],
             environment=fields["environment"],  # checked with the views
             radius_m=(float(fields["radius_m"][0]), float(fields["radius_m"][1])),
             elevation_deg=(float(fields["elevation_deg"][0]), float(fields["elevation_deg"][1])),
             roll_deg=(float(fields["roll_deg"][0]), float(fields["roll_deg"][1])),
+            offcentre=float(fields["offcentre"]),
+            scene=SceneDressing(
+                table=bool(fields["scene"]["table"]),
+                table_gap_m=float(fields["scene"]["table_gap_m"]),
+                flange=bool(fields["scene"]["flange"]),
+            ),
         )
 
 
@@ -248,26 +258,22 @@ class RenderEngine:
         trial = find_trial(grasps, grasp_index)
         self.scene.set_hand(grasps["hand"])
         self.scene.set_object(grasps["object"], staged_input(task, MODEL_FILE))
+        self.scene.set_dressing(settings.scene)
         object_pose = read_pose(trial["object_pose"], f"grasps.json trial {grasp_index} object_pose")
+        object_radius = self.scene.object_radius()
         links = {name: read_pose(pose, f"link_poses.{name}") for name, pose in trial["link_poses"].items()}
         self.scene.pose(object_pose, links)
 
         tracing = settings.tracing
         if settings.prune_bounces:
             bounces = tracing.bounces.pruned(self.scene.lobes())
-            tracing = PathTracing(tracing.samples, tracing.denoise, bounces)
+            tracing = replace(tracing, bounces=bounces)
         result = TaskResult()
         geometry_s = rgb_s = 0.0
         occluded: dict[int, float] = {}
         for view in self._render_order(views):
             started = time.perf_counter()
-            camera = view.camera or sample_on_hemisphere(
-                np.random.default_rng(view.seed),
-                object_pose[0],
-                settings.radius_m,
-                settings.elevation_deg,
-                settings.roll_deg,
-            )
+            camera = view.camera or sampled_camera(view.seed, object_pose[0], object_radius, settings)
             self.scene.place_camera(camera, settings.intrinsics)
             geometry = self.scene.render_geometry()
             geometry_s += time.perf_counter() - started
@@ -358,11 +364,26 @@ class RenderEngine:
             "segmentation": {"0": "background", **{str(k): name for k, name in labels.items()}},
             "materials": {str(k): tag for k, tag in self.scene.segment_materials().items()},
             "environment": view.environment.to_json(),
+            "scene": {
+                "table": self.scene.table_shown(),
+                "table_top_z": self.scene.table_top_z if self.scene.table_shown() else None,
+                "flange": "arm/flange" in labels.values(),
+            },
         }
         path = out_dir / f"{prefix}_camera.json"
         path.write_text(json.dumps(record, indent=1))
         result.add(path, "application/json")
         return float(record["occlusion"])
+
+
+def sampled_camera(
+    seed: int, target: np.ndarray, object_radius: float, settings: RenderSettings
+) -> CameraPose:
+    """The camera of a view without an explicit one: on the hemisphere around the object, then
+    turned so the object lands off the image centre (`framed`), all from the view's seed."""
+    rng = np.random.default_rng(seed)
+    camera = sample_on_hemisphere(rng, target, settings.radius_m, settings.elevation_deg, settings.roll_deg)
+    return framed(rng, camera, target, object_radius, settings.intrinsics, settings.offcentre)
 
 
 def hdri(environment: Environment, assets: dict[str, StagedAsset]) -> Hdri:

@@ -40,17 +40,16 @@ from vint_engines.objects import ObjectSpec, build_model
 from vint_engines.objects.meshio import read_ply_m
 from vint_engines.poses import pose_matrix
 from vint_engines.protocol import BadInput
-from vint_engines.render import cycles, materials, meshes
+from vint_engines.render import cycles, dressing, materials, meshes
 from vint_engines.render.camera import CameraPose, Intrinsics
 from vint_engines.render.cycles import PathTracing
 from vint_engines.render.passes import add_pass_outputs, read_depth, read_index, read_rgb
 
 OBJECT_PASS_INDEX = 1
-FIRST_LINK_PASS_INDEX = 2  # link k of the hand (in grasps.json order) has pass index 2 + k
-# The hand's material tag for the depth-noise model. Every hand link is drawn with one dark
-# (base colour 0.08), rough, non-metallic material (`materials.HAND`): a robot hand's black
-# rubberised covering, not skin. Of the catalog's tags, "rubber" is the dark diffuse one.
-HAND_MATERIAL_TAG = "rubber"
+FIRST_LINK_PASS_INDEX = 2  # link k of the hand (in grasps.json order) has pass index 2 + k;
+# after the n links: the arm's flange (2 + n) and last link (3 + n), then the table (4 + n)
+# (`dressing.py`), each labelled only while the task shows it.
+HAND_MATERIAL_TAG = dressing.HAND_MATERIAL_TAG
 RGB_FILE = "rgb.png"
 GEOMETRY_PREFIX = "geometry_"
 OBJECT_PREFIX = "object_"
@@ -130,7 +129,19 @@ class BlenderScene:
         self._object: bpy.types.Object | None = None
         self._object_meshes: dict[str, tuple[str, bpy.types.Mesh]] = {}  # name → (content key, mesh)
         self._object_spec: ObjectSpec | None = None
-        self._hand_material = materials.principled("vint_hand", materials.HAND)
+        # Material slots of a hand link: 0 anodised (links and palm housing), 1 fingertip pad.
+        self._hand_materials = (
+            materials.principled("vint_hand", dressing.ANODISED_BLACK),
+            materials.principled("vint_fingertip_pad", dressing.FINGERTIP_PAD),
+        )
+        self._arm_materials = {
+            "flange": materials.principled("vint_flange", dressing.FLANGE_ALUMINIUM),
+            "link": materials.principled("vint_arm_link", dressing.ARM_PAINT),
+        }
+        self._arm: dict[str, tuple[bpy.types.Object, str]] = {}  # piece → (object, mount link)
+        self.dressing = dressing.SceneDressing()
+        self._table = self._add_table()
+        self.table_top_z: float | None = None
 
     def _configure_geometry(self) -> None:
         """Both geometry scenes: no path tracing, and one flat material for every surface, so no
@@ -250,21 +261,37 @@ class BlenderScene:
         return cached
 
     def set_hand(self, hand: Mapping[str, Any]) -> None:
-        """Create the hand's link objects, unless this exact geometry is already loaded."""
-        key = json.dumps(hand.get("links"), sort_keys=True)
+        """Create the hand's link objects (and the arm pieces at its `mount`, when it names one),
+        unless this exact geometry is already loaded."""
+        key = json.dumps({"links": hand.get("links"), "mount": hand.get("mount")}, sort_keys=True)
         if key == self._hand_key:
             return
-        for obj in self._links.values():
+        for obj in [*self._links.values(), *(piece for piece, _ in self._arm.values())]:
             _remove_object(obj)
-        self._links, self._hand_key = {}, None
+        self._links, self._arm, self._hand_key = {}, {}, None
         try:
             for k, link in enumerate(hand["links"]):
+                roles = [dressing.geom_role(link["name"], g) for g in link["geoms"]]
                 geoms = [(g["type"], g["size"], meshes.geom_matrix(g["p"], g["q"])) for g in link["geoms"]]
+                mesh = meshes.new_mesh(
+                    f"link_{link['name']}",
+                    geoms,
+                    [1 if role == "pad" else 0 for role in roles],
+                    dressing.PALM_EDGE_RADIUS_M if "palm" in roles else 0.0,
+                )
                 index = FIRST_LINK_PASS_INDEX + k
-                obj = self._add_object(f"link_{link['name']}", geoms, self._hand_material, index)
-                self._links[link["name"]] = obj
+                self._links[link["name"]] = self._add_object(mesh, self._hand_materials, index)
         except (KeyError, TypeError, ValueError) as exc:
             raise BadInput(f"grasps.json: malformed hand geometry ({exc!r})") from exc
+        if hand.get("mount") is not None:
+            mount = dressing.Mount.parse(hand["mount"], list(self._links), "grasps.json hand.mount")
+            first = FIRST_LINK_PASS_INDEX + len(self._links)
+            for i, (name, radius, half, centre, axis) in enumerate(dressing.arm_pieces(mount)):
+                geoms = [("cylinder", (radius, half), meshes.axis_matrix(centre, axis))]
+                mesh = meshes.new_mesh(f"arm_{name}", geoms)
+                piece = self._add_object(mesh, (self._arm_materials[name],), first + i)
+                self._arm[name] = (piece, mount.link)
+        self._table.pass_index = self._table_pass_index()
         self._hand_key = key
 
     def set_object(self, obj: Mapping[str, Any], model_ply: Path | None = None) -> None:
@@ -295,6 +322,15 @@ class BlenderScene:
             _remove_mesh(cached[1])
         self._evict_object_meshes()
 
+    def object_radius(self) -> float:
+        """The shown object's bounding radius about its frame's origin (m); 0 before any."""
+        if self._object is None:
+            return 0.0
+        mesh = self._object.data
+        co = np.empty(3 * len(mesh.vertices), np.float64)
+        mesh.vertices.foreach_get("co", co)
+        return float(np.linalg.norm(co.reshape(-1, 3), axis=1).max(initial=0.0))
+
     def _evict_object_meshes(self) -> None:
         while len(self._object_meshes) > OBJECT_MESH_CAPACITY:
             name = next(iter(self._object_meshes))
@@ -309,6 +345,30 @@ class BlenderScene:
             raise BadInput(f"grasps.json: trial lacks poses for links {sorted(missing)}")
         for name, obj in self._links.items():
             obj.matrix_world = Matrix(pose_matrix(*links[name]).tolist())
+        for piece, link in self._arm.values():
+            piece.matrix_world = Matrix(pose_matrix(*links[link]).tolist())
+            piece.hide_render = not self.dressing.flange
+        self._place_table(object_pose[0])
+
+    def set_dressing(self, dressing_: dressing.SceneDressing) -> None:
+        """What of the scene around the grasp the next `pose` shows."""
+        self.dressing = dressing_
+
+    def _place_table(self, object_position: np.ndarray) -> None:
+        """The table top level under the object, `table_gap_m` below the lowest shown point."""
+        if not self.dressing.table:
+            self.table_top_z = None
+            self._table.hide_render = True
+            return
+        shown = [self._object, *self._links.values()]
+        if self.dressing.flange:
+            shown += [piece for piece, _ in self._arm.values()]
+        lowest = min(_lowest_z(obj) for obj in shown if obj is not None)
+        top = dressing.table_top_z(lowest, self.dressing.table_gap_m)
+        thickness = dressing.TABLE_SIZE_M[2]
+        self._table.location = (float(object_position[0]), float(object_position[1]), top - thickness / 2)
+        self._table.hide_render = False
+        self.table_top_z = top
 
     # -- rendering -------------------------------------------------------------------------------
 
@@ -317,7 +377,15 @@ class BlenderScene:
         labels = {OBJECT_PASS_INDEX: "object"}
         for k, name in enumerate(self._links):
             labels[FIRST_LINK_PASS_INDEX + k] = f"hand/{name}"
+        if self.dressing.flange:
+            for piece, _ in self._arm.values():
+                labels[piece.pass_index] = f"arm/{piece.name.removeprefix('arm_')}"
+        if self.dressing.table:
+            labels[self._table_pass_index()] = "scene/table"
         return labels
+
+    def _table_pass_index(self) -> int:
+        return FIRST_LINK_PASS_INDEX + len(self._links) + len(dressing.ARM_PIECES)
 
     def _object_material(self) -> str:
         """The shown object's material tag (plastic before any object is set)."""
@@ -329,12 +397,21 @@ class BlenderScene:
         tags = {OBJECT_PASS_INDEX: self._object_material()}
         for k in range(len(self._links)):
             tags[FIRST_LINK_PASS_INDEX + k] = HAND_MATERIAL_TAG
+        for index, label in self.segmentation_labels().items():
+            if label.startswith(("arm/", "scene/")):
+                tags[index] = dressing.MATERIAL_TAGS[label]
         return tags
 
     def lobes(self) -> frozenset[str]:
         """The scattering lobes of every material in the RGB scene (see `cycles.Bounces.pruned`)."""
         lobes = materials.object_lobes(self._object_material())
-        return lobes | materials.HAND_LOBES if self._links else lobes
+        if self._links:
+            lobes |= materials.lobes(dressing.ANODISED_BLACK) | materials.lobes(dressing.FINGERTIP_PAD)
+        if self.dressing.flange and self._arm:
+            lobes |= materials.lobes(dressing.FLANGE_ALUMINIUM) | materials.lobes(dressing.ARM_PAINT)
+        if self.dressing.table:
+            lobes |= materials.lobes(dressing.TABLE_WOOD)
+        return lobes
 
     def place_camera(self, camera: CameraPose, intrinsics: Intrinsics) -> None:
         for scene in self.scenes:
@@ -342,6 +419,14 @@ class BlenderScene:
             scene.render.resolution_y = intrinsics.height
         self.camera.data.angle = math.radians(intrinsics.fov_deg)
         self.camera.matrix_world = Matrix(camera.blender_matrix_world().tolist())
+        if self.table_top_z is not None:
+            self._table.hide_render = not dressing.camera_sees_table(
+                float(camera.position[2]), self.table_top_z
+            )
+
+    def table_shown(self) -> bool:
+        """Whether the placed camera sees the table."""
+        return not self._table.hide_render
 
     def render_geometry(self) -> Geometry:
         """Depth and pass indices of the placed camera's view, and the object's full mask."""
@@ -373,15 +458,66 @@ class BlenderScene:
             mesh.materials.append(materials.object_material(spec.name, spec.material, spec.texture))
 
     def _add_object(
-        self, name: str, geoms: Sequence[tuple[str, Sequence[float], Matrix]], material: Any, pass_index: int
+        self, mesh: bpy.types.Mesh, slots: Sequence[bpy.types.Material], pass_index: int
     ) -> bpy.types.Object:
-        mesh = meshes.new_mesh(name, geoms)
-        mesh.materials.append(material)
-        obj = bpy.data.objects.new(name, mesh)
+        for material in slots:
+            mesh.materials.append(material)
+        obj = bpy.data.objects.new(mesh.name, mesh)
         obj.pass_index = pass_index
         for scene in (self.rgb_scene, self.geometry_scene):
             scene.collection.objects.link(obj)
         return obj
+
+    def _add_table(self) -> bpy.types.Object:
+        """The table top (hidden until a task shows it): a box with slightly rounded edges, wood
+        grain along its length. Its pass index follows the hand's links (`set_hand`)."""
+        half = [size / 2 for size in dressing.TABLE_SIZE_M]
+        mesh = meshes.new_mesh("scene_table", [("box", half, Matrix.Identity(4))], edge_radius=0.003)
+        table = self._add_object(mesh, (_table_material(),), 0)
+        table.hide_render = True
+        return table
+
+
+def _table_material() -> bpy.types.Material:
+    """Oiled wood for the table top: grain as banded waves across the planks' length (x),
+    distorted by noise so the bands wander as a flat-sawn board's do, with slower colour drift
+    between lighter and darker wood (`dressing.TABLE_WOOD_*`)."""
+    material = materials.principled("vint_table", dressing.TABLE_WOOD)
+    tree = material.node_tree
+    coords = tree.nodes.new("ShaderNodeTexCoord")
+    wave = tree.nodes.new("ShaderNodeTexWave")
+    wave.wave_type = "BANDS"
+    wave.bands_direction = "Y"
+    wave.wave_profile = "SAW"
+    for key, value in dressing.TABLE_GRAIN.items():
+        wave.inputs[key].default_value = value
+    drift = tree.nodes.new("ShaderNodeTexNoise")
+    drift.inputs["Scale"].default_value = 3.0
+    ramp = tree.nodes.new("ShaderNodeMix")
+    ramp.data_type = "RGBA"
+    ramp.inputs["A"].default_value = dressing.TABLE_WOOD_LIGHT
+    ramp.inputs["B"].default_value = dressing.TABLE_WOOD_DARK
+    grain = tree.nodes.new("ShaderNodeMath")
+    grain.operation = "MULTIPLY_ADD"
+    grain.inputs[1].default_value = 0.6
+    tree.links.new(coords.outputs["Object"], wave.inputs["Vector"])
+    tree.links.new(coords.outputs["Object"], drift.inputs["Vector"])
+    tree.links.new(wave.outputs["Fac"], grain.inputs[0])
+    tree.links.new(drift.outputs["Fac"], grain.inputs[2])
+    tree.links.new(grain.outputs["Value"], ramp.inputs["Factor"])
+    bsdf = tree.nodes["Principled BSDF"]
+    tree.links.new(ramp.outputs["Result"], bsdf.inputs["Base Color"])
+    return material
+
+
+def _lowest_z(obj: bpy.types.Object) -> float:
+    """The lowest world z of `obj`'s mesh vertices."""
+    mesh = obj.data
+    co = np.empty(3 * len(mesh.vertices), np.float64)
+    mesh.vertices.foreach_get("co", co)
+    world = np.asarray(obj.matrix_world, dtype=np.float64)
+    points = co.reshape(-1, 3) @ world[:3, :3].T + world[:3, 3]
+    return float(points[:, 2].min())
 
 
 def _rebuilt_mesh(spec: ObjectSpec) -> tuple[np.ndarray, np.ndarray]:

@@ -101,4 +101,6 @@ ALLEGRO = HandDims(
     armature=0.002,
     damping=0.1,
     grasp_centre=(-0.035, 0.0),
+    # The wrist: the palm's edge opposite the knuckles, where the Allegro's mount plate meets the arm.
+    mount=((0.0475, 0.0, 0.0), (1.0, 0.0, 0.0)),
 )

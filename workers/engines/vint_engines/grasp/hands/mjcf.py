@@ -63,6 +63,7 @@ class MjcfHand:
     finger_length: float
     tips: tuple[str, ...]  # the last body of every chain
     tip_radius: float  # the smallest fingertip geom's radius (a box's smallest half extent)
+    mount: tuple[Vec3, Vec3] | None = None  # a user's hand shows no arm flange
 
     @property
     def dof(self) -> int:

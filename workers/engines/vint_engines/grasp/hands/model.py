@@ -80,6 +80,9 @@ class HandDims:
     # Where on the palmar face (palm x, y) a power grasp centres the object's axis: near the
     # finger bases when the fingers are long next to the palm (the thumb then has room to wrap).
     grasp_centre: tuple[float, float] = (0.0, 0.0)
+    # Where the hand meets the robot arm, in the palm frame: a point on the palm's surface and the
+    # direction the arm leaves in. Only the renderer reads it (the arm's flange is never simulated).
+    mount: tuple[Vec3, Vec3] | None = None
 
     def __post_init__(self) -> None:
         for finger in self.fingers:
@@ -158,6 +161,11 @@ class GraspHand(Protocol):
     def palm_half(self) -> Vec3: ...
     @property
     def grasp_centre(self) -> tuple[float, float]: ...
+    @property
+    def mount(self) -> tuple[Vec3, Vec3] | None:
+        """Where the arm meets the palm (point, direction; palm frame), if the hand says."""
+        ...
+
     @property
     def dof(self) -> int: ...
     @property

@@ -75,4 +75,6 @@ TRX3 = HandDims(
     ),
     armature=0.002,
     damping=0.08,
+    # Barrett-like: the arm's flange sits on the back of the palm, opposite the fingers.
+    mount=((0.0, 0.0, -0.012), (0.0, 0.0, -1.0)),
 )
