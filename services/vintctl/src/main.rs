@@ -15,7 +15,9 @@ mod eval;
 mod export;
 mod failure;
 mod formats;
+mod handover;
 mod plan;
+mod preview;
 mod report;
 mod spec_file;
 mod stats;
@@ -50,7 +52,7 @@ struct Cli {
     #[arg(long, global = true)]
     json: bool,
     /// Coordinator URL for the commands that talk to one (all but validate, plan, run, convert, eval,
-    /// diff, study, hands, objects and stats on a directory); HOST:PORT means http://HOST:PORT.
+    /// diff, study, hands, objects, and stats and preview on a directory); HOST:PORT means http://HOST:PORT.
     #[arg(long, global = true, env = "VINT_COORDINATOR", default_value = "http://127.0.0.1:7700")]
     coordinator: String,
     /// Bearer token for a coordinator started with --auth-tokens (a submit token to submit and
@@ -205,6 +207,24 @@ enum Command {
         #[arg(long, env = "VINT_STORE")]
         store: Option<String>,
     },
+    /// A contact sheet of a native dataset (PNG): per sample one row of RGB, depth, noisy depth,
+    /// segmentation and the RGB with the grasp's active taxels, under a caption (docs/preview.md).
+    Preview {
+        /// A native dataset directory, or a finished job's id (its dataset is exported from the
+        /// coordinator to a temporary directory first).
+        dataset: String,
+        /// The PNG to write.
+        #[arg(long)]
+        out: PathBuf,
+        /// Rows: samples shown, spread over objects and hands (the first of each pair, then by id).
+        #[arg(long, default_value_t = preview::DEFAULT_SAMPLES,
+              value_parser = clap::value_parser!(u32).range(1..=i64::from(preview::MAX_SAMPLES)))]
+        samples: u32,
+        /// For a job id: the artifact store its workers wrote to (file:///… or s3://…); default:
+        /// the coordinator's own --store.
+        #[arg(long, env = "VINT_STORE")]
+        store: Option<String>,
+    },
     /// Compare two exported datasets with a tolerance per kind of file (pixels, depth in metres,
     /// poses, touch readings); say which samples differ and by how much. Exit 0: all within
     /// tolerance; 1: some sample differs beyond it or is missing on one side.
@@ -307,6 +327,9 @@ async fn dispatch(command: Command, json: bool, coordinator: &vint_connect::Remo
         Command::Convert { dataset, out, format } => commands::convert(&dataset, &out, format.target(), json),
         Command::Study { subject, out, quick, extra } => study::run(&subject, &out, quick, &extra).await,
         Command::Stats { dataset, out, store } => stats::run(&dataset, &out, store, coordinator, json).await,
+        Command::Preview { dataset, out, samples, store } => {
+            preview::run(&dataset, &out, samples, store, coordinator, json).await
+        }
         Command::Diff(args) => diff::run(&args, json),
         Command::Eval(args) => eval::run(&args, json),
         Command::Hands => {

@@ -1,10 +1,11 @@
 //! The dataset formats end to end: examples/tiny.toml is run once per test process in the native
 //! layout, converted to BOP's layout and to WebDataset shards with `vintctl convert`, and each
 //! module checks one format or one consumer of them (an independent re-projection of the BOP
-//! export, the PyTorch loader example, `vintctl eval`, `vintctl stats`).
+//! export, the PyTorch loader example, `vintctl eval`, `vintctl stats`, `vintctl preview`).
 
 mod bop;
 mod eval;
+mod preview;
 mod stats;
 mod webdataset;
 

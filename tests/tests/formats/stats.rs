@@ -111,12 +111,13 @@ fn orientation_cell(v: &View) -> (usize, usize) {
 }
 
 /// A PNG whose chunks are all intact (lengths, CRC-32s), opening with IHDR of a non-empty image and
-/// ending with IEND.
-fn assert_valid_png(path: &Path) {
+/// ending with IEND: its width and height.
+pub fn assert_valid_png(path: &Path) -> (u32, u32) {
     let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n", "{}: PNG signature", path.display());
     let mut at = 8;
     let mut names = Vec::new();
+    let mut size = (0, 0);
     while at < bytes.len() {
         let length = u32::from_be_bytes(bytes[at..at + 4].try_into().unwrap()) as usize;
         let body = &bytes[at + 4..at + 8 + length];
@@ -128,6 +129,7 @@ fn assert_valid_png(path: &Path) {
                 u32::from_be_bytes(body[8..12].try_into().unwrap()),
             );
             assert!(width >= 100 && height >= 100, "{}: {width}x{height}", path.display());
+            size = (width, height);
         }
         names.push(String::from_utf8_lossy(&body[..4]).into_owned());
         at += 12 + length;
@@ -135,6 +137,7 @@ fn assert_valid_png(path: &Path) {
     assert_eq!(names.first().map(String::as_str), Some("IHDR"), "{}", path.display());
     assert_eq!(names.last().map(String::as_str), Some("IEND"), "{}", path.display());
     assert!(names.iter().any(|n| n == "IDAT"), "{}: no image data", path.display());
+    size
 }
 
 /// CRC-32 (ISO-HDLC, as PNG uses it), bit by bit.

@@ -1,6 +1,7 @@
 """Command line: `python -m vint_engines serve --stage {grasp|render|noise}`,
 `python -m vint_engines study {grasp|render|touch} --out DIR` (the studies, `vint_engines/study/`),
-`python -m vint_engines stats --dataset DIR --out OUT` (a dataset's statistics, `vint_engines/stats/`), and
+`python -m vint_engines stats --dataset DIR --out OUT` (a dataset's statistics, `vint_engines/stats/`),
+`python -m vint_engines preview --dataset DIR --out SHEET.png` (a contact sheet, `vint_engines/preview/`), and
 `python -m vint_engines check-params` (parse planned task parameters with each engine's own
 parser, without running anything: a JSON array of `{"stage", "params"}` on stdin, a JSON array of
 `{"ok", "error"}` on stdout).
@@ -17,6 +18,7 @@ import logging
 import sys
 from pathlib import Path
 
+from vint_engines.preview import DEFAULT_SAMPLES
 from vint_engines.protocol import BadInput, Engine, ProtocolError, serve
 
 STAGES = ("grasp", "render", "noise")
@@ -122,6 +124,13 @@ def main(argv: list[str] | None = None) -> int:
     stats_cmd.add_argument("--dataset", required=True, type=Path, help="a native or BOP dataset directory")
     stats_cmd.add_argument("--out", required=True, type=Path, help="directory for the figures and tables")
     stats_cmd.add_argument("--json", action="store_true", help="also print stats.json on stdout")
+    preview_cmd = commands.add_parser("preview", help="a native dataset's contact sheet (PNG)")
+    preview_cmd.add_argument("--dataset", required=True, type=Path, help="a native dataset directory")
+    preview_cmd.add_argument("--out", required=True, type=Path, help="the PNG to write")
+    preview_cmd.add_argument(
+        "--samples", type=int, default=DEFAULT_SAMPLES, help="rows: samples shown (default 4)"
+    )
+    preview_cmd.add_argument("--json", action="store_true", help="print a JSON summary")
     commands.add_parser("check-params", help="parse task parameters (JSON on stdin) as the engines do")
     args = parser.parse_args(argv)  # exits 2 on a bad command or stage
     if args.command == "study":
@@ -130,6 +139,10 @@ def main(argv: list[str] | None = None) -> int:
         from vint_engines import stats
 
         return stats.main(args.dataset, args.out, args.json)
+    if args.command == "preview":
+        from vint_engines import preview
+
+        return preview.main(args.dataset, args.out, args.samples, args.json)
     if args.command == "check-params":
         return check_params()
 
