@@ -335,6 +335,7 @@ fn grasp_params(
                 mass_kg: o.mass_kg,
                 material: o.material,
                 texture: Texture::Plain,
+                colours: None,
                 symmetries_continuous,
                 symmetries_discrete,
                 description: format!("user mesh {}", o.mesh),

@@ -18,9 +18,10 @@ use serde::Serialize;
 use serde_json::{Value, json};
 use sha2::{Digest, Sha256};
 use vint_artifacts::ArtifactStore;
+use vint_core::GraspId;
+use vint_core::catalog::{self, USER_OBJECT_IDS};
 use vint_core::contract::package::{GRASP_RECORD_FILE, model_path};
 use vint_core::split::{self, SplitSettings};
-use vint_core::{GraspId, catalog};
 use vint_proto::v1 as pb;
 
 use crate::formats::{self, Format, Target};
@@ -30,9 +31,6 @@ use crate::{Failure, bad_input};
 pub const DATASET_FILE: &str = "dataset.json";
 /// `dataset.json`'s `format` in the native layout (the converters write their own).
 const NATIVE_FORMAT: &str = "vint-native";
-/// BOP object ids of objects that are not in the catalog start here (catalog objects keep their
-/// catalog position, so the 21 YCB-Video objects have BOP's ycbv ids 1–21).
-const USER_OBJECT_IDS: u32 = 1001;
 
 /// What the export needs to know of the job besides its samples: the seed and how to split.
 pub struct DatasetInfo<'a> {
@@ -308,8 +306,9 @@ async fn write_dataset(
     Ok((files + 1, bytes + size, manifest))
 }
 
-/// `dataset.json`: the objects with their BOP ids and model facts, the trials per pair, and each
-/// grasp's split. Everything in it derives from the job's content (no ids of runs or times), so
+/// `dataset.json`: the objects with their BOP ids, where their models come from (a built-in
+/// object's procedural model, and the ycbv object it stands in for; a user's mesh) and model
+/// facts, the trials per pair, and each grasp's split. Everything in it derives from the job's content (no ids of runs or times), so
 /// equal jobs write equal records.
 fn dataset_record(
     info: &DatasetInfo<'_>,
@@ -326,11 +325,13 @@ fn dataset_record(
         .collect();
     user_objects.sort_unstable();
     for m in &listed.models {
-        let obj_id = match catalog::objects().iter().position(|c| c.name == m.object) {
-            Some(i) => u32::try_from(i + 1).unwrap_or(u32::MAX),
+        // A built-in object is a procedural stand-in with an id of its own, never the id of the
+        // ycbv model it approximates; `stand_in_for` names that model.
+        let (obj_id, source, stand_in) = match catalog::object(&m.object) {
+            Some(entry) => (catalog::obj_id(&m.object), "procedural", catalog::stand_in_for(entry)),
             None => {
-                USER_OBJECT_IDS
-                    + u32::try_from(user_objects.iter().position(|o| *o == m.object).unwrap_or(0)).unwrap_or(0)
+                let position = user_objects.iter().position(|o| *o == m.object).unwrap_or(0);
+                (u32::try_from(position).ok().map(|p| USER_OBJECT_IDS + p), "user", None)
             }
         };
         let record = object_record(grasps, &m.object, dir)?;
@@ -340,6 +341,8 @@ fn dataset_record(
         objects.push(json!({
             "name": m.object,
             "obj_id": obj_id,
+            "model_source": source,
+            "stand_in_for": stand_in,
             "ycb_id": record["ycb_id"],
             "model": model_path(&m.object),
             "units": "mm",

@@ -234,7 +234,8 @@ enum Command {
     Eval(eval::EvalArgs),
     /// List the built-in hands with their DoF and taxel counts per region.
     Hands,
-    /// List the built-in objects: mass, material, texture and symmetries (`--json`: in BOP's form).
+    /// List the built-in objects: BOP obj_id, the ycbv object each stands in for, mass, material,
+    /// texture and symmetries (`--json`: the full entries, symmetries in BOP's form).
     Objects,
 }
 

@@ -380,22 +380,37 @@ pub fn hands(json: bool) {
 }
 
 /// `vintctl objects`: the built-in object catalog. `--json` prints the full entries (texture,
-/// `symmetries_continuous`, `symmetries_discrete` in BOP's form); the text lists them in short.
+/// colours, `symmetries_continuous`, `symmetries_discrete` in BOP's form) with the BOP `obj_id`
+/// an export gives each and the ycbv object it stands in for; the text lists them in short.
 pub fn objects(json: bool) {
-    let objects = vint_core::catalog::objects();
+    use vint_core::catalog;
+    let objects = catalog::objects();
     if json {
-        print_json(&serde_json::to_value(objects).unwrap_or(Value::Null));
+        let entries: Vec<Value> = objects
+            .iter()
+            .map(|o| {
+                let mut entry = serde_json::to_value(o).unwrap_or(Value::Null);
+                entry["obj_id"] = json!(catalog::obj_id(&o.name));
+                entry["model_source"] = json!("procedural");
+                entry["stand_in_for"] = json!(catalog::stand_in_for(o));
+                entry
+            })
+            .collect();
+        print_json(&Value::Array(entries));
         return;
     }
     println!(
-        "{:<19} {:>4} {:>7} {:<9} {:<18} {:<18} {:<9}  description",
-        "object", "ycb", "mass kg", "material", "texture", "symmetries", "shape"
+        "{:<19} {:>6} {:>4} {:>4} {:>7} {:<9} {:<18} {:<18} {:<9}  description",
+        "object", "obj_id", "ycb", "ycbv", "mass kg", "material", "texture", "symmetries", "shape"
     );
     for o in objects {
+        let ycbv = catalog::stand_in_for(o).map(|s| s.obj_id.to_string()).unwrap_or_default();
         println!(
-            "{:<19} {:>4} {:>7.3} {:<9} {:<18} {:<18} {:<9}  {}",
+            "{:<19} {:>6} {:>4} {:>4} {:>7.3} {:<9} {:<18} {:<18} {:<9}  {}",
             o.name,
+            catalog::obj_id(&o.name).map(|id| id.to_string()).unwrap_or_default(),
             o.ycb_id,
+            ycbv,
             o.mass_kg,
             o.material,
             texture_summary(&o.texture),

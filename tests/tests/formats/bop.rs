@@ -44,6 +44,7 @@ fn bop_export_has_every_file_of_the_layout_for_every_sample() {
     let info = read_json(&dir.join("models/models_info.json"));
     for o in dataset["objects"].as_array().expect("objects") {
         let id = o["obj_id"].as_u64().expect("obj_id");
+        assert!(!(1..=21).contains(&id), "obj_id {id} would be ycbv's model {id}");
         assert!(dir.join(format!("models/obj_{id:06}.ply")).is_file(), "model of obj_id {id}");
         for key in ["diameter", "min_x", "min_y", "min_z", "size_x", "size_y", "size_z"] {
             assert!(info[id.to_string()][key].is_number(), "models_info[{id}].{key}");

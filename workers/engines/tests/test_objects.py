@@ -171,8 +171,11 @@ def test_the_surface_check_rejects_what_is_not_a_symmetry(
 def texture_keeps(texture: Texture, r: np.ndarray) -> bool:
     """What each texture kind is built to keep (docs/objects.md), restated for the test: a print,
     glaze or speckle keeps nothing; a plain label keeps turns about z and, when centred, the flips
-    of z; brushed metal keeps turns about z; wood grain keeps what maps its axis onto itself."""
+    of z; brushed metal keeps turns about z; wood grain keeps what maps its axis onto itself.
+    Colours that depend on the height alone (a two-tone band, a cap) keep no flip of z."""
     z = np.array([0.0, 0.0, 1.0])
+    if texture.colours is not None and texture.colours.height_bound and not np.allclose(r @ z, z):
+        return False
     if texture.kind == "plain" or (texture.kind == "panels" and not texture.print):
         return True
     if texture.kind == "label" and not texture.print:
@@ -385,12 +388,29 @@ def with_shape(**shape: Any) -> dict[str, Any]:
         ({**SOUP, "name": "Soup Can"}, "params.object.name"),
         ({**SOUP, "mass_kg": 0.0}, "params.object.mass_kg"),
         ({**SOUP, "colour": "red"}, "params.object.colour"),
+        ({**SOUP, "colours": {"band": [0.5, 0.0, 0.0]}}, "params.object.colours.base"),
+        ({**SOUP, "colours": {"base": [1.2, 0.0, 0.0]}}, "params.object.colours.base[0]"),
+        ({**SOUP, "colours": {"base": [1.0, 0.0]}}, "params.object.colours.base"),
+        ({**SOUP, "colours": {"base": [1.0, 0.0, 0.0], "tint": [0.0] * 3}}, "params.object.colours.tint"),
+        ({**SOUP, "colours": {"base": [1.0] * 3, "cap": {"above": 0.5}}}, "params.object.colours.cap.colour"),
+        (
+            {**SOUP, "colours": {"base": [1.0, 0.0, 0.0], "cap": {"above": 1.5, "colour": [0.0, 0.0, 0.0]}}},
+            "params.object.colours.cap.above",
+        ),
     ],
 )
 def test_a_bad_entry_is_bad_input_naming_the_field(entry: dict[str, Any], field: str) -> None:
     with pytest.raises(BadInput) as error:
         ObjectSpec.parse(entry)
     assert str(error.value).startswith(field + ":"), str(error.value)
+
+
+@pytest.mark.parametrize("name", sorted(CATALOG))
+def test_an_entry_with_its_colours_round_trips(name: str) -> None:
+    spec = CATALOG[name]
+    assert spec.texture.colours is not None, "every built-in object states its real colours"
+    assert ObjectSpec.parse(spec.to_json()) == spec
+    assert "colours" not in spec.to_json()["texture"]  # beside the texture, as the catalog has it
 
 
 def test_parts_that_do_not_touch_are_bad_input() -> None:

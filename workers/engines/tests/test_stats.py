@@ -62,7 +62,16 @@ PAIRS = [
     {"object": "mug", "hand": "allegro", "trials": 3, "accepted": 1, "rejected": {"dropped": 2}},
     {"object": "can", "hand": "allegro", "trials": 1, "accepted": 1, "rejected": {}},
 ]
-OBJECTS = [{"name": "mug", "obj_id": 14}, {"name": "can", "obj_id": 4}]
+# As an export writes them: a built-in object's own id (never ycbv's), a user's object from 1001.
+OBJECTS = [
+    {
+        "name": "mug",
+        "obj_id": 114,
+        "model_source": "procedural",
+        "stand_in_for": {"dataset": "ycbv", "obj_id": 14, "ycb_id": "025"},
+    },
+    {"name": "can", "obj_id": 1001, "model_source": "user", "stand_in_for": None},
+]
 
 
 def grasp_id(obj: str, hand: str, index: int) -> str:

@@ -1,7 +1,8 @@
 """Object textures in rendered RGB: a textured object shows texture where its plain version does
-not, a texture renders the same pixels every time, and the symmetries the catalog declares hold in
-the image while those it leaves out are visibly broken. Small renders (96 px, 16 spp, one thread)
-in this process, through the render engine's own scene."""
+not, a texture renders the same pixels every time, the symmetries the catalog declares hold in
+the image while those it leaves out are visibly broken, and a built-in object wears its real
+product's colours. Small renders (96 px, 16 spp, one thread) in this process, through the render
+engine's own scene."""
 
 from __future__ import annotations
 
@@ -13,9 +14,11 @@ import numpy as np
 import pytest
 
 from vint_engines.objects import ObjectSpec, Texture, build_model, load_catalog
+from vint_engines.render import materials
 from vint_engines.render.camera import Intrinsics, look_at
 from vint_engines.render.cycles import Bounces, PathTracing
 from vint_engines.render.scene import BlenderScene, Hdri
+from vint_engines.render.textures import pick
 
 CATALOG = load_catalog()
 SIZE = 96
@@ -35,6 +38,14 @@ def portrait(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The object at the origin turned by `roll` about x then `yaw` about z, seen from the side and
     a little above: (8-bit grey image, the object's full mask eroded by 2 px)."""
+    bgr, mask = colour_portrait(scene, spec, yaw, roll)
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY), mask
+
+
+def colour_portrait(
+    scene: BlenderScene, spec: ObjectSpec, yaw: float = 0.0, roll: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """`portrait` in colour: (8-bit BGR image, the eroded mask)."""
     scene.set_object(spec.to_json())
     q_roll = np.array([math.cos(roll / 2), math.sin(roll / 2), 0.0, 0.0])
     q_yaw = np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
@@ -53,9 +64,9 @@ def portrait(
     scene.place_camera(
         look_at(np.array([1.1 * reach, 0.0, 0.35 * reach]), np.zeros(3)), Intrinsics(SIZE, SIZE, 60.0)
     )
-    grey = cv2.cvtColor(scene.render_rgb(TRACING, SEED), cv2.COLOR_BGR2GRAY)
+    bgr = scene.render_rgb(TRACING, SEED)
     mask = scene.render_geometry().object_full.astype(np.uint8)
-    return grey, cv2.erode(mask, np.ones((5, 5), np.uint8)).astype(bool)
+    return bgr, cv2.erode(mask, np.ones((5, 5), np.uint8)).astype(bool)
 
 
 def edge_density(grey: np.ndarray, mask: np.ndarray) -> float:
@@ -67,7 +78,9 @@ def edge_density(grey: np.ndarray, mask: np.ndarray) -> float:
 
 
 def plain(spec: ObjectSpec) -> ObjectSpec:
-    return ObjectSpec(spec.name, spec.mass, spec.material, spec.shape, Texture(), ycb_id=spec.ycb_id)
+    """The object without its pattern, in the same colours (so brightness alone cannot pass for texture)."""
+    bare = Texture(colours=spec.texture.colours)
+    return ObjectSpec(spec.name, spec.mass, spec.material, spec.shape, bare, ycb_id=spec.ycb_id)
 
 
 @pytest.mark.parametrize(
@@ -105,3 +118,39 @@ def test_declared_symmetries_hold_in_the_image_and_a_print_breaks_them(scene: Bl
     broken = image_change(scene, soup, yaw=math.pi)  # the print goes round the back
     # Measured: 0.003 and 0.008 grey levels against 1.8 (the print is a small part of the can).
     assert kept < 0.2 and flipped < 0.2 and broken > 1.0, (kept, flipped, broken)
+
+
+def hues_deg(bgr: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Hue (degrees) and saturation (0–1) of the pixels inside the mask."""
+    hsv = cv2.cvtColor(bgr, cv2.COLOR_BGR2HSV)[mask].astype(np.float64)
+    return 2.0 * hsv[:, 0], hsv[:, 1] / 255.0
+
+
+@pytest.mark.parametrize(
+    ("name", "low", "high"),
+    [
+        ("mustard_bottle", 35.0, 70.0),  # French's: a yellow bottle (it once rendered white, red band)
+        ("mug", -20.0, 20.0),  # YCB's mug is red
+    ],
+)
+def test_a_built_in_object_renders_in_its_real_products_colour(
+    scene: BlenderScene, name: str, low: float, high: float
+) -> None:
+    bgr, mask = colour_portrait(scene, CATALOG[name])
+    hue, saturation = hues_deg(bgr, mask)
+    hue = np.where(hue > 180.0 + (low + high) / 2.0, hue - 360.0, hue)  # red wraps round 0°
+    coloured = (hue >= low) & (hue <= high) & (saturation > 0.35)
+    assert mask.sum() > 300 and coloured.mean() > 0.5, (name, float(np.median(hue)), float(coloured.mean()))
+
+
+def test_an_entry_without_colours_keeps_its_palette_pick_and_one_with_them_its_base() -> None:
+    mustard = CATALOG["mustard_bottle"]
+    assert mustard.texture.colours is not None
+    stated = materials.object_material(mustard.name, mustard.material, mustard.texture)
+    base = stated.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value
+    assert tuple(base) == pytest.approx((*mustard.texture.colours.base, 1.0))
+    r, g, b = mustard.texture.colours.base
+    assert r > 0.9 and g > 0.5 and b < 0.05, "French's yellow: red and green, no blue"
+    user = materials.object_material("users_own_bottle", "plastic", Texture("label", (0.2, 0.8), True))
+    picked = user.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value
+    assert tuple(picked) == pytest.approx(pick(materials.PALETTES["plastic"], "users_own_bottle"))

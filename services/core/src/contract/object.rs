@@ -41,6 +41,10 @@ pub struct ObjectEntry {
     /// which symmetries the object's appearance has.
     #[serde(default)]
     pub texture: Texture,
+    /// The real product's colours, which the render engine paints the texture with. Absent (a
+    /// spec's own objects), the renderer picks them from small palettes by the object's name.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub colours: Option<Colours>,
     /// Rotations about an axis by any angle that leave the textured object looking the same, as
     /// BOP's `models_info.json` lists them (metres, object frame).
     #[serde(default)]
@@ -68,7 +72,8 @@ pub struct ContinuousSymmetry {
 pub type DiscreteSymmetry = [f64; 16];
 
 /// An object's surface pattern, built by the render engine as a procedural shader in object
-/// coordinates (`vint_engines/render/textures.py`); colours are picked from the object's name.
+/// coordinates (`vint_engines/render/textures.py`), in the entry's `colours` (or, without them,
+/// colours picked from the object's name).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum Texture {
@@ -94,6 +99,44 @@ pub enum Texture {
     Brushed,
     /// Small spots scattered over the surface (foam pores, fruit speckles).
     Speckle,
+}
+
+/// A linear-RGB colour (what the renderer's shader takes; not sRGB), each channel 0–1.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(transparent)]
+pub struct Rgb(#[schemars(inner(range(min = 0.0, max = 1.0)))] pub [f64; 3]);
+
+/// The colours an object's texture is painted in: the real product's, as photographs of it show
+/// them (`catalog/objects.toml` names the fact per object). What each colour paints, per texture
+/// kind (`docs/objects.md`): `base` is the body (outside a label's band, a box's face borders,
+/// wood's earlywood, the metal, the glaze, the foam); `band` the second colour (a label's band, a
+/// box's panels, wood's latewood, glaze's pools, brushed metal's dull streaks, speckle's spots;
+/// default: `base` for a label or panels, else the kind's darker shade); `print` a label's edges
+/// and logo, a box's inner panel and logo (default: `base`). Text and ruling stay ink.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Colours {
+    pub base: Rgb,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub band: Option<Rgb>,
+    /// A label band's lower half, when the label is two-toned (Campbell's red over white).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lower: Option<Rgb>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub print: Option<Rgb>,
+    /// Everything above a height: a bottle's cap of another colour.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cap: Option<Cap>,
+}
+
+/// The top of an object in another colour: everything above `above` (a fraction of the object's
+/// height, bottom to top).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Cap {
+    #[schemars(range(min = 0.0, max = 1.0))]
+    pub above: f64,
+    pub colour: Rgb,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
@@ -340,6 +383,33 @@ impl Texture {
             Texture::Brushed => "brushed",
             Texture::Speckle => "speckle",
         }
+    }
+}
+
+impl Colours {
+    /// Whether the colouring looks the same after rotating the object by `r` (see
+    /// `Texture::keeps_rotation`): a two-toned label or a cap depends on the height alone, so it
+    /// keeps only the rotations that keep +z; the other colours follow the texture's pattern.
+    pub fn keeps_rotation(&self, r: [[f64; 3]; 3]) -> bool {
+        (self.lower.is_none() && self.cap.is_none()) || r[2][2] > 1.0 - 1e-9
+    }
+
+    /// Whether the colouring looks the same after any rotation about `axis` through the origin.
+    pub fn keeps_turns_about(&self, axis: [f64; 3]) -> bool {
+        (self.lower.is_none() && self.cap.is_none()) || (axis[0].abs() < 1e-9 && axis[1].abs() < 1e-9)
+    }
+}
+
+impl ObjectEntry {
+    /// Whether the object's appearance (texture and colours) looks the same after rotating it by
+    /// `r`: a symmetry it breaks must not be declared, whatever the shape allows.
+    pub fn looks_the_same_after(&self, r: [[f64; 3]; 3]) -> bool {
+        self.texture.keeps_rotation(r) && self.colours.is_none_or(|c| c.keeps_rotation(r))
+    }
+
+    /// Whether the object's appearance looks the same after any rotation about `axis`.
+    pub fn looks_the_same_turned_about(&self, axis: [f64; 3]) -> bool {
+        self.texture.keeps_turns_about(axis) && self.colours.is_none_or(|c| c.keeps_turns_about(axis))
     }
 }
 

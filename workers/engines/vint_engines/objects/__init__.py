@@ -10,7 +10,7 @@ from vint_engines.objects.catalog import CATALOG_DIR, OBJECTS_TOML, load_catalog
 from vint_engines.objects.decompose import ConvexPiece
 from vint_engines.objects.model import MODEL_FILE, MODEL_MEDIA_TYPE, ObjectModel, ObjectModels, build_model
 from vint_engines.objects.rest import RestPose
-from vint_engines.objects.spec import MATERIALS, ObjectSpec, Symmetries, Texture
+from vint_engines.objects.spec import MATERIALS, Colours, ObjectSpec, Symmetries, Texture
 
 __all__ = [
     "CATALOG_DIR",
@@ -18,6 +18,7 @@ __all__ = [
     "MODEL_FILE",
     "MODEL_MEDIA_TYPE",
     "OBJECTS_TOML",
+    "Colours",
     "ConvexPiece",
     "ObjectModel",
     "ObjectModels",

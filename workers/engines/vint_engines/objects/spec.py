@@ -1,6 +1,6 @@
-"""What an object is, as plain validated data: its catalog entry (name, mass, material, texture,
-symmetries) and its shape, parsed from a `[[object]]` table of `catalog/objects.toml` or from task parameters
-(which carry that table as JSON).
+"""What an object is, as plain validated data: its catalog entry (name, mass, material, texture
+and colours, symmetries) and its shape, parsed from a `[[object]]` table of `catalog/objects.toml`
+or from task parameters (which carry that table as JSON).
 
 The schema is shared with the Rust side (`catalog/objects.toml` is parsed there too); see the comment
 at the top of that file. Nothing here builds meshes or reads files: `tessellate.py` and `meshio.py` do.
@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import PurePosixPath
 from typing import Any
 
@@ -32,6 +32,8 @@ TEXTURE_KEYS = {
     "brushed": ("kind",),
     "speckle": ("kind",),
 }
+COLOUR_KEYS = ("base", "band", "lower", "print", "cap")
+CAP_KEYS = ("above", "colour")
 AXES = ("x", "y", "z")
 ORTHONORMAL_TOLERANCE = 1e-6  # a discrete symmetry's rotation: |RᵀR - I| and |det R - 1| below this
 MESH_SUFFIXES = (".obj", ".stl", ".ply")
@@ -107,21 +109,62 @@ class MeshFile:
 Shape = Cylinder | Box | Revolved | Compound | MeshFile
 
 
+Rgb = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class Colours:
+    """The real product's colours (`vint_core::contract::object::Colours`), linear RGB 0–1: `base`
+    the body, `band` the pattern's second colour, `lower` a two-tone label band's lower half,
+    `print` a label's edges and logo or a box's inner panel and logo, `cap` = (above, colour):
+    everything above that fraction of the height. What each paints per kind: `render/textures.py`."""
+
+    base: Rgb
+    band: Rgb | None = None
+    lower: Rgb | None = None
+    print: Rgb | None = None
+    cap: tuple[float, Rgb] | None = None
+
+    @property
+    def height_bound(self) -> bool:
+        """Whether some colour depends on the height alone (a two-tone band, a cap): such colours
+        keep only the rotations that keep +z."""
+        return self.lower is not None or self.cap is not None
+
+    def to_json(self) -> dict[str, Any]:
+        table: dict[str, Any] = {"base": list(self.base)}
+        for key, value in (("band", self.band), ("lower", self.lower), ("print", self.print)):
+            if value is not None:
+                table[key] = list(value)
+        if self.cap is not None:
+            table["cap"] = {"above": self.cap[0], "colour": list(self.cap[1])}
+        return table
+
+
 @dataclass(frozen=True)
 class Texture:
     """An object's surface pattern (`vint_core::contract::object::Texture`): `kind`, and for a
     label its `band` (bottom and top, fractions of the height) and `print`, for panels `print`,
-    for wood grain the ring `axis`. The render engine builds it (`render/textures.py`)."""
+    for wood grain the ring `axis`; with the entry's `colours` (kept beside the texture in the
+    catalog), since together they are the object's look. The render engine builds it
+    (`render/textures.py`)."""
 
     kind: str = "plain"
     band: tuple[float, float] = (0.0, 1.0)
     print: bool = False
     axis: str = "z"
+    colours: Colours | None = None
 
-    def to_json(self) -> dict[str, Any]:
+    def table(self) -> dict[str, Any]:
+        """The catalog's `texture` table."""
         keys = TEXTURE_KEYS[self.kind]
         full = {"kind": self.kind, "band": list(self.band), "print": self.print, "axis": self.axis}
         return {key: full[key] for key in keys}
+
+    def to_json(self) -> dict[str, Any]:
+        """The whole look: the `texture` table, with `colours` when the entry states them."""
+        colours = {} if self.colours is None else {"colours": self.colours.to_json()}
+        return {**self.table(), **colours}
 
 
 @dataclass(frozen=True)
@@ -164,7 +207,10 @@ class ObjectSpec:
             name=name,
             mass=P.number(obj, "mass_kg", where, low=MASS_KG[0], high=MASS_KG[1]),
             material=_choice(obj, "material", where, MATERIALS),
-            texture=_texture(obj.get("texture", {"kind": "plain"}), f"{where}.texture"),
+            texture=replace(
+                _texture(obj.get("texture", {"kind": "plain"}), f"{where}.texture"),
+                colours=_colours(obj["colours"], f"{where}.colours") if "colours" in obj else None,
+            ),
             symmetries=_symmetries(obj, where),
             shape=parse_shape(P.section(obj, "shape", where), f"{where}.shape"),
             ycb_id=_text(obj, "ycb_id", where),
@@ -178,7 +224,8 @@ class ObjectSpec:
             "ycb_id": self.ycb_id,
             "mass_kg": self.mass,
             "material": self.material,
-            "texture": self.texture.to_json(),
+            "texture": self.texture.table(),
+            **({} if self.texture.colours is None else {"colours": self.texture.colours.to_json()}),
             **self.symmetries.to_json(),
             "description": self.description,
             "shape": shape_json(self.shape),
@@ -192,6 +239,7 @@ ENTRY_KEYS = (
     "mass_kg",
     "material",
     "texture",
+    "colours",
     "symmetries_continuous",
     "symmetries_discrete",
     "description",
@@ -269,6 +317,28 @@ def _texture(obj: Any, where: str) -> Texture:
     if kind == "wood_grain":
         return Texture(kind, axis=_choice(obj, "axis", where, AXES))
     return Texture(kind)
+
+
+def _colours(obj: Any, where: str) -> Colours:
+    if not isinstance(obj, Mapping):
+        raise BadInput(f"{where}: expected a table with a base colour")
+    _only(obj, COLOUR_KEYS, where)
+
+    def rgb(key: str) -> Rgb | None:
+        return _vector(obj, key, where, low=0.0, high=1.0) if key in obj else None
+
+    base = rgb("base")
+    if base is None:
+        raise BadInput(f"{where}.base: missing (the body's colour, [r, g, b] linear 0–1)")
+    cap = None
+    if "cap" in obj:
+        table = obj["cap"]
+        if not isinstance(table, Mapping):
+            raise BadInput(f"{where}.cap: expected {{above, colour}}")
+        _only(table, CAP_KEYS, f"{where}.cap")
+        above = P.number(table, "above", f"{where}.cap", low=0.0, high=1.0)
+        cap = (above, _vector(table, "colour", f"{where}.cap", low=0.0, high=1.0))
+    return Colours(base, band=rgb("band"), lower=rgb("lower"), print=rgb("print"), cap=cap)
 
 
 def _symmetries(obj: Mapping[str, Any], where: str) -> Symmetries:

@@ -1,10 +1,11 @@
 """Blender materials: Principled BSDF set-ups per object material tag, and the hand's.
 
 An object's look follows its catalog `material` tag (which sets the scattering: metal stays
-specular, glass transmissive) and its `texture` (the pattern, `textures.py`); within a tag, the
-colour is picked from a small palette by a CRC of the object's name (deterministic, and different
-objects of one tag do not all look alike). Textures change colours and roughness only, never a
-lobe, so `lobes` depends on the tag alone.
+specular, glass transmissive), its `texture` (the pattern, `textures.py`) and the entry's
+`colours` (the real product's, carried on the texture). An entry without colours (a spec's own
+object) takes its tag's palette colour picked by a CRC of the object's name (deterministic, and
+different objects of one tag do not all look alike). Textures change colours and roughness only,
+never a lobe, so `lobes` depends on the tag alone.
 """
 
 from __future__ import annotations
@@ -16,13 +17,13 @@ import bpy
 
 from vint_engines.objects.spec import Texture
 from vint_engines.render import textures
-from vint_engines.render.textures import RGBA, pick
+from vint_engines.render.textures import RGBA, pick, rgba
 
 PLAIN = Texture()
 
 HAND = {"Base Color": (0.08, 0.08, 0.09, 1.0), "Metallic": 0.0, "Roughness": 0.55}
 
-# Principled inputs per tag; "Base Color" comes from the tag's palette.
+# Principled inputs per tag; "Base Color" is the entry's base colour, or comes from the tag's palette.
 TAGS: dict[str, dict[str, Any]] = {
     "plastic": {"Metallic": 0.0, "Roughness": 0.35, "Specular IOR Level": 0.5},
     "metal": {"Metallic": 1.0, "Roughness": 0.3},
@@ -81,9 +82,10 @@ def principled(name: str, inputs: Mapping[str, Any]) -> bpy.types.Material:
 
 def object_material(object_name: str, tag: str, texture: Texture = PLAIN) -> bpy.types.Material:
     """The material of object `object_name` with catalog material `tag` (unknown tags: plastic),
-    patterned by `texture`."""
+    patterned by `texture` in its colours."""
     tag = tag if tag in TAGS else "plastic"
-    colour = pick(PALETTES[tag], object_name)
+    colours = texture.colours
+    colour = pick(PALETTES[tag], object_name) if colours is None else rgba(colours.base)
     material = principled(f"vint_{tag}_{object_name}", {**TAGS[tag], "Base Color": colour})
     textures.apply(material, object_name, texture, colour)
     return material

@@ -4,10 +4,13 @@ glaze, its roughness).
 
 Patterns are functions of the object's own coordinates — `Generated` (the model's bounding box
 mapped to [0, 1]³, so 0.5 is the object frame's origin) and `Object` (metres) — because the
-procedural meshes have no UVs. They are fixed by the object: colours and noise offsets come from a
-CRC of its name, never from time, worker or seed. Each kind is built to keep exactly the
+procedural meshes have no UVs. They are fixed by the object, never by time, worker or seed: the
+colours are the entry's `colours` (the real product's, for the built-in objects; `Paint` says what
+each paints), or for an entry without them (a spec's own objects) picks from small palettes by a
+CRC of its name; noise offsets come from that CRC too. Each kind is built to keep exactly the
 rotations `Texture::keeps_rotation` says it keeps, which is what lets the catalog declare the
-textured object's symmetries:
+textured object's symmetries (a two-tone band or a cap, `Colours::keeps_rotation`, depends on the
+height alone and keeps only the rotations that keep +z):
 - `label` (no print) reads only the height's distance from the band's middle: any turn about z,
   and the flips of z when the band is centred. Its print sits at azimuth 0, in the band's upper
   half: it keeps nothing.
@@ -22,11 +25,12 @@ from __future__ import annotations
 
 import zlib
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import bpy
 
-from vint_engines.objects.spec import Texture
+from vint_engines.objects.spec import Rgb, Texture
 
 RGBA = tuple[float, float, float, float]
 Operand = Any  # a node socket or a number
@@ -47,11 +51,74 @@ ACCENT_COLOURS: Sequence[RGBA] = (
 )
 WOOD_DARK: RGBA = (0.16, 0.08, 0.03, 1.0)
 SPOT_DARKEN = 0.35  # speckle spots: the base colour times this
+POOL_DARKEN = 0.55  # glaze pools
+DULL_DARKEN = 0.5  # brushed metal's dull streaks
 
 
 def pick(palette: Sequence[RGBA], key: str) -> RGBA:
     """A palette entry chosen by a CRC of `key` (deterministic across processes and machines)."""
     return palette[zlib.crc32(key.encode()) % len(palette)]
+
+
+def rgba(colour: Rgb) -> RGBA:
+    r, g, b = colour
+    return (r, g, b, 1.0)
+
+
+@dataclass(frozen=True)
+class Paint:
+    """The colours a pattern is drawn in. `base`: the body (outside a label's band, a box's face
+    borders, earlywood, the metal, the glaze, the foam); `second`: the pattern's other colour (a
+    label's band — its upper half when `lower` is given —, a box's panel, latewood, glaze pools,
+    brushed metal's dull streaks, speckle's spots); `lower`: a two-tone band's lower half;
+    `accent`: a label's edges, a box's inner panel; `logo`; `cap`: (above, colour), everything
+    above that fraction of the height."""
+
+    base: RGBA
+    second: RGBA
+    accent: RGBA
+    logo: RGBA
+    lower: RGBA | None = None
+    cap: tuple[float, RGBA] | None = None
+
+
+def paint(name: str, texture: Texture, base: RGBA) -> Paint:
+    """The colours of object `name`'s `texture` over `base` (the material's base colour): the
+    entry's own colours where it states them, else the palette picks by name."""
+    shade = {
+        "label": base,
+        "panels": base,
+        "wood_grain": WOOD_DARK,
+        "glaze": shaded(base, POOL_DARKEN),
+        "brushed": shaded(base, DULL_DARKEN),
+        "speckle": shaded(base, SPOT_DARKEN),
+    }.get(texture.kind, base)
+    c = texture.colours
+    if c is None:
+        if texture.kind == "label":
+            return Paint(
+                base,
+                pick(LABEL_COLOURS, name + "/label"),
+                pick(ACCENT_COLOURS, name + "/accent"),
+                pick(ACCENT_COLOURS, name + "/logo"),
+            )
+        if texture.kind == "panels":
+            return Paint(
+                base,
+                pick(LABEL_COLOURS, name + "/panel"),
+                pick(ACCENT_COLOURS, name + "/accent"),
+                pick(LABEL_COLOURS, name + "/logo"),
+            )
+        return Paint(base, shade, base, base)
+    printed = base if c.print is None else rgba(c.print)
+    return Paint(
+        base,
+        shade if c.band is None else rgba(c.band),
+        printed,
+        printed,
+        lower=None if c.lower is None else rgba(c.lower),
+        cap=None if c.cap is None else (c.cap[0], rgba(c.cap[1])),
+    )
 
 
 def shaded(colour: RGBA, factor: float) -> RGBA:
@@ -138,11 +205,13 @@ class Graph:
 
 
 def apply(material: bpy.types.Material, name: str, texture: Texture, base: RGBA) -> None:
-    """Build `texture`'s pattern over `base` (the material's palette colour) into `material`."""
-    if texture.kind == "plain":
+    """Build `texture`'s pattern over `base` (the material's base colour) into `material`."""
+    colours = paint(name, texture, base)
+    if texture.kind == "plain" and colours.cap is None:
         return
     graph = Graph(material, name)
     builders = {
+        "plain": _plain,
         "label": _label,
         "panels": _panels,
         "wood_grain": _wood_grain,
@@ -150,18 +219,29 @@ def apply(material: bpy.types.Material, name: str, texture: Texture, base: RGBA)
         "brushed": _brushed,
         "speckle": _speckle,
     }
-    builders[texture.kind](graph, name, texture, base)
+    colour = builders[texture.kind](graph, texture, colours)
+    if colours.cap is not None:
+        above, cap = colours.cap
+        colour = graph.mix(graph.gt(graph.g[2], above), colour, cap)
+    graph.base_colour(colour)
 
 
-def _label(graph: Graph, name: str, texture: Texture, base: RGBA) -> None:
+def _plain(graph: Graph, texture: Texture, paint: Paint) -> Operand:
+    return paint.base
+
+
+def _label(graph: Graph, texture: Texture, paint: Paint) -> Operand:
     bottom, top = texture.band
     centre, half = (bottom + top) / 2.0, (top - bottom) / 2.0
     d = graph.abs_centred(graph.g[2], centre)  # mirrored about the band's middle
     in_band = graph.lt(d, half)
     edge = graph.mul(in_band, graph.gt(d, 0.78 * half))
     rule = graph.mul(in_band, graph.lt(graph.math("FRACT", graph.mul(d, 5.0 / half)), 0.1))
-    colour = graph.mix(in_band, base, pick(LABEL_COLOURS, name + "/label"))
-    colour = graph.mix(edge, colour, pick(ACCENT_COLOURS, name + "/accent"))
+    band = paint.second
+    if paint.lower is not None:  # two-toned: no longer mirrored, so it keeps no flip of z
+        band = graph.mix(graph.lt(graph.g[2], centre), paint.second, paint.lower)
+    colour = graph.mix(in_band, paint.base, band)
+    colour = graph.mix(edge, colour, paint.accent)
     colour = graph.mix(rule, colour, INK)
     if texture.print:
         h = graph.g[2]
@@ -172,12 +252,12 @@ def _label(graph: Graph, name: str, texture: Texture, base: RGBA) -> None:
         lines = graph.lt(graph.math("FRACT", graph.mul(h, 14.0 / half)), 0.5)
         words = graph.gt(graph.noise(azimuth, h, 0.0, 12.0), 0.47)
         text = graph.mul(graph.mul(text_rows, graph.lt(azimuth, 0.7)), graph.mul(lines, words))
-        colour = graph.mix(logo, colour, pick(ACCENT_COLOURS, name + "/logo"))
+        colour = graph.mix(logo, colour, paint.logo)
         colour = graph.mix(text, colour, INK)
-    graph.base_colour(colour)
+    return colour
 
 
-def _panels(graph: Graph, name: str, texture: Texture, base: RGBA) -> None:
+def _panels(graph: Graph, texture: Texture, paint: Paint) -> Operand:
     folded = [graph.math("ABSOLUTE", graph.math("SUBTRACT", graph.mul(g, 2.0), 1.0)) for g in graph.g]
 
     def inside(limit: float) -> Any:  # on a face, both in-face coordinates within `limit`
@@ -186,8 +266,8 @@ def _panels(graph: Graph, name: str, texture: Texture, base: RGBA) -> None:
         )
         return graph.gt(count, 1.5)
 
-    colour = graph.mix(inside(0.82), base, pick(LABEL_COLOURS, name + "/panel"))
-    colour = graph.mix(inside(0.45), colour, pick(ACCENT_COLOURS, name + "/accent"))
+    colour = graph.mix(inside(0.82), paint.base, paint.second)
+    colour = graph.mix(inside(0.45), colour, paint.accent)
     if texture.print:
         gy, gz = graph.g[1], graph.g[2]
         logo_r2 = graph.add(
@@ -198,12 +278,12 @@ def _panels(graph: Graph, name: str, texture: Texture, base: RGBA) -> None:
         rows = graph.mul(graph.gt(gz, 0.55), graph.lt(gz, 0.7))
         lines = graph.lt(graph.math("FRACT", graph.mul(gz, 40.0)), 0.5)
         words = graph.gt(graph.noise(graph.g[0], gy, gz, 14.0), 0.5)
-        colour = graph.mix(logo, colour, pick(LABEL_COLOURS, name + "/logo"))
+        colour = graph.mix(logo, colour, paint.logo)
         colour = graph.mix(graph.mul(rows, graph.mul(lines, words)), colour, INK)
-    graph.base_colour(colour)
+    return colour
 
 
-def _wood_grain(graph: Graph, name: str, texture: Texture, base: RGBA) -> None:
+def _wood_grain(graph: Graph, texture: Texture, paint: Paint) -> Operand:
     k = "xyz".index(texture.axis)
     along = graph.math("ABSOLUTE", graph.o[k])
     u, v = (graph.o[i] for i in range(3) if i != k)
@@ -212,31 +292,27 @@ def _wood_grain(graph: Graph, name: str, texture: Texture, base: RGBA) -> None:
     rings = graph.math("FRACT", graph.add(graph.mul(r, 150.0), graph.mul(wobble, 4.0)))
     late = graph.math("POWER", rings, 2.0)  # darkening to the latewood at the end of each ring
     fine = graph.mul(graph.noise(r, along, 0.0, 300.0, detail=1.0), 0.5)
-    graph.base_colour(graph.mix(graph.math("MINIMUM", graph.add(late, fine), 1.0), base, WOOD_DARK))
+    return graph.mix(graph.math("MINIMUM", graph.add(late, fine), 1.0), paint.base, paint.second)
 
 
-def _glaze(graph: Graph, name: str, texture: Texture, base: RGBA) -> None:
+def _glaze(graph: Graph, texture: Texture, paint: Paint) -> Operand:
     pool = graph.noise(*graph.o, 30.0, detail=4.0)
     factor = graph.math(
         "MINIMUM", graph.math("MAXIMUM", graph.mul(graph.math("SUBTRACT", pool, 0.4), 3.0), 0.0), 1.0
     )
-    darker = shaded(base, 0.55)
-    graph.base_colour(graph.mix(factor, base, darker))
     graph.roughness(graph.add(0.06, graph.mul(factor, 0.2)))
+    return graph.mix(factor, paint.base, paint.second)
 
 
-def _brushed(graph: Graph, name: str, texture: Texture, base: RGBA) -> None:
+def _brushed(graph: Graph, texture: Texture, paint: Paint) -> Operand:
     streak = graph.noise(0.0, 0.0, graph.o[2], 1500.0, detail=1.0)
     grooves = graph.lt(graph.math("FRACT", graph.mul(graph.o[2], 60.0)), 0.06)  # turned rings, 1.7 mm pitch
     shade = graph.add(0.55, graph.mul(streak, 0.6))
-    dull = shaded(base, 0.5)
-    graph.base_colour(
-        graph.mix(graph.math("MAXIMUM", graph.math("SUBTRACT", 1.0, shade), grooves), base, dull)
-    )
     graph.roughness(graph.add(0.12, graph.mul(streak, 0.35)))
+    dull = graph.math("MAXIMUM", graph.math("SUBTRACT", 1.0, shade), grooves)
+    return graph.mix(dull, paint.base, paint.second)
 
 
-def _speckle(graph: Graph, name: str, texture: Texture, base: RGBA) -> None:
+def _speckle(graph: Graph, texture: Texture, paint: Paint) -> Operand:
     spots = graph.gt(graph.noise(*graph.o, 120.0, detail=2.0), 0.6)
-    dark = shaded(base, SPOT_DARKEN)
-    graph.base_colour(graph.mix(spots, base, dark))
+    return graph.mix(spots, paint.base, paint.second)
