@@ -168,6 +168,8 @@ pub struct RenderSettings {
     pub offcentre: f64,
     /// The table and the arm's flange around the grasp (`[render.scene]`).
     pub scene: render_contract::Scene,
+    /// The colour camera's sensor model (`[render.sensor]`).
+    pub sensor: render_contract::Sensor,
 }
 
 /// Views of one grasp at most: view ids are two digits (`v00`..`v99`).
@@ -308,6 +310,10 @@ pub fn number_fields() -> Vec<NumberField> {
         float("render.offcentre", render_contract::OFFCENTRE),
         float("render.clamp_indirect", render_contract::CLAMP_INDIRECT),
         float("render.scene.table_gap_m", render_contract::TABLE_GAP_M),
+        float("render.sensor.exposure_ev_sigma", render_contract::EXPOSURE_EV_SIGMA),
+        float("render.sensor.white_balance_sigma", render_contract::WHITE_BALANCE_SIGMA),
+        float("render.sensor.shot_noise", render_contract::SHOT_NOISE),
+        float("render.sensor.read_noise", render_contract::READ_NOISE),
         float("split.train", split::TRAIN),
         float("split.val", split::VAL),
         float("split.test", split::TEST),
@@ -576,6 +582,7 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
         ),
         offcentre: r.number(&mut rd, "render", "offcentre", render_contract::OFFCENTRE),
         scene: read_scene(r, &mut rd),
+        sensor: read_sensor(r, &mut rd),
     };
     if !render.environments.is_empty() && render.views_per_grasp() > MAX_VIEWS_PER_GRASP {
         r.error(
@@ -605,6 +612,7 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
             "roll_deg",
             "offcentre",
             "scene",
+            "sensor",
         ],
     );
 
@@ -888,6 +896,33 @@ fn read_scene(r: &mut Reader, rd: &mut Table) -> render_contract::Scene {
     };
     r.finish(t, "render.scene", &["table", "table_gap_m", "flange"]);
     scene
+}
+
+/// `[render.sensor]`: the colour camera's sensor model.
+fn read_sensor(r: &mut Reader, rd: &mut Table) -> render_contract::Sensor {
+    let mut t = match rd.remove("sensor") {
+        None => Table::new(),
+        Some(Value::Table(t)) => t,
+        Some(v) => {
+            r.error("render.sensor", v, "must be a table");
+            Table::new()
+        }
+    };
+    let on = render_contract::Sensor::default();
+    let sensor = render_contract::Sensor {
+        enabled: r.boolean(&mut t, "render.sensor.enabled", "enabled", on.enabled),
+        exposure_ev_sigma: r.number(&mut t, "render.sensor", "exposure_ev_sigma", render_contract::EXPOSURE_EV_SIGMA),
+        white_balance_sigma: r.number(
+            &mut t,
+            "render.sensor",
+            "white_balance_sigma",
+            render_contract::WHITE_BALANCE_SIGMA,
+        ),
+        shot_noise: r.number(&mut t, "render.sensor", "shot_noise", render_contract::SHOT_NOISE),
+        read_noise: r.number(&mut t, "render.sensor", "read_noise", render_contract::READ_NOISE),
+    };
+    r.finish(t, "render.sensor", &["enabled", "exposure_ev_sigma", "white_balance_sigma", "shot_noise", "read_noise"]);
+    sensor
 }
 
 /// ` (did you mean `NAME`?)` for the known name nearest to an unknown `name`, or nothing.

@@ -5,6 +5,7 @@
 
 mod bop;
 mod eval;
+mod images;
 mod preview;
 mod stats;
 mod webdataset;

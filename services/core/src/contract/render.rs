@@ -34,6 +34,14 @@ pub const OFFCENTRE: Bound<f64> = Bound::new(0.0, 0.9, 0.6);
 pub const CLAMP_INDIRECT: Bound<f64> = Bound::new(0.0, 1000.0, 10.0);
 /// The table top's gap below the lowest point of the hand, the object and the arm's flange (m).
 pub const TABLE_GAP_M: Bound<f64> = Bound::new(0.0, 1.0, 0.05);
+/// The colour sensor's exposure error (standard deviation, EV).
+pub const EXPOSURE_EV_SIGMA: Bound<f64> = Bound::new(0.0, 3.0, 0.2);
+/// The white balance's error on red and blue (standard deviation of the log gain).
+pub const WHITE_BALANCE_SIGMA: Bound<f64> = Bound::new(0.0, 0.5, 0.03);
+/// Shot noise: variance per unit of linear signal (Brooks et al. 2019 fit 1e-4 to 1.2e-2).
+pub const SHOT_NOISE: Bound<f64> = Bound::new(0.0, 0.1, 0.002);
+/// Read noise: variance at zero signal (linear units).
+pub const READ_NOISE: Bound<f64> = Bound::new(0.0, 0.01, 4.3e-6);
 /// Each of Cycles' light-path caps.
 pub const BOUNCES: Bound<u32> = Bound::new(0, 1024, 12);
 /// An environment's turn about world +z (degrees) and strength.
@@ -106,6 +114,38 @@ pub struct Settings {
     pub offcentre: f64,
     /// What stands around the grasp.
     pub scene: Scene,
+    /// The colour camera's sensor: exposure and white-balance errors, shot and read noise.
+    pub sensor: Sensor,
+}
+
+/// The colour sensor model applied to the path-traced image (`vint_engines/render/sensor.py`:
+/// Poissonian-Gaussian noise in linear light, seeded by the view).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+#[schemars(rename = "RenderSensor")]
+pub struct Sensor {
+    /// false: the image as rendered (a perfect camera).
+    pub enabled: bool,
+    #[schemars(range(min = EXPOSURE_EV_SIGMA.min, max = EXPOSURE_EV_SIGMA.max))]
+    pub exposure_ev_sigma: f64,
+    #[schemars(range(min = WHITE_BALANCE_SIGMA.min, max = WHITE_BALANCE_SIGMA.max))]
+    pub white_balance_sigma: f64,
+    #[schemars(range(min = SHOT_NOISE.min, max = SHOT_NOISE.max))]
+    pub shot_noise: f64,
+    #[schemars(range(min = READ_NOISE.min, max = READ_NOISE.max))]
+    pub read_noise: f64,
+}
+
+impl Default for Sensor {
+    fn default() -> Sensor {
+        Sensor {
+            enabled: true,
+            exposure_ev_sigma: EXPOSURE_EV_SIGMA.default,
+            white_balance_sigma: WHITE_BALANCE_SIGMA.default,
+            shot_noise: SHOT_NOISE.default,
+            read_noise: READ_NOISE.default,
+        }
+    }
 }
 
 /// The scene around the grasp. The grasp itself happens in free space (`docs/physics.md`); these
@@ -146,6 +186,7 @@ impl Default for Settings {
             roll_deg: ROLL_DEG_DEFAULT,
             offcentre: OFFCENTRE.default,
             scene: Scene::default(),
+            sensor: Sensor::default(),
         }
     }
 }

@@ -525,6 +525,7 @@ fn meta_record(meta: &Value, sample_id: &str, obj_id: u64) -> Value {
         "environment": camera["environment"],
         "segmentation": camera["segmentation"],
         "materials": camera["materials"],
+        "scene": camera["scene"],
     })
 }
 

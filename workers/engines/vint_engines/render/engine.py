@@ -37,6 +37,7 @@ from vint_engines.render.camera import CameraPose, Intrinsics, framed, look_at, 
 from vint_engines.render.cycles import Bounces, PathTracing
 from vint_engines.render.dressing import SceneDressing
 from vint_engines.render.scene import OBJECT_PASS_INDEX, BlenderScene, Geometry, Hdri, environments
+from vint_engines.render.sensor import SensorModel, capture
 
 GRASPS_INPUT = "grasps.json"
 
@@ -55,6 +56,7 @@ class RenderSettings:
     roll_deg: tuple[float, float]
     offcentre: float
     scene: SceneDressing
+    sensor: SensorModel
 
     @staticmethod
     def parse(obj: Any, where: str = "params.render") -> RenderSettings:
@@ -82,6 +84,7 @@ class RenderSettings:
                 table_gap_m=float(fields["scene"]["table_gap_m"]),
                 flange=bool(fields["scene"]["flange"]),
             ),
+            sensor=SensorModel.from_fields(fields["sensor"]),
         )
 
 
@@ -271,6 +274,7 @@ class RenderEngine:
         result = TaskResult()
         geometry_s = rgb_s = 0.0
         occluded: dict[int, float] = {}
+        sensors: dict[int, dict[str, Any]] = {}  # what each view's colour sensor drew
         for view in self._render_order(views):
             started = time.perf_counter()
             camera = view.camera or sampled_camera(view.seed, object_pose[0], object_radius, settings)
@@ -281,11 +285,21 @@ class RenderEngine:
                 started = time.perf_counter()
                 environment = view.environment
                 self.scene.set_environment(hdris[environment], environment.rotation_deg, environment.strength)
-                image = self.scene.render_rgb(tracing, view.seed)
+                image, sensors[view.index] = capture(
+                    self.scene.render_rgb(tracing, view.seed), settings.sensor, view.seed
+                )
                 result.add(write_png(task.out_dir / f"v{view.index:02d}_rgb.png", image), "image/png")
                 rgb_s += time.perf_counter() - started
             occluded[view.index] = self._write_view(
-                task.out_dir, view, camera, settings, outputs, object_pose, geometry, result
+                task.out_dir,
+                view,
+                camera,
+                settings,
+                outputs,
+                object_pose,
+                geometry,
+                sensors.get(view.index),
+                result,
             )
         n = len(views)
         result.result = {
@@ -327,6 +341,7 @@ class RenderEngine:
         outputs: frozenset[str],
         object_pose: tuple[np.ndarray, np.ndarray],
         geometry: Geometry,
+        sensor: dict[str, Any] | None,
         result: TaskResult,
     ) -> float:
         """Writes one view's files and camera record; returns its occlusion."""
@@ -370,6 +385,8 @@ class RenderEngine:
                 "flange": "arm/flange" in labels.values(),
             },
         }
+        if sensor is not None:
+            record["sensor"] = sensor
         path = out_dir / f"{prefix}_camera.json"
         path.write_text(json.dumps(record, indent=1))
         result.add(path, "application/json")

@@ -95,6 +95,34 @@ def _create(bm: bmesh.types.BMesh, kind: str, size: Sequence[float], matrix: Mat
         raise BadInput(f"unsupported geom type {kind!r}")
 
 
+def add_discs(
+    bm: bmesh.types.BMesh,
+    centres: np.ndarray,
+    normals: np.ndarray,
+    radius: float,
+    half_height: float,
+    material_index: int,
+    segments: int = 10,
+) -> None:
+    """Add one flat disc (a short cylinder) per row of `centres`, its axis along the matching unit
+    normal, all on material slot `material_index`."""
+    before = set(bm.faces)
+    for centre, normal in zip(centres, normals, strict=True):
+        matrix = axis_matrix(centre, normal)
+        bmesh.ops.create_cone(
+            bm,
+            cap_ends=True,
+            segments=segments,
+            radius1=radius,
+            radius2=radius,
+            depth=2 * half_height,
+            matrix=matrix,
+        )
+    for face in set(bm.faces) - before:
+        face.material_index = material_index
+        face.smooth = False
+
+
 def geom_matrix(p: Sequence[float], q: Sequence[float]) -> Matrix:
     return Matrix.LocRotScale(Vector(p), Quaternion(q), None)
 
@@ -108,16 +136,26 @@ def axis_matrix(centre: Sequence[float], axis: Sequence[float]) -> Matrix:
 Primitive = tuple[str, Sequence[float], Matrix]
 
 
+Discs = tuple[np.ndarray, np.ndarray, float, float, int]  # centres, normals, radius, half height, slot
+
+
 def new_mesh(
-    name: str, geoms: Sequence[Primitive], material_indices: Sequence[int] = (), edge_radius: float = 0.0
+    name: str,
+    geoms: Sequence[Primitive],
+    material_indices: Sequence[int] = (),
+    edge_radius: float = 0.0,
+    discs: Discs | None = None,
 ) -> bpy.types.Mesh:
     """One mesh holding every (kind, size, matrix) primitive, the i-th on material slot
-    `material_indices[i]` (0 when not given); boxes get rounded edges of `edge_radius`."""
+    `material_indices[i]` (0 when not given); boxes get rounded edges of `edge_radius`; `discs`
+    adds flat discs (`add_discs`)."""
     bm = bmesh.new()
     try:
         for i, (kind, size, matrix) in enumerate(geoms):
             slot = material_indices[i] if i < len(material_indices) else 0
             add_primitive(bm, kind, size, matrix, slot, edge_radius)
+        if discs is not None:
+            add_discs(bm, *discs)
         mesh = bpy.data.meshes.new(name)
         bm.to_mesh(mesh)
     finally:

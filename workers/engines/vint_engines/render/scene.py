@@ -129,10 +129,12 @@ class BlenderScene:
         self._object: bpy.types.Object | None = None
         self._object_meshes: dict[str, tuple[str, bpy.types.Mesh]] = {}  # name → (content key, mesh)
         self._object_spec: ObjectSpec | None = None
-        # Material slots of a hand link: 0 anodised (links and palm housing), 1 fingertip pad.
+        # Material slots of a hand link: 0 anodised (links and palm housing), 1 fingertip pad,
+        # 2 the taxels of the sensor skin.
         self._hand_materials = (
             materials.principled("vint_hand", dressing.ANODISED_BLACK),
             materials.principled("vint_fingertip_pad", dressing.FINGERTIP_PAD),
+            materials.principled("vint_taxel", dressing.TAXEL_SKIN),
         )
         self._arm_materials = {
             "flange": materials.principled("vint_flange", dressing.FLANGE_ALUMINIUM),
@@ -263,21 +265,34 @@ class BlenderScene:
     def set_hand(self, hand: Mapping[str, Any]) -> None:
         """Create the hand's link objects (and the arm pieces at its `mount`, when it names one),
         unless this exact geometry is already loaded."""
-        key = json.dumps({"links": hand.get("links"), "mount": hand.get("mount")}, sort_keys=True)
+        key = json.dumps(
+            {"links": hand.get("links"), "mount": hand.get("mount"), "taxels": hand.get("taxels")},
+            sort_keys=True,
+        )
         if key == self._hand_key:
             return
         for obj in [*self._links.values(), *(piece for piece, _ in self._arm.values())]:
             _remove_object(obj)
         self._links, self._arm, self._hand_key = {}, {}, None
         try:
+            names = [link["name"] for link in hand["links"]]
+            layout = dressing.built_in_taxels(hand, names)
+            taxels = layout.indices_by_link() if layout is not None else {}
             for k, link in enumerate(hand["links"]):
                 roles = [dressing.geom_role(link["name"], g) for g in link["geoms"]]
                 geoms = [(g["type"], g["size"], meshes.geom_matrix(g["p"], g["q"])) for g in link["geoms"]]
+                discs = None
+                if layout is not None and link["name"] in taxels:
+                    rows = taxels[link["name"]]
+                    normals = layout.normals[rows]
+                    centres = layout.positions[rows] + normals * dressing.TAXEL_HALF_HEIGHT_M
+                    discs = (centres, normals, dressing.TAXEL_RADIUS_M, dressing.TAXEL_HALF_HEIGHT_M, 2)
                 mesh = meshes.new_mesh(
                     f"link_{link['name']}",
                     geoms,
                     [1 if role == "pad" else 0 for role in roles],
                     dressing.PALM_EDGE_RADIUS_M if "palm" in roles else 0.0,
+                    discs,
                 )
                 index = FIRST_LINK_PASS_INDEX + k
                 self._links[link["name"]] = self._add_object(mesh, self._hand_materials, index)
@@ -406,7 +421,8 @@ class BlenderScene:
         """The scattering lobes of every material in the RGB scene (see `cycles.Bounces.pruned`)."""
         lobes = materials.object_lobes(self._object_material())
         if self._links:
-            lobes |= materials.lobes(dressing.ANODISED_BLACK) | materials.lobes(dressing.FINGERTIP_PAD)
+            for look in (dressing.ANODISED_BLACK, dressing.FINGERTIP_PAD, dressing.TAXEL_SKIN):
+                lobes |= materials.lobes(look)
         if self.dressing.flange and self._arm:
             lobes |= materials.lobes(dressing.FLANGE_ALUMINIUM) | materials.lobes(dressing.ARM_PAINT)
         if self.dressing.table:
@@ -479,9 +495,9 @@ class BlenderScene:
 
 
 def _table_material() -> bpy.types.Material:
-    """Oiled wood for the table top: grain as banded waves across the planks' length (x),
-    distorted by noise so the bands wander as a flat-sawn board's do, with slower colour drift
-    between lighter and darker wood (`dressing.TABLE_WOOD_*`)."""
+    """Oiled wood for the table top: grain as banded waves across the planks' length (x), bent by
+    low-frequency noise stretched along x so the bands wander as a flat-sawn board's do, with a
+    slower colour drift between lighter and darker wood (`dressing.TABLE_*`)."""
     material = materials.principled("vint_table", dressing.TABLE_WOOD)
     tree = material.node_tree
     coords = tree.nodes.new("ShaderNodeTexCoord")
@@ -500,7 +516,10 @@ def _table_material() -> bpy.types.Material:
     grain = tree.nodes.new("ShaderNodeMath")
     grain.operation = "MULTIPLY_ADD"
     grain.inputs[1].default_value = 0.6
-    tree.links.new(coords.outputs["Object"], wave.inputs["Vector"])
+    stretch = tree.nodes.new("ShaderNodeMapping")  # grain runs along x: its bends are long there
+    stretch.inputs["Scale"].default_value = dressing.TABLE_GRAIN_STRETCH
+    tree.links.new(coords.outputs["Object"], stretch.inputs["Vector"])
+    tree.links.new(stretch.outputs["Vector"], wave.inputs["Vector"])
     tree.links.new(coords.outputs["Object"], drift.inputs["Vector"])
     tree.links.new(wave.outputs["Fac"], grain.inputs[0])
     tree.links.new(drift.outputs["Fac"], grain.inputs[2])
