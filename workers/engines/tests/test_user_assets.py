@@ -53,7 +53,7 @@ def test_open_and_closed_poses_default_to_the_actuators_control_ranges() -> None
         ),
         (
             ("<worldbody>", '<asset><mesh name="m" file="finger.stl"/></asset><worldbody>'),
-            "external file 'finger.stl'",
+            "mesh 'm' names 'finger.stl', which the task did not stage",
         ),
         (
             ('<joint name="left_j0" range="-0.5 1.6"/>', '<joint name="left_j0" type="slide" range="0 1"/>'),

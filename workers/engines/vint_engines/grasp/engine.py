@@ -21,7 +21,7 @@ import numpy as np
 
 from vint_engines import __version__, contract
 from vint_engines.assets import StagedAsset, asset_file, staged_assets
-from vint_engines.grasp.hands import GraspHand, hand_dims, load_mjcf_hand
+from vint_engines.grasp.hands import GraspHand, MjcfHand, hand_dims, load_mjcf_hand
 from vint_engines.grasp.hands.catalog import CATALOG_DIR, read_hand_catalog
 from vint_engines.grasp.hands.model import Vec3
 from vint_engines.grasp.scene import (
@@ -29,6 +29,7 @@ from vint_engines.grasp.scene import (
     ObjectSpec,
     build_scene,
     hand_geometry,
+    hand_meshes,
     object_record,
     write_object_model,
 )
@@ -47,7 +48,8 @@ class GraspEngine:
         self._scenes: dict[tuple[str, ObjectSpec], tuple[GraspScene, mujoco.MjData]] = {}
         self._models = ObjectModels()
         self._layouts: dict[str, tuple[TaxelLayout, dict[str, Any]]] = {}
-        self._user_hands: dict[str, GraspHand] = {}
+        # A user's hand by name@mjcf, with the spec paths and hashes of the mesh files it read.
+        self._user_hands: dict[str, tuple[MjcfHand, dict[str, str]]] = {}
 
     def hello(self) -> Json:
         return {
@@ -83,6 +85,7 @@ class GraspEngine:
                 "dof": hand.dof,
                 "fingers": hand.finger_count,
                 "links": hand_geometry(scene),
+                **({"meshes": meshes} if (meshes := hand_meshes(scene)) else {}),
                 "mount": mount_record(hand.mount),
                 "taxels": layout_info,
             },
@@ -120,12 +123,19 @@ class GraspEngine:
         if "mjcf" not in params:
             return name, hand_dims(name)
         mjcf = params["mjcf"]
-        key = f"{name}@{mjcf}"
-        if key not in self._user_hands:
+        by_path = {staged.spec_path: sha for sha, staged in assets.items()}
+        cached = self._user_hands.get(f"{name}@{mjcf}")
+        if cached is None or any(by_path.get(path) != sha for path, sha in cached[1].items()):
             staged = asset_file(assets, mjcf, "params.hand.mjcf")
             where = f"params.hand.mjcf ({staged.spec_path})"
-            self._user_hands[key] = load_mjcf_hand(name, staged.path.read_text(encoding="utf-8"), where)
-        return key, self._user_hands[key]
+            files = {s.spec_path: s.path for s in assets.values()}
+            xml = staged.path.read_text(encoding="utf-8")
+            hand = load_mjcf_hand(name, xml, where, staged.spec_path, files)
+            cached = (hand, {path: by_path[path] for path in hand.mesh_files})
+            self._user_hands[f"{name}@{mjcf}"] = cached
+        # The key names the mesh files' contents too: a changed mesh is a different hand.
+        key = "@".join([name, mjcf, *(cached[1][path] for path in sorted(cached[1]))])
+        return key, cached[0]
 
     def _scene(
         self, hand_key: str, hand: GraspHand, obj: ObjectSpec, assets: dict[str, StagedAsset]

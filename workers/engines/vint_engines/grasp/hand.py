@@ -33,6 +33,10 @@ WORLD_CONTYPE, WORLD_CONAFFINITY = 1, 1
 TOUCH_PROBE = "touch_probe"
 TOUCH_PROBE_RADIUS = 1e-5
 
+# The scene's copies of a user hand's meshes are named by this prefix and the mesh's id in the
+# user's compiled model (`grasp/scene.py` reads them back for grasps.json).
+HAND_MESH_PREFIX = "hand_mesh_"
+
 # Every hand geom is covered by the tactile skin, whose contact parameters govern the hand's
 # contacts (priority 1 over the object's): rubber-like friction and a stiff contact
 # (time constant 5 ms, at least 2 timesteps), so a squeezed can sinks < 1 mm into the palm (MuJoCo's
@@ -105,14 +109,7 @@ def _add_mjcf_hand(spec: mujoco.MjSpec, hand: MjcfHand) -> None:
         body.iquat = [float(v) for v in model.body_iquat[b]]
         body.inertia = [float(v) for v in model.body_inertia[b]]
         for g in np.flatnonzero(model.geom_bodyid == b):
-            body.add_geom(
-                type=mujoco.mjtGeom(int(model.geom_type[g])),
-                size=[float(v) for v in model.geom_size[g]],
-                pos=[float(v) for v in model.geom_pos[g]],
-                quat=[float(v) for v in model.geom_quat[g]],
-                mass=0.0,
-                **SKIN,
-            )
+            _add_mjcf_geom(spec, body, model, int(g))
         for j in range(int(model.body_jntadr[b]), int(model.body_jntadr[b] + model.body_jntnum[b])):
             dof = int(model.jnt_dofadr[j])
             body.add_joint(
@@ -140,6 +137,41 @@ def _add_mjcf_hand(spec: mujoco.MjSpec, hand: MjcfHand) -> None:
         )
         kp, kv = float(model.actuator_gainprm[a, 0]), -float(model.actuator_biasprm[a, 2])
         actuator.set_to_position(kp=kp, kv=kv if kv > 0 else -1)
+
+
+def _add_mjcf_geom(spec: mujoco.MjSpec, body: mujoco.MjsBody, model: mujoco.MjModel, g: int) -> None:
+    """One geom of a user's compiled hand: colliding ones with the skin, visual ones (no contact)
+    as they are; a mesh as its compiled vertices and faces (`hand_mesh_<id>`, added once); each in
+    its colour (its material's rgba when it has one), which the renderer paints."""
+    kind = mujoco.mjtGeom(int(model.geom_type[g]))
+    matid = int(model.geom_matid[g])
+    rgba = model.mat_rgba[matid] if matid >= 0 else model.geom_rgba[g]
+    extra: dict[str, Any] = {"rgba": [float(v) for v in rgba]}
+    if kind == mujoco.mjtGeom.mjGEOM_MESH:
+        mesh_id = int(model.geom_dataid[g])
+        name = f"{HAND_MESH_PREFIX}{mesh_id}"
+        if spec.mesh(name) is None:
+            vert = model.mesh_vert[
+                model.mesh_vertadr[mesh_id] : model.mesh_vertadr[mesh_id] + model.mesh_vertnum[mesh_id]
+            ]
+            face = model.mesh_face[
+                model.mesh_faceadr[mesh_id] : model.mesh_faceadr[mesh_id] + model.mesh_facenum[mesh_id]
+            ]
+            mesh = spec.add_mesh(name=name, uservert=vert.ravel().tolist(), userface=face.ravel().tolist())
+            mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL  # unused: the body's is explicit
+        extra["meshname"] = name
+    else:
+        extra["size"] = [float(v) for v in model.geom_size[g]]
+    visual = not model.geom_contype[g] and not model.geom_conaffinity[g]
+    contact = {"contype": 0, "conaffinity": 0, "group": 1} if visual else SKIN
+    body.add_geom(
+        type=kind,
+        pos=[float(v) for v in model.geom_pos[g]],
+        quat=[float(v) for v in model.geom_quat[g]],
+        mass=0.0,
+        **extra,
+        **contact,
+    )
 
 
 def add_touch_probe(spec: mujoco.MjSpec) -> None:

@@ -20,7 +20,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from vint_engines.grasp.hand import WORLD_CONAFFINITY, WORLD_CONTYPE, GraspHand, add_hand
+from vint_engines.grasp.hand import HAND_MESH_PREFIX, WORLD_CONAFFINITY, WORLD_CONTYPE, GraspHand, add_hand
 from vint_engines.grasp.surface import ObjectSurface
 from vint_engines.objects import MODEL_FILE, ObjectModel, ObjectSpec, build_model
 from vint_engines.poses import matrix_to_quat
@@ -31,6 +31,7 @@ __all__ = [
     "SceneObject",
     "build_scene",
     "hand_geometry",
+    "hand_meshes",
     "object_record",
     "write_object_model",
 ]
@@ -116,7 +117,11 @@ def build_scene(hand: GraspHand, obj: ObjectSpec, object_model: ObjectModel | No
         link_bodies={name: model.body(name).id for name in hand.link_names()},
         joint_qpos={name: qpos_of(name) for name in hand.joint_names()},
         joint_ctrl={model.joint(int(model.actuator_trnid[a, 0])).name: a for a in range(model.nu)},
-        hand_geoms=tuple(int(g) for g in np.flatnonzero(np.isin(model.geom_bodyid, hand_bodies))),
+        hand_geoms=tuple(
+            int(g)
+            for g in np.flatnonzero(np.isin(model.geom_bodyid, hand_bodies))
+            if model.geom_contype[g] or model.geom_conaffinity[g]  # a user hand's visual geoms feel nothing
+        ),
         object_mass=float(model.body_mass[object_body]),
         object_inertia=tuple(float(v) for v in model.body_inertia[object_body]),
         actuator_forcerange=tuple((float(lo), float(hi)) for lo, hi in model.actuator_forcerange),
@@ -163,7 +168,9 @@ def write_object_model(scene: GraspScene, out_dir: Path) -> Path:
 
 
 def hand_geometry(scene: GraspScene) -> list[dict[str, Any]]:
-    """Every hand link's geoms as compiled (MuJoCo size convention, pose in the link frame)."""
+    """Every hand link's geoms as compiled (MuJoCo size convention, pose in the link frame). A
+    user's hand may add mesh geoms (`"mesh"`: a name in `hand_meshes`) and visual geoms (`"visual":
+    true`, in no contact); those carry their colour (`"rgba"`, the material's when they have one)."""
     model = scene.model
     sizes = {
         mujoco.mjtGeom.mjGEOM_BOX: 3,
@@ -176,16 +183,38 @@ def hand_geometry(scene: GraspScene) -> list[dict[str, Any]]:
         geoms = []
         for geom in np.flatnonzero(model.geom_bodyid == body):
             kind = mujoco.mjtGeom(int(model.geom_type[geom]))
-            geoms.append(
-                {
-                    "type": kind.name.removeprefix("mjGEOM_").lower(),
-                    "size": [float(v) for v in model.geom_size[geom][: sizes[kind]]],
-                    "p": [float(v) for v in model.geom_pos[geom]],
-                    "q": [float(v) for v in model.geom_quat[geom]],
-                }
-            )
+            record: dict[str, Any] = {"type": kind.name.removeprefix("mjGEOM_").lower()}
+            if kind == mujoco.mjtGeom.mjGEOM_MESH:
+                record["mesh"] = model.mesh(int(model.geom_dataid[geom])).name
+            else:
+                record["size"] = [float(v) for v in model.geom_size[geom][: sizes[kind]]]
+            record["p"] = [float(v) for v in model.geom_pos[geom]]
+            record["q"] = [float(v) for v in model.geom_quat[geom]]
+            visual = not model.geom_contype[geom] and not model.geom_conaffinity[geom]
+            if visual:
+                record["visual"] = True
+            if visual or kind == mujoco.mjtGeom.mjGEOM_MESH:
+                record["rgba"] = [float(v) for v in model.geom_rgba[geom]]
+            geoms.append(record)
         links.append({"name": name, "geoms": geoms})
     return links
+
+
+def hand_meshes(scene: GraspScene) -> dict[str, dict[str, Any]]:
+    """The meshes a user's hand geoms name (`hand_geometry`), by name: vertices (m, the mesh frame
+    MuJoCo compiled, rounded to 0.1 µm) and triangles (vertex indices). Empty for primitive hands."""
+    model = scene.model
+    out = {}
+    for m in range(model.nmesh):
+        name = model.mesh(m).name
+        if not name.startswith(HAND_MESH_PREFIX):
+            continue
+        first, count = int(model.mesh_vertadr[m]), int(model.mesh_vertnum[m])
+        face_first, face_count = int(model.mesh_faceadr[m]), int(model.mesh_facenum[m])
+        vertices = np.round(model.mesh_vert[first : first + count].astype(np.float64), 7)
+        faces = model.mesh_face[face_first : face_first + face_count]
+        out[name] = {"vertices": vertices.tolist(), "faces": faces.astype(int).tolist()}
+    return out
 
 
 def geom_distance(model: mujoco.MjModel, data: mujoco.MjData, geom1: int, geom2: int, cap: float) -> float:

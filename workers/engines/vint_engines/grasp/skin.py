@@ -168,7 +168,12 @@ def _candidates(model: mujoco.MjModel, geom: int, palm: bool) -> tuple[Array, Ar
         return _capsule_side(size[0], size[1], palmar)
     if kind == mujoco.mjtGeom.mjGEOM_SPHERE:
         return _dome(size[0], palmar)
-    raise ValueError(f"no taxel sampling for geom type {kind}")
+    name = mujoco.mjtGeom(int(kind)).name.removeprefix("mjGEOM_").lower()
+    raise ValueError(
+        f"no taxel sampling for a {name} geom (body {model.body(int(model.geom_bodyid[geom])).name!r}): the "
+        "generator lays taxels on boxes, capsules and spheres; a hand with mesh geoms needs a layout "
+        "of its own (docs/hands.md, taxel layout)"
+    )
 
 
 def _box_face(half: Array, outward: Array) -> tuple[Array, Array, float]:

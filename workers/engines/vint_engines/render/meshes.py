@@ -1,5 +1,5 @@
 """Blender meshes: MuJoCo's primitive geoms (box, sphere, capsule, cylinder) built with bmesh, and
-triangle meshes from vertex and face arrays (the object's model mesh).
+triangle meshes from vertex and face arrays (the object's model mesh, a user hand's mesh geoms).
 
 Sizes follow MuJoCo: box half extents, sphere [r], capsule and cylinder [r, half length] along +z.
 """
@@ -137,6 +137,34 @@ Primitive = tuple[str, Sequence[float], Matrix]
 
 
 Discs = tuple[np.ndarray, np.ndarray, float, float, int]  # centres, normals, radius, half height, slot
+Triangles = tuple[np.ndarray, np.ndarray, Matrix, int]  # vertices, faces, placement, material slot
+
+# Edges of a triangle mesh geom sharper than this are drawn sharp; the rest are shaded smooth.
+MESH_SHARP_DEG = 30.0
+
+
+def add_triangles(
+    bm: bmesh.types.BMesh, vertices: np.ndarray, faces: np.ndarray, matrix: Matrix, material_index: int
+) -> None:
+    """Add a triangle mesh (a user hand's mesh geom), placed by `matrix`, on slot `material_index`:
+    smooth, but sharp across edges sharper than `MESH_SHARP_DEG`. Degenerate and repeated
+    triangles (which bmesh refuses) are left out."""
+    verts = [bm.verts.new(matrix @ Vector(v)) for v in np.asarray(vertices, dtype=np.float64).tolist()]
+    added = []
+    for a, b, c in np.asarray(faces, dtype=np.int64).tolist():
+        if len({a, b, c}) < 3:
+            continue
+        try:
+            face = bm.faces.new((verts[a], verts[b], verts[c]))
+        except ValueError:  # the same triangle twice
+            continue
+        face.material_index = material_index
+        face.smooth = True
+        added.append(face)
+    sharp = math.radians(MESH_SHARP_DEG)
+    for edge in {edge for face in added for edge in face.edges}:
+        if len(edge.link_faces) != 2 or edge.calc_face_angle(0.0) > sharp:
+            edge.smooth = False
 
 
 def new_mesh(
@@ -145,15 +173,18 @@ def new_mesh(
     material_indices: Sequence[int] = (),
     edge_radius: float = 0.0,
     discs: Discs | None = None,
+    triangles: Sequence[Triangles] = (),
 ) -> bpy.types.Mesh:
     """One mesh holding every (kind, size, matrix) primitive, the i-th on material slot
     `material_indices[i]` (0 when not given); boxes get rounded edges of `edge_radius`; `discs`
-    adds flat discs (`add_discs`)."""
+    adds flat discs (`add_discs`), `triangles` triangle meshes (`add_triangles`)."""
     bm = bmesh.new()
     try:
         for i, (kind, size, matrix) in enumerate(geoms):
             slot = material_indices[i] if i < len(material_indices) else 0
             add_primitive(bm, kind, size, matrix, slot, edge_radius)
+        for vertices, faces, matrix, slot in triangles:
+            add_triangles(bm, vertices, faces, matrix, slot)
         if discs is not None:
             add_discs(bm, *discs)
         mesh = bpy.data.meshes.new(name)

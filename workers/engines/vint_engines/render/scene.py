@@ -264,9 +264,16 @@ class BlenderScene:
 
     def set_hand(self, hand: Mapping[str, Any]) -> None:
         """Create the hand's link objects (and the arm pieces at its `mount`, when it names one),
-        unless this exact geometry is already loaded."""
+        unless this exact geometry is already loaded. A user's hand with visual geoms is drawn
+        from those alone (its colliding geoms are what the physics felt, often cruder); mesh and
+        visual geoms are painted in their own colour."""
         key = json.dumps(
-            {"links": hand.get("links"), "mount": hand.get("mount"), "taxels": hand.get("taxels")},
+            {
+                "links": hand.get("links"),
+                "meshes": hand.get("meshes"),
+                "mount": hand.get("mount"),
+                "taxels": hand.get("taxels"),
+            },
             sort_keys=True,
         )
         if key == self._hand_key:
@@ -278,9 +285,25 @@ class BlenderScene:
             names = [link["name"] for link in hand["links"]]
             layout = dressing.built_in_taxels(hand, names)
             taxels = layout.indices_by_link() if layout is not None else {}
+            visual_only = any(g.get("visual") for link in hand["links"] for g in link["geoms"])
             for k, link in enumerate(hand["links"]):
-                roles = [dressing.geom_role(link["name"], g) for g in link["geoms"]]
-                geoms = [(g["type"], g["size"], meshes.geom_matrix(g["p"], g["q"])) for g in link["geoms"]]
+                shown = [g for g in link["geoms"] if _drawn(g, visual_only)]
+                slots = list(self._hand_materials)
+                primitives, indices, triangles = [], [], []
+                for g in shown:
+                    if "rgba" in g:
+                        slot = _colour_slot(slots, g["rgba"])
+                    else:  # the built-in dressing: anodised, fingertip pads on slot 1
+                        slot = 1 if dressing.geom_role(link["name"], g) == "pad" else 0
+                    matrix = meshes.geom_matrix(g["p"], g["q"])
+                    if g["type"] == "mesh":
+                        data = hand["meshes"][g["mesh"]]
+                        vertices, faces = np.asarray(data["vertices"]), np.asarray(data["faces"])
+                        triangles.append((vertices, faces, matrix, slot))
+                    else:
+                        primitives.append((g["type"], g["size"], matrix))
+                        indices.append(slot)
+                roles = [dressing.geom_role(link["name"], g) for g in shown if g["type"] != "mesh"]
                 discs = None
                 if layout is not None and link["name"] in taxels:
                     rows = taxels[link["name"]]
@@ -289,14 +312,15 @@ class BlenderScene:
                     discs = (centres, normals, dressing.TAXEL_RADIUS_M, dressing.TAXEL_HALF_HEIGHT_M, 2)
                 mesh = meshes.new_mesh(
                     f"link_{link['name']}",
-                    geoms,
-                    [1 if role == "pad" else 0 for role in roles],
+                    primitives,
+                    indices,
                     dressing.PALM_EDGE_RADIUS_M if "palm" in roles else 0.0,
                     discs,
+                    triangles,
                 )
                 index = FIRST_LINK_PASS_INDEX + k
-                self._links[link["name"]] = self._add_object(mesh, self._hand_materials, index)
-        except (KeyError, TypeError, ValueError) as exc:
+                self._links[link["name"]] = self._add_object(mesh, slots, index)
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise BadInput(f"grasps.json: malformed hand geometry ({exc!r})") from exc
         if hand.get("mount") is not None:
             mount = dressing.Mount.parse(hand["mount"], list(self._links), "grasps.json hand.mount")
@@ -542,6 +566,28 @@ def _lowest_z(obj: bpy.types.Object) -> float:
 def _rebuilt_mesh(spec: ObjectSpec) -> tuple[np.ndarray, np.ndarray]:
     mesh = build_model(spec, where="grasps.json object").mesh
     return mesh.vertices, mesh.faces
+
+
+def _drawn(geom: Mapping[str, Any], visual_only: bool) -> bool:
+    """Whether a hand geom is drawn: the visual ones of a hand that has any, else every one; a
+    fully transparent geom never."""
+    if visual_only and not geom.get("visual"):
+        return False
+    return "rgba" not in geom or float(geom["rgba"][3]) > 0.0
+
+
+def _colour_slot(slots: list[bpy.types.Material], rgba: Sequence[float]) -> int:
+    """The slot of the hand material in colour `rgba` (opaque, the hand's plastic), added to
+    `slots` when new; one material per colour for every hand the engine shows."""
+    r, g, b = (min(1.0, max(0.0, float(v))) for v in rgba[:3])
+    name = f"vint_hand_rgb_{r:.4f}_{g:.4f}_{b:.4f}"
+    material = bpy.data.materials.get(name)
+    if material is None:
+        material = materials.principled(name, {**materials.HAND, "Base Color": (r, g, b, 1.0)})
+        material.use_fake_user = True  # kept when no hand shows it, so the name always finds it
+    if material not in slots:
+        slots.append(material)
+    return slots.index(material)
 
 
 def _remove_mesh(mesh: bpy.types.Mesh) -> None:

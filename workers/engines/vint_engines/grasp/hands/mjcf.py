@@ -11,8 +11,13 @@ compiled model into the scene. Conventions, each checked (a violation is `BadInp
 - Every other joint is a limited hinge in the palm's subtree, driven by exactly one position
   actuator (`<position>`) with a force limit (`forcerange`); no other actuators, tendons or
   equality constraints.
-- Geoms are primitives (box, sphere, capsule, cylinder): no mesh geoms, so no mesh files — the
-  renderer draws the hand from the same primitives. Every geom collides and carries the skin.
+- Geoms are primitives (box, sphere, capsule, cylinder) or meshes. A geom with `contype` and
+  `conaffinity` both 0 is visual (the renderer draws those when the hand has any); every other
+  geom collides — a mesh through MuJoCo's convex hull of it — and carries the skin. A mesh's file
+  (`<mesh file=…>`, found as MuJoCo does, through `meshdir`/`assetdir` and `strippath`, relative to
+  the MJCF) is one of the job's files, staged with the MJCF (`mesh_file_path` is the rule; the
+  client follows the same one, `vint_core::asset::mjcf_mesh_files`). Textures are dropped (a
+  material keeps its rgba); height fields and skins from files are refused.
 - Optional `<custom><numeric>` entries: `vint_open` and `vint_closed` (one target per hinge, in
   the model's joint order; default: each actuator's ctrlrange low and high end), `vint_grasp_centre`
   (x y on the palmar face; default 0 0), `vint_palm_half` (half extents; default: the palm geoms'
@@ -22,8 +27,12 @@ compiled model into the scene. Conventions, each checked (a violation is `BadInp
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import posixpath
+from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -37,6 +46,8 @@ PRIMITIVES = {
     int(mujoco.mjtGeom.mjGEOM_CAPSULE): "capsule",
     int(mujoco.mjtGeom.mjGEOM_CYLINDER): "cylinder",
 }
+GEOM_TYPES = {**PRIMITIVES, int(mujoco.mjtGeom.mjGEOM_MESH): "mesh"}
+MESH_EXTENSIONS = (".stl", ".obj", ".msh")
 # Names the scene gives its own elements.
 RESERVED_BODIES = ("object", "hand_target")
 RESERVED_JOINTS = ("object_free", "hand_free")
@@ -62,8 +73,9 @@ class MjcfHand:
     finger_count: int
     finger_length: float
     tips: tuple[str, ...]  # the last body of every chain
-    tip_radius: float  # the smallest fingertip geom's radius (a box's smallest half extent)
+    tip_radius: float  # the smallest fingertip geom's radius (a box's or mesh's smallest half extent)
     mount: tuple[Vec3, Vec3] | None = None  # a user's hand shows no arm flange
+    mesh_files: tuple[str, ...] = ()  # spec paths of the mesh files the model read
 
     @property
     def dof(self) -> int:
@@ -99,6 +111,10 @@ class MjcfHand:
     def fingertip_radius(self) -> float:
         return self.tip_radius
 
+    def visual_geoms(self) -> list[int]:
+        """Geoms that take part in no contact (`contype` = `conaffinity` = 0): drawn, not felt."""
+        return [g for g in range(self.model.ngeom) if is_visual(self.model, g)]
+
     def bodies(self) -> list[int]:
         """Body ids of the links in the compiled user model (parents before children)."""
         return [self.model.body(link).id for link in self.links]
@@ -109,24 +125,82 @@ class MjcfHand:
         return int(np.flatnonzero(trn == joint)[0])
 
 
-def load_mjcf_hand(name: str, xml: str, where: str) -> MjcfHand:
-    """Load and check a hand MJCF document; `where` names it in errors (e.g. `params.hand.mjcf`)."""
+def load_mjcf_hand(
+    name: str, xml: str, where: str, mjcf_path: str = "", files: Mapping[str, Path] | None = None
+) -> MjcfHand:
+    """Load and check a hand MJCF document; `where` names it in errors (e.g. `params.hand.mjcf`).
+    `mjcf_path` is the document's path as the spec names it and `files` the job's staged files by
+    their spec paths: a `<mesh file=…>` is looked up there (`mesh_file_path`)."""
     try:
         spec = mujoco.MjSpec.from_string(xml)
     except Exception as exc:  # MuJoCo raises ValueError and others on malformed XML
         raise BadInput(f"{where}: not a valid MJCF model: {exc}") from exc
-    for kind, items in (("mesh", spec.meshes), ("texture", spec.textures), ("hfield", spec.hfields)):
+    for kind, items in (("hfield", spec.hfields), ("skin", spec.skins)):
         for item in items:
             if item.file:
                 raise BadInput(
-                    f"{where}: {kind} {item.name!r} names the external file {item.file!r}; a hand is "
-                    "built from primitive geoms only (box, sphere, capsule, cylinder)"
+                    f"{where}: {kind} {item.name!r} names the external file {item.file!r}; a hand's "
+                    "files are its MJCF and its meshes' files"
                 )
+    _drop_textures(spec)
+    used = _stage_meshes(spec, where, mjcf_path, files or {})
     try:
         model = spec.compile()
     except Exception as exc:
         raise BadInput(f"{where}: MuJoCo cannot compile the model: {exc}") from exc
-    return describe(name, model, where)
+    return dataclasses.replace(describe(name, model, where), mesh_files=tuple(sorted(set(used))))
+
+
+def mesh_file_path(mjcf_path: str, meshdir: str, file: str, strippath: bool = False) -> str | None:
+    """The spec path of a `<mesh file=…>` of the MJCF at spec path `mjcf_path`, found as MuJoCo
+    finds it (the file's name alone under `strippath`, joined to `meshdir`, relative to the MJCF's
+    directory), or None when it is absolute or leaves the spec's directory."""
+    file = file.replace("\\", "/")
+    if strippath:
+        file = posixpath.basename(file)
+    meshdir = meshdir.replace("\\", "/")
+    if any(part.startswith("/") or ":" in part for part in (file, meshdir)):
+        return None
+    path = posixpath.normpath(posixpath.join(posixpath.dirname(mjcf_path), meshdir, file))
+    if path == ".." or path.startswith("../"):
+        return None
+    return path
+
+
+def _drop_textures(spec: mujoco.MjSpec) -> None:
+    """Textures are not carried: materials keep their rgba, which is what the renderer paints."""
+    for material in spec.materials:
+        material.textures = [""] * len(material.textures)
+    for texture in list(spec.textures):
+        spec.delete(texture)
+
+
+def _stage_meshes(spec: mujoco.MjSpec, where: str, mjcf_path: str, files: Mapping[str, Path]) -> list[str]:
+    """Point every mesh file at the staged file its spec path names, through MuJoCo's in-memory
+    assets (the staged file is named by its hash; the name MuJoCo sees keeps the extension)."""
+    assets: dict[str, bytes] = {}
+    used = []
+    for i, mesh in enumerate(spec.meshes):
+        if not mesh.file:
+            continue
+        path = mesh_file_path(mjcf_path, spec.meshdir, mesh.file, bool(spec.strippath))
+        if path is None:
+            raise BadInput(
+                f"{where}: mesh {mesh.name!r} names {mesh.file!r} (meshdir {spec.meshdir!r}), which "
+                "leaves the spec's directory; a hand's mesh files lie beside or below the spec"
+            )
+        if not path.lower().endswith(MESH_EXTENSIONS):
+            raise BadInput(f"{where}: mesh {mesh.name!r}: {path!r} is not one of {list(MESH_EXTENSIONS)}")
+        if path not in files:
+            raise BadInput(f"{where}: mesh {mesh.name!r} names {path!r}, which the task did not stage")
+        staged = f"vint_mesh_{i}{posixpath.splitext(path)[1].lower()}"
+        assets[staged] = files[path].read_bytes()
+        mesh.file = staged
+        used.append(path)
+    spec.meshdir = ""
+    spec.strippath = False
+    spec.assets = assets
+    return used
 
 
 def describe(name: str, model: mujoco.MjModel, where: str) -> MjcfHand:
@@ -158,7 +232,11 @@ def describe(name: str, model: mujoco.MjModel, where: str) -> MjcfHand:
     mujoco.mj_kinematics(model, data)
     roots = [b for b in subtree if model.body_parentid[b] == palm and _joints_below(model, b)]
     tips = [b for b in subtree if b != palm and not np.any(model.body_parentid == b)]
-    radii = [_radius(model, g) for g in range(model.ngeom) if int(model.geom_bodyid[g]) in tips]
+    radii = [
+        _radius(model, g)
+        for g in range(model.ngeom)
+        if int(model.geom_bodyid[g]) in tips and not is_visual(model, g)
+    ]
     return MjcfHand(
         name=name,
         model=model,
@@ -177,9 +255,16 @@ def describe(name: str, model: mujoco.MjModel, where: str) -> MjcfHand:
     )
 
 
+def is_visual(model: mujoco.MjModel, geom: int) -> bool:
+    return not model.geom_contype[geom] and not model.geom_conaffinity[geom]
+
+
 def _radius(model: mujoco.MjModel, geom: int) -> float:
+    kind = int(model.geom_type[geom])
+    if kind == mujoco.mjtGeom.mjGEOM_MESH:
+        return float(min(model.geom_aabb[geom, 3:]))
     size = model.geom_size[geom]
-    return float(min(size) if int(model.geom_type[geom]) == mujoco.mjtGeom.mjGEOM_BOX else size[0])
+    return float(min(size) if kind == mujoco.mjtGeom.mjGEOM_BOX else size[0])
 
 
 def _palm(model: mujoco.MjModel, where: str) -> int:
@@ -218,12 +303,12 @@ def _check_names(model: mujoco.MjModel, bodies: list[int], where: str) -> None:
 
 def _check_geoms(model: mujoco.MjModel, bodies: list[int], where: str) -> None:
     for g in range(model.ngeom):
-        if int(model.geom_type[g]) not in PRIMITIVES:
+        if int(model.geom_type[g]) not in GEOM_TYPES:
             kind = mujoco.mjtGeom(int(model.geom_type[g])).name.removeprefix("mjGEOM_").lower()
             body = model.body(int(model.geom_bodyid[g])).name
             raise BadInput(
                 f"{where}: geom {g} of body {body!r} is a {kind}; hand geoms must be one of "
-                f"{sorted(PRIMITIVES.values())}"
+                f"{sorted(GEOM_TYPES.values())}"
             )
         if int(model.geom_bodyid[g]) not in bodies:
             raise BadInput(f"{where}: geom {g} lies outside the palm's subtree")
@@ -312,13 +397,17 @@ def _palm_half(model: mujoco.MjModel, palm: int, where: str) -> Vec3:
     """Half extents of the palm geoms' bounding box in the palm frame; z is its palmar (+z) side."""
     corners = []
     for g in np.flatnonzero(model.geom_bodyid == palm):
+        if is_visual(model, g):
+            continue
         centre, half = model.geom_aabb[g, :3], model.geom_aabb[g, 3:]
         signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
         rotation = np.zeros(9)
         mujoco.mju_quat2Mat(rotation, model.geom_quat[g])
         corners.append((centre + signs * half) @ rotation.reshape(3, 3).T + model.geom_pos[g])
     if not corners:
-        raise BadInput(f"{where}: body 'palm' has no geoms; give its extent as numeric 'vint_palm_half'")
+        raise BadInput(
+            f"{where}: body 'palm' has no colliding geoms; give its extent as numeric 'vint_palm_half'"
+        )
     points = np.vstack(corners)
     low, high = points.min(axis=0), points.max(axis=0)
     if high[2] <= 0:
