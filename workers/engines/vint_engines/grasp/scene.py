@@ -202,7 +202,7 @@ def hand_geometry(scene: GraspScene) -> list[dict[str, Any]]:
 
 def hand_meshes(scene: GraspScene) -> dict[str, dict[str, Any]]:
     """The meshes a user's hand geoms name (`hand_geometry`), by name: vertices (m, the mesh frame
-    MuJoCo compiled, rounded to 0.1 µm) and triangles (vertex indices). Empty for primitive hands."""
+    MuJoCo compiled, rounded to 1 µm) and triangles (vertex indices). Empty for primitive hands."""
     model = scene.model
     out = {}
     for m in range(model.nmesh):
@@ -211,7 +211,7 @@ def hand_meshes(scene: GraspScene) -> dict[str, dict[str, Any]]:
             continue
         first, count = int(model.mesh_vertadr[m]), int(model.mesh_vertnum[m])
         face_first, face_count = int(model.mesh_faceadr[m]), int(model.mesh_facenum[m])
-        vertices = np.round(model.mesh_vert[first : first + count].astype(np.float64), 7)
+        vertices = np.round(model.mesh_vert[first : first + count].astype(np.float64), 6)
         faces = model.mesh_face[face_first : face_first + face_count]
         out[name] = {"vertices": vertices.tolist(), "faces": faces.astype(int).tolist()}
     return out
