@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Write the example user files of examples/custom.toml: examples/assets/cup.obj and lab.hdr.
+"""Write the example user files of examples/custom.toml (examples/assets/cup.obj and lab.hdr)
+and examples/textured.toml (box.obj, box.mtl, box.png).
 
     .venv/bin/python scripts/gen_example_assets.py           # write them
     .venv/bin/python scripts/gen_example_assets.py --check   # exit 1 if a committed file differs
@@ -14,13 +15,20 @@ lab.hdr: a small user HDRI, a 128×64 equirectangular Radiance RGBE image (uncom
 scanlines, 32 KiB) of a made-up lab: cool grey walls, a warm floor, two bright warm ceiling
 panels and a bluish window, so it lights a scene visibly unlike Blender's bundled studio.
 
+box.obj + box.mtl + box.png: an 80 × 50 × 30 mm carton the way a scanner or a texturing tool
+exports it: four vertices of its own per face (split at every edge: the UV seams), per-face
+texture coordinates into one 64-pixel tile each of a 384×64 PNG atlas, each face its own colour
+with a darker rim, the MTL naming the PNG.
+
 Deterministic: the same code writes the same bytes (the HDRI is encoded here, not by a library).
 """
 
 from __future__ import annotations
 
 import argparse
+import struct
 import sys
+import zlib
 from collections.abc import Callable
 from pathlib import Path
 
@@ -98,7 +106,77 @@ def lab_hdr() -> bytes:
     return rgbe_bytes(lab_radiance())
 
 
-FILES: dict[str, Callable[[], bytes]] = {"cup.obj": obj_text, "lab.hdr": lab_hdr}
+BOX_MM = (80.0, 50.0, 30.0)
+BOX_TILE = 64
+# Each face (by its outward axis) and its colour (sRGB bytes).
+BOX_FACES = {
+    "+x": (200, 40, 30),
+    "-x": (40, 150, 60),
+    "+y": (30, 70, 180),
+    "-y": (230, 190, 40),
+    "+z": (240, 240, 235),
+    "-z": (120, 60, 140),
+}
+
+
+def box_corners(face: str) -> list[tuple[float, float, float]]:
+    """The face's corners (mm), counter-clockwise seen from outside."""
+    axis, sign = "xyz".index(face[1]), (1.0 if face[0] == "+" else -1.0)
+    u, v = (axis + 1) % 3, (axis + 2) % 3
+    corners = []
+    for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
+        p = [0.0, 0.0, 0.0]
+        p[axis], p[u], p[v] = sign * BOX_MM[axis] / 2, a * BOX_MM[u] / 2, b * BOX_MM[v] / 2
+        corners.append((p[0], p[1], p[2]))
+    return corners if sign > 0 else corners[::-1]
+
+
+def box_obj() -> bytes:
+    lines = ["# vint example object: a textured carton, millimetres (scripts/gen_example_assets.py)"]
+    lines += ["mtllib box.mtl", "usemtl carton"]
+    for k, face in enumerate(BOX_FACES):
+        lines += [f"v {x:.4f} {y:.4f} {z:.4f}" for x, y, z in box_corners(face)]
+        u0, u1 = k / len(BOX_FACES), (k + 1) / len(BOX_FACES)
+        lines += [f"vt {u:.6f} {v:.6f}" for u, v in ((u0, 0.0), (u1, 0.0), (u1, 1.0), (u0, 1.0))]
+        a = 4 * k + 1
+        lines += [f"f {a}/{a} {a + 1}/{a + 1} {a + 2}/{a + 2}", f"f {a}/{a} {a + 2}/{a + 2} {a + 3}/{a + 3}"]
+    return ("\n".join(lines) + "\n").encode("utf-8")
+
+
+def box_mtl() -> bytes:
+    return (
+        b"# vint example material (scripts/gen_example_assets.py)\nnewmtl carton\nKd 1 1 1\nmap_Kd box.png\n"
+    )
+
+
+def box_png() -> bytes:
+    """The atlas as an 8-bit RGB PNG, encoded here (fixed zlib level, no metadata)."""
+    atlas = np.zeros((BOX_TILE, BOX_TILE * len(BOX_FACES), 3), np.uint8)
+    for k, colour in enumerate(BOX_FACES.values()):
+        tile = atlas[:, k * BOX_TILE : (k + 1) * BOX_TILE]
+        tile[:] = (np.array(colour) * 0.6).astype(np.uint8)
+        tile[6:-6, 6:-6] = colour
+    rows = b"".join(b"\0" + row.tobytes() for row in atlas)
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    header = struct.pack(">IIBBBBB", atlas.shape[1], atlas.shape[0], 8, 2, 0, 0, 0)
+    return (
+        b"\x89PNG\r\n\x1a\n"
+        + chunk(b"IHDR", header)
+        + chunk(b"IDAT", zlib.compress(rows, 9))
+        + chunk(b"IEND", b"")
+    )
+
+
+FILES: dict[str, Callable[[], bytes]] = {
+    "cup.obj": obj_text,
+    "lab.hdr": lab_hdr,
+    "box.obj": box_obj,
+    "box.mtl": box_mtl,
+    "box.png": box_png,
+}
 
 
 def main() -> int:

@@ -428,3 +428,45 @@ fn a_quota_keeps_the_first_accepted_grasps_of_the_same_trials() {
         assert!(planned.iter().zip(written.counts()).all(|(p, w)| *p >= w), "{planned:?} < {written:?}");
     }
 }
+
+#[test]
+fn a_textured_mesh_must_list_the_files_it_refers_to_and_fit_the_face_limit() {
+    let tmp = tempfile::tempdir().unwrap();
+    let spec = tmp.path().join("spec.toml");
+    std::fs::create_dir(tmp.path().join("assets")).unwrap();
+    let cube = "mtllib box.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n";
+    std::fs::write(tmp.path().join("assets/box.obj"), cube).unwrap();
+    std::fs::write(tmp.path().join("assets/box.mtl"), "newmtl m\nmap_Kd tex/box.png\n").unwrap();
+    std::fs::create_dir(tmp.path().join("assets/tex")).unwrap();
+    std::fs::write(tmp.path().join("assets/tex/box.png"), b"\x89PNG").unwrap();
+    let big =
+        "ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nelement face 600000\nend_header\n";
+    std::fs::write(tmp.path().join("assets/big.ply"), big).unwrap();
+    let tiny = std::fs::read_to_string(tiny_spec()).unwrap();
+    let validate = |mesh: &str, files: &str| {
+        let table = format!(
+            "\n[object.box]\nmesh = \"{mesh}\"\nfiles = {files}\nunit = \"mm\"\nmass_kg = 0.1\nmaterial = \"cardboard\"\n"
+        );
+        std::fs::write(&spec, tiny.replacen("objects = [", "objects = [\"box\", ", 1) + &table).unwrap();
+        vintctl(&["validate", spec.to_str().unwrap()])
+    };
+    let ok = validate("assets/box.obj", "[\"assets/box.mtl\", \"assets/tex/box.png\"]");
+    assert_eq!(ok.status.code(), Some(0), "{}", stderr(&ok));
+    let unlisted = validate("assets/box.obj", "[\"assets/box.mtl\"]");
+    assert_eq!(unlisted.status.code(), Some(2), "{}", stderr(&unlisted));
+    assert!(
+        stderr(&unlisted).contains(
+            "object.box.files: must list every file the mesh refers to: assets/box.mtl names \"tex/box.png\""
+        ),
+        "{}",
+        stderr(&unlisted)
+    );
+    let big = validate("assets/big.ply", "[]");
+    assert_eq!(big.status.code(), Some(2), "{}", stderr(&big));
+    assert!(
+        stderr(&big)
+            .contains("object.box.mesh: must have at most 500000 triangles, got \"assets/big.ply\" (600000 triangles)"),
+        "{}",
+        stderr(&big)
+    );
+}

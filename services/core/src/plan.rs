@@ -9,6 +9,8 @@
 //! Task keys are deterministic and unique within a job; a task's parameters hold everything its
 //! engine needs, seeds included, so a task can be re-run anywhere with the same result.
 
+use std::collections::BTreeMap;
+
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
@@ -108,6 +110,11 @@ pub struct JobPlan {
     pub environments: Vec<render::Environment>,
     /// The HDRI files render tasks stage: a user's HDRIs, only when RGB is path traced.
     pub render_assets: Vec<Asset>,
+    /// Per user object, the files its render tasks stage to texture it: the mesh and its
+    /// sidecars, only when the object lists sidecars and RGB is path traced (absent in plans
+    /// stored before textured meshes).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub object_assets: BTreeMap<String, Vec<Asset>>,
     /// Only what the requested modalities need.
     pub render_outputs: Vec<RenderOutput>,
     /// The noise model, when noisy depth is requested (no noise tasks otherwise).
@@ -139,9 +146,19 @@ impl JobPlan {
             environments.push(environment);
         }
         let wants = |m| spec.outputs.wants(m);
-        // Without RGB nothing is path traced, so no HDRI file is read: none is staged.
+        let mut object_assets = BTreeMap::new();
+        for name in &spec.objects {
+            let Some(o) = spec.object_defs.get(name).filter(|o| !o.files.is_empty()) else { continue };
+            let mut files = vec![find_asset(assets, &format!("object.{name}.mesh"), &o.mesh)?.clone()];
+            for (i, file) in o.files.iter().enumerate() {
+                files.push(find_asset(assets, &format!("object.{name}.files[{i}]"), file)?.clone());
+            }
+            object_assets.insert(name.clone(), files);
+        }
+        // Without RGB nothing is path traced, so no HDRI or texture file is read: none is staged.
         if !wants(Modality::Rgb) {
             render_assets.clear();
+            object_assets.clear();
         }
         let mut render_outputs: Vec<RenderOutput> =
             spec.outputs.modalities.iter().flat_map(|m| m.render_outputs().iter().copied()).collect();
@@ -179,6 +196,7 @@ impl JobPlan {
             },
             environments,
             render_assets,
+            object_assets,
             render_outputs,
             noise: wants(Modality::DepthNoisy).then(|| spec.noise.model.clone()),
             modalities: spec.outputs.modalities.clone(),
@@ -442,7 +460,12 @@ fn render_params(plan: &JobPlan, object: &str, hand: &str, g: u32) -> render::Pa
         grasp_index: g,
         render: plan.render.clone(),
         environments: plan.environments.clone(),
-        assets: plan.render_assets.clone(),
+        assets: plan
+            .render_assets
+            .iter()
+            .chain(plan.object_assets.get(object).into_iter().flatten())
+            .cloned()
+            .collect(),
         views,
         outputs: plan.render_outputs.clone(),
     }
@@ -631,6 +654,44 @@ mod tests {
         assert_eq!(GraspChunk::from_key(&c.key()), Some(c));
         assert_eq!(GraspChunk::from_key("render/a/b/g000001"), None);
         assert_eq!(GraspChunk::from_key("grasp/a/b/c1/x"), None);
+    }
+
+    #[test]
+    fn a_textured_objects_mesh_and_sidecars_reach_its_render_tasks_only_with_rgb() {
+        let text = |extra: &str| {
+            format!(
+                "objects = [\"box\", \"tomato_soup_can\"]\n[dataset]\nname = \"t\"\nseed = 1\n{extra}\
+                 [object.box]\nmesh = \"a/box.obj\"\nfiles = [\"a/box.mtl\", \"a/box.png\"]\nunit = \"mm\"\n\
+                 mass_kg = 0.2\nmaterial = \"cardboard\"\n"
+            )
+        };
+        let s = DatasetSpec::parse(&text("")).unwrap();
+        assert_eq!(
+            s.asset_uses().iter().map(|u| u.field.as_str()).collect::<Vec<_>>(),
+            ["object.box.mesh", "object.box.files[0]", "object.box.files[1]"]
+        );
+        let asset = |p: &str, h: &str| Asset { path: p.into(), sha256: h.repeat(64), size: 10 };
+        let assets = [asset("a/box.obj", "a"), asset("a/box.mtl", "b"), asset("a/box.png", "c")];
+        // The grasp task reads the geometry alone.
+        let grasp = &initial_tasks(&s, &assets).unwrap()[0];
+        assert_eq!(grasp.params["assets"], json!([{"path": "a/box.obj", "sha256": "a".repeat(64), "size": 10}]));
+        let job = JobPlan::new(&s, &assets).unwrap();
+        let box_chunk = GraspChunk { object: "box".into(), hand: "trx3".into(), chunk: 0 };
+        let render = &after_grasp(&job, &box_chunk, &[0]).unwrap()[0];
+        let staged: Vec<&str> =
+            render.params["assets"].as_array().unwrap().iter().map(|a| a["path"].as_str().unwrap()).collect();
+        assert_eq!(staged, ["a/box.obj", "a/box.mtl", "a/box.png"]);
+        // Another object's render tasks stage none of them.
+        let soup = GraspChunk { object: "tomato_soup_can".into(), hand: "trx3".into(), chunk: 0 };
+        assert!(after_grasp(&job, &soup, &[0]).unwrap()[0].params.get("assets").is_none());
+        assert_eq!(
+            JobPlan::new(&s, &assets[..2]),
+            Err(PlanError::MissingAsset { field: "object.box.files[1]".into(), path: "a/box.png".into() })
+        );
+        // Without rgb no texture is read: nothing is staged.
+        let depth = DatasetSpec::parse(&text("[outputs]\nmodalities = [\"depth\", \"pose\"]\n")).unwrap();
+        let render = &after_grasp(&JobPlan::new(&depth, &assets).unwrap(), &box_chunk, &[0]).unwrap()[0];
+        assert!(render.params.get("assets").is_none());
     }
 
     #[test]

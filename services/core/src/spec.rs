@@ -16,7 +16,7 @@ use std::fmt;
 use serde::Serialize;
 use toml::{Table, Value};
 
-use crate::asset::AssetUse;
+use crate::asset::{self, AssetUse};
 use crate::catalog;
 use crate::contract::package::Modality;
 use crate::contract::render::{self as render_contract, Bounces};
@@ -70,11 +70,16 @@ pub struct UserHand {
     pub taxels: String,
 }
 
-/// A user's object: a triangle mesh file (OBJ, STL or PLY; convex-decomposed for collision) and
-/// the catalog tags the built-in objects carry. The path is relative to the spec file.
+/// A user's object: a triangle mesh file (OBJ, STL, PLY, glTF or GLB; convex-decomposed for
+/// collision), the files it refers to (an OBJ's MTL and the textures, a PLY's `TextureFile`, a
+/// glTF's buffers and images) and the catalog tags the built-in objects carry. Paths are relative
+/// to the spec file.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct UserObject {
     pub mesh: String,
+    /// The mesh's sidecar files (`asset::SIDECAR_EXTENSIONS`): they travel with it to the render
+    /// tasks, which texture the object from them.
+    pub files: Vec<String>,
     /// Length unit of the mesh file's coordinates: one of `MESH_UNITS`.
     pub unit: String,
     pub mass_kg: f64,
@@ -414,6 +419,9 @@ impl DatasetSpec {
         for name in &self.objects {
             if let Some(o) = self.object_defs.get(name) {
                 add(format!("object.{name}.mesh"), &o.mesh);
+                for (i, file) in o.files.iter().enumerate() {
+                    add(format!("object.{name}.files[{i}]"), file);
+                }
             }
         }
         uses.extend(self.render.environments.iter().filter_map(|e| e.file.clone()));
@@ -761,14 +769,15 @@ fn read_user_hands(r: &mut Reader, root: &mut Table) -> BTreeMap<String, UserHan
     out
 }
 
-/// `[object.NAME]` tables: a mesh file, its unit, mass, material and symmetry.
+/// `[object.NAME]` tables: a mesh file, its sidecar files, unit, mass, material and symmetry.
 fn read_user_objects(r: &mut Reader, root: &mut Table) -> BTreeMap<String, UserObject> {
     let mut out = BTreeMap::new();
     let units: Vec<&str> = MESH_UNITS.iter().map(|(u, _)| *u).collect();
     for (name, mut t) in r.definitions(root, "object") {
         let path = format!("object.{name}");
         let object = UserObject {
-            mesh: r.asset_path(&mut t, &path, "mesh", &["obj", "stl", "ply"]),
+            mesh: r.asset_path(&mut t, &path, "mesh", asset::MESH_EXTENSIONS),
+            files: r.asset_paths(&mut t, &path, "files", asset::SIDECAR_EXTENSIONS, asset::MAX_SIDECARS),
             unit: r.choice(&mut t, &path, "unit", &units, None),
             mass_kg: r.float(
                 &mut t,
@@ -780,7 +789,7 @@ fn read_user_objects(r: &mut Reader, root: &mut Table) -> BTreeMap<String, UserO
             material: r.tag(&mut t, &path, "material", &object::Material::ALL, None),
             symmetry: r.tag(&mut t, &path, "symmetry", &object::Symmetry::ALL, Some(object::Symmetry::None)),
         };
-        r.finish(t, &path, &["mesh", "unit", "mass_kg", "material", "symmetry"]);
+        r.finish(t, &path, &["mesh", "files", "unit", "mass_kg", "material", "symmetry"]);
         if catalog::object(&name).is_some() {
             r.error(&path, Value::String(name), "must not reuse the name of a built-in object");
         } else {
@@ -1213,6 +1222,33 @@ impl Reader {
         } else {
             s
         }
+    }
+
+    /// An optional array of at most `max` distinct file paths relative to the spec file (each as
+    /// `asset_path` checks it); empty when absent.
+    fn asset_paths(&mut self, t: &mut Table, parent: &str, key: &str, extensions: &[&str], max: usize) -> Vec<String> {
+        let path = join(parent, key);
+        let items = match t.remove(key) {
+            None => return Vec::new(),
+            Some(Value::Array(items)) if items.len() <= max => items,
+            Some(v) => {
+                self.error(&path, v, format!("must be an array of at most {max} paths relative to the spec file"));
+                return Vec::new();
+            }
+        };
+        let mut out: Vec<String> = Vec::new();
+        for (i, item) in items.into_iter().enumerate() {
+            let name = format!("{key}[{i}]");
+            let mut one = Table::new();
+            one.insert(name.clone(), item);
+            let file = self.asset_path(&mut one, parent, &name, extensions);
+            if out.contains(&file) {
+                self.error(&join(parent, &name), Value::String(file), "must not repeat a file");
+            } else if !file.is_empty() {
+                out.push(file);
+            }
+        }
+        out
     }
 
     /// One of `choices`; `default` when absent (required when there is none).

@@ -330,6 +330,40 @@ fn user_hands_and_objects_are_defined_by_tables_and_name_their_files() {
 }
 
 #[test]
+fn a_user_objects_sidecar_files_are_listed_paths_of_known_kinds() {
+    let spec = DatasetSpec::parse(&custom("").replace(
+        "mesh = \"assets/vase.obj\"",
+        "mesh = \"assets/vase.glb\"\nfiles = [\"assets/vase.bin\", \"assets/tex/vase.JPG\"]",
+    ))
+    .unwrap();
+    assert_eq!(spec.object_defs["vase"].files, ["assets/vase.bin", "assets/tex/vase.JPG"]);
+    let uses: Vec<String> = spec.asset_uses().iter().skip(2).map(|u| format!("{}={}", u.field, u.path)).collect();
+    assert_eq!(
+        uses,
+        [
+            "object.vase.mesh=assets/vase.glb",
+            "object.vase.files[0]=assets/vase.bin",
+            "object.vase.files[1]=assets/tex/vase.JPG"
+        ]
+    );
+    let bad = custom("").replace(
+        "mesh = \"assets/vase.obj\"",
+        "mesh = \"assets/vase.obj\"\nfiles = [\"assets/vase.mtl\", \"../vase.tga\", \"assets/vase.mtl\"]",
+    );
+    assert_eq!(
+        errors(&bad),
+        vec![
+            "object.vase.files[1]: must name a .mtl, .png, .jpg, .jpeg, .bin file, got \"../vase.tga\"",
+            "object.vase.files[2]: must not repeat a file, got \"assets/vase.mtl\"",
+        ]
+    );
+    assert_single_error(
+        &custom("").replace("mesh = \"assets/vase.obj\"", "mesh = \"assets/vase.obj\"\nfiles = \"assets/vase.mtl\""),
+        "object.vase.files: must be an array of at most 64 paths relative to the spec file, got \"assets/vase.mtl\"",
+    );
+}
+
+#[test]
 fn a_listed_name_must_be_built_in_or_defined() {
     let text = custom("").replace("hands = [\"grip\", \"trx3\"]", "hands = [\"gripper\"]");
     assert_single_error(
@@ -368,7 +402,7 @@ fn user_definitions_check_paths_units_and_tags() {
             "hand.grip.taxels: must name a .csv file, got \"assets/grip_taxels.txt\"",
             "object.vase.unit: must be one of m, cm, mm, got \"inch\"",
             "object.vase.material: must be one of plastic, metal, glass, paper, cardboard, wood, ceramic, rubber, got \"cheese\"",
-            "object.vase.colour: unknown key (known keys: mesh, unit, mass_kg, material, symmetry), got \"red\"",
+            "object.vase.colour: unknown key (known keys: mesh, files, unit, mass_kg, material, symmetry), got \"red\"",
         ]
     );
     let missing = custom("").replace("mesh = \"assets/vase.obj\"\n", "").replace("[hand.grip]", "[hand.Grip]");

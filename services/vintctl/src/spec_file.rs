@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use anyhow::Context;
-use vint_core::asset::{MAX_ASSET_BYTES, MAX_ASSETS_TOTAL_BYTES};
+use vint_core::asset::{self, MAX_ASSET_BYTES, MAX_ASSETS_TOTAL_BYTES, MAX_MESH_FACES};
 use vint_core::{DatasetSpec, SpecError, SpecErrors};
 use vint_proto::v1 as pb;
 
@@ -24,6 +24,7 @@ pub fn load_spec(path: &Path) -> Result<LoadedSpec, Failure> {
     let invalid = |errors| InvalidSpec::failure(path, errors);
     let spec = DatasetSpec::parse(&text).map_err(invalid)?;
     let assets = read_assets(path, &spec).map_err(invalid)?;
+    check_meshes(&spec, &assets).map_err(invalid)?;
     Ok(LoadedSpec { text, spec, assets })
 }
 
@@ -83,6 +84,43 @@ pub fn read_assets(spec_path: &Path, spec: &DatasetSpec) -> Result<Vec<pb::Asset
         });
     }
     if errors.is_empty() { Ok(files) } else { Err(SpecErrors(errors)) }
+}
+
+/// Each user object's mesh within the face limit, and every file its mesh (and the MTLs it lists)
+/// refers to listed in its `files`, so the render tasks get all of them and nothing else is read.
+pub fn check_meshes(spec: &DatasetSpec, files: &[pb::AssetFile]) -> Result<(), SpecErrors> {
+    let content = |path: &str| files.iter().find(|f| f.path == path).map(|f| f.content.as_slice());
+    let mut errors = Vec::new();
+    for name in &spec.objects {
+        let Some(o) = spec.object_defs.get(name) else { continue };
+        let Some(mesh) = content(&o.mesh) else { continue };
+        if let Some(faces) = asset::mesh_faces(&o.mesh, mesh).filter(|&n| n > MAX_MESH_FACES) {
+            errors.push(SpecError {
+                path: format!("object.{name}.mesh"),
+                value: format!("{:?} ({faces} triangles)", o.mesh),
+                rule: format!("must have at most {MAX_MESH_FACES} triangles"),
+            });
+        }
+        let mut referring = vec![o.mesh.as_str()];
+        referring.extend(o.files.iter().map(String::as_str).filter(|f| f.to_ascii_lowercase().ends_with(".mtl")));
+        for from in referring {
+            let Some(bytes) = content(from) else { continue };
+            for reference in asset::references(from, bytes) {
+                let listed = asset::resolve_reference(from, &reference).filter(|p| o.files.contains(p));
+                if listed.is_none() {
+                    errors.push(SpecError {
+                        path: format!("object.{name}.files"),
+                        value: format!("{:?}", o.files),
+                        rule: format!(
+                            "must list every file the mesh refers to: {from} names {reference:?} (a path relative to \
+                             {from}, within the spec's directory)"
+                        ),
+                    });
+                }
+            }
+        }
+    }
+    if errors.is_empty() { Ok(()) } else { Err(SpecErrors(errors)) }
 }
 
 pub fn read_spec(path: &Path) -> Result<String, Failure> {

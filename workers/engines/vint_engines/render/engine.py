@@ -30,7 +30,9 @@ import numpy as np
 
 from vint_engines import __version__, contract
 from vint_engines.assets import StagedAsset, asset_file, staged_assets
-from vint_engines.objects import MODEL_FILE
+from vint_engines.objects import MODEL_FILE, ObjectSpec
+from vint_engines.objects.spec import MeshFile
+from vint_engines.objects.textured import MeshSource
 from vint_engines.poses import quat_to_matrix, read_pose
 from vint_engines.protocol import BadInput, Json, TaskRequest, TaskResult
 from vint_engines.render.camera import CameraPose, Intrinsics, framed, look_at, sample_on_hemisphere
@@ -40,6 +42,7 @@ from vint_engines.render.scene import OBJECT_PASS_INDEX, BlenderScene, Geometry,
 from vint_engines.render.sensor import SensorModel, capture
 
 GRASPS_INPUT = "grasps.json"
+SIDECAR_SUFFIXES = (".mtl", ".png", ".jpg", ".jpeg", ".bin")  # vint_core::asset::SIDECAR_EXTENSIONS
 
 
 @dataclass(frozen=True)
@@ -260,7 +263,8 @@ class RenderEngine:
 
         trial = find_trial(grasps, grasp_index)
         self.scene.set_hand(grasps["hand"])
-        self.scene.set_object(grasps["object"], staged_input(task, MODEL_FILE))
+        textured = object_look(grasps["object"], assets) if "rgb" in outputs else None
+        self.scene.set_object(grasps["object"], staged_input(task, MODEL_FILE), textured)
         self.scene.set_dressing(settings.scene)
         object_pose = read_pose(trial["object_pose"], f"grasps.json trial {grasp_index} object_pose")
         object_radius = self.scene.object_radius()
@@ -401,6 +405,21 @@ def sampled_camera(
     rng = np.random.default_rng(seed)
     camera = sample_on_hemisphere(rng, target, settings.radius_m, settings.elevation_deg, settings.roll_deg)
     return framed(rng, camera, target, object_radius, settings.intrinsics, settings.offcentre)
+
+
+def object_look(entry: Mapping[str, Any], assets: dict[str, StagedAsset]) -> MeshSource | None:
+    """A user's mesh and its sidecars when the task staged them (the plan does so for an object
+    that lists sidecar files, with RGB): the look comes from those files. None otherwise."""
+    shape = ObjectSpec.parse(entry, "grasps.json object").shape
+    if not isinstance(shape, MeshFile) or not shape.asset or shape.asset not in assets:
+        return None
+    mesh = assets[shape.asset]
+    sidecars = {
+        sha: (staged.spec_path, staged.path)
+        for sha, staged in assets.items()
+        if sha != shape.asset and staged.path.suffix.lower() in SIDECAR_SUFFIXES
+    }
+    return MeshSource.staged(mesh.path, mesh.spec_path, shape.scale, sidecars)
 
 
 def hdri(environment: Environment, assets: dict[str, StagedAsset]) -> Hdri:

@@ -89,3 +89,26 @@ def object_material(object_name: str, tag: str, texture: Texture = PLAIN) -> bpy
     material = principled(f"vint_{tag}_{object_name}", {**TAGS[tag], "Base Color": colour})
     textures.apply(material, object_name, texture, colour)
     return material
+
+
+def surface_material(
+    object_name: str, tag: str, image: bpy.types.Image | None, colour_attribute: str | None
+) -> bpy.types.Material:
+    """The material of a user's object whose file carries its colour: the tag's Principled inputs
+    (roughness, metal, glass) with the base colour read from `image` through the mesh's UV map, or
+    from the mesh's colour attribute `colour_attribute`."""
+    tag = tag if tag in TAGS else "plastic"
+    material = principled(f"vint_{tag}_{object_name}_look", TAGS[tag])
+    tree = material.node_tree
+    bsdf = tree.nodes["Principled BSDF"]
+    if image is not None:
+        node = tree.nodes.new("ShaderNodeTexImage")
+        node.image = image
+        node.interpolation = "Linear"
+        node.extension = "EXTEND"  # texels at a chart's border do not wrap to the atlas's far side
+        tree.links.new(node.outputs["Color"], bsdf.inputs["Base Color"])
+    elif colour_attribute is not None:
+        node = tree.nodes.new("ShaderNodeVertexColor")
+        node.layer_name = colour_attribute
+        tree.links.new(node.outputs["Color"], bsdf.inputs["Base Color"])
+    return material

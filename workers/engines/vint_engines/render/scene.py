@@ -14,8 +14,10 @@ session, so a re-render after a move costs only the render:
 Objects: the hand's link objects (rebuilt only when the hand geometry changes; link k has pass
 index 2 + k, the object 1) and the object: one Blender object whose mesh is swapped between object
 meshes, each made once per object name from the grasp engine's model PLY or, without one, from the
-shape in the catalog entry. An object mesh gets its material (and texture nodes) only when an RGB
-view first needs it: the geometry scenes never read it. Knows nothing about tasks or files beyond the
+shape in the catalog entry, or — for a user's textured mesh, staged with RGB tasks only — from the
+mesh file itself with its texture coordinates and image (or colours) and its material at once. Any
+other object mesh gets its material (and texture nodes) only when an RGB view first needs it: the
+geometry scenes never read it. Knows nothing about tasks or files beyond the
 pass scratch directory and the model PLY and HDRI files it is handed.
 """
 
@@ -38,6 +40,7 @@ from mathutils import Matrix
 
 from vint_engines.objects import ObjectSpec, build_model
 from vint_engines.objects.meshio import read_ply_m
+from vint_engines.objects.textured import MeshSource, SurfaceLook
 from vint_engines.poses import pose_matrix
 from vint_engines.protocol import BadInput
 from vint_engines.render import cycles, dressing, materials, meshes
@@ -264,8 +267,9 @@ class BlenderScene:
 
     def set_hand(self, hand: Mapping[str, Any]) -> None:
         """Create the hand's link objects (and the arm pieces at its `mount`, when it names one),
-        unless this exact geometry is already loaded. A user's link with visual geoms is drawn
-        from those alone (`_drawn`); mesh and visual geoms are painted in their own colour."""
+        unless this exact geometry is already loaded. A user's hand with visual geoms is drawn
+        from those alone (its colliding geoms are what the physics felt, often cruder); mesh and
+        visual geoms are painted in their own colour."""
         key = json.dumps(
             {
                 "links": hand.get("links"),
@@ -284,8 +288,9 @@ class BlenderScene:
             names = [link["name"] for link in hand["links"]]
             layout = dressing.built_in_taxels(hand, names)
             taxels = layout.indices_by_link() if layout is not None else {}
+            visual_only = any(g.get("visual") for link in hand["links"] for g in link["geoms"])
             for k, link in enumerate(hand["links"]):
-                shown = _drawn(link["geoms"])
+                shown = [g for g in link["geoms"] if _drawn(g, visual_only)]
                 slots = list(self._hand_materials)
                 primitives, indices, triangles = [], [], []
                 for g in shown:
@@ -331,18 +336,27 @@ class BlenderScene:
         self._table.pass_index = self._table_pass_index()
         self._hand_key = key
 
-    def set_object(self, obj: Mapping[str, Any], model_ply: Path | None = None) -> None:
-        """Show the object of a grasps.json entry: its model mesh `model_ply` (the grasp engine's
-        object.ply, millimetres) when given, else its shape rebuilt from the entry — the same mesh
-        either way. Each object name keeps its mesh and material; they are remade only when the
-        mesh bytes or the entry's shape or material change."""
+    def set_object(
+        self, obj: Mapping[str, Any], model_ply: Path | None = None, textured: MeshSource | None = None
+    ) -> None:
+        """Show the object of a grasps.json entry: with `textured` (a user's mesh file and its
+        sidecars, staged when RGB is rendered), that file's surface with its texture or colours
+        and its material made at once; else its model mesh `model_ply` (the grasp engine's
+        object.ply, millimetres) when given, else its shape rebuilt from the entry — the same
+        surface every way. Each object name keeps its mesh and material; they are remade only
+        when the files or the entry's shape or material change."""
         spec = ObjectSpec.parse(obj, "grasps.json object")
-        source = hashlib.sha256(model_ply.read_bytes()).hexdigest() if model_ply else spec.to_json()
+        if textured is not None:
+            source = f"textured:{textured.key}"
+        else:
+            source = hashlib.sha256(model_ply.read_bytes()).hexdigest() if model_ply else spec.to_json()
         look = {"material": spec.material, "texture": spec.texture.to_json()}
         key = json.dumps({"mesh": source, **look}, sort_keys=True)
         cached = self._object_meshes.pop(spec.name, None)  # re-inserted last: least recently used first
         if cached is not None and cached[0] == key:
             mesh = cached[1]
+        elif textured is not None:
+            mesh = _looked_mesh(spec, textured.load("grasps.json object (the user's mesh file)"))
         else:
             vertices, faces = read_ply_m(model_ply) if model_ply else _rebuilt_mesh(spec)
             mesh = meshes.triangle_mesh(f"object_{spec.name}", vertices, faces, SHARP_EDGE_DEG)
@@ -400,8 +414,7 @@ class BlenderScene:
         shown = [self._object, *self._links.values()]
         if self.dressing.flange:
             shown += [piece for piece, _ in self._arm.values()]
-        # A user's link may show nothing (a body with no geom of its own).
-        lowest = min(_lowest_z(obj) for obj in shown if obj is not None and len(obj.data.vertices))
+        lowest = min(_lowest_z(obj) for obj in shown if obj is not None)
         top = dressing.table_top_z(lowest, self.dressing.table_gap_m)
         thickness = dressing.TABLE_SIZE_M[2]
         self._table.location = (float(object_position[0]), float(object_position[1]), top - thickness / 2)
@@ -567,12 +580,12 @@ def _rebuilt_mesh(spec: ObjectSpec) -> tuple[np.ndarray, np.ndarray]:
     return mesh.vertices, mesh.faces
 
 
-def _drawn(geoms: Sequence[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
-    """The geoms of a hand link that are drawn: its visual ones when it has any (a user's hand;
-    the colliding ones are what the physics felt, often cruder), else every one; a fully
-    transparent geom never."""
-    visual = [g for g in geoms if g.get("visual")]
-    return [g for g in visual or geoms if "rgba" not in g or float(g["rgba"][3]) > 0.0]
+def _drawn(geom: Mapping[str, Any], visual_only: bool) -> bool:
+    """Whether a hand geom is drawn: the visual ones of a hand that has any, else every one; a
+    fully transparent geom never."""
+    if visual_only and not geom.get("visual"):
+        return False
+    return "rgba" not in geom or float(geom["rgba"][3]) > 0.0
 
 
 def _colour_slot(slots: list[bpy.types.Material], rgba: Sequence[float]) -> int:
@@ -589,14 +602,44 @@ def _colour_slot(slots: list[bpy.types.Material], rgba: Sequence[float]) -> int:
     return slots.index(material)
 
 
+def _looked_mesh(spec: ObjectSpec, look: SurfaceLook) -> bpy.types.Mesh:
+    """The Blender mesh of a user's surface with its colour: texture coordinates per corner and
+    the image as a packed-in Blender image, or a colour attribute per corner; its material is
+    the tag's with that base colour."""
+    mesh = meshes.triangle_mesh(f"object_{spec.name}", look.vertices, look.faces, SHARP_EDGE_DEG)
+    image = None
+    attribute = None
+    if look.corner_uv is not None and look.image is not None:
+        uv = mesh.uv_layers.new(name="UVMap")
+        uv.data.foreach_set("uv", look.corner_uv.astype(np.float32).reshape(-1))
+        height, width = look.image.shape[:2]
+        image = bpy.data.images.new(f"object_{spec.name}_texture", width, height, alpha=True)
+        # Blender's rows run bottom-up; the file's top-down. Byte images hold sRGB as given.
+        image.pixels.foreach_set((look.image[::-1].astype(np.float32) / 255.0).reshape(-1))
+        image.pack()
+    elif look.corner_colours is not None:
+        attribute = "Col"
+        colours = mesh.color_attributes.new(attribute, "FLOAT_COLOR", "CORNER")
+        linear = look.corner_colours.copy()
+        srgb = linear[..., :3]
+        linear[..., :3] = np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
+        colours.data.foreach_set("color", linear.astype(np.float32).reshape(-1))
+    mesh.materials.append(materials.surface_material(spec.name, spec.material, image, attribute))
+    return mesh
+
+
 def _remove_mesh(mesh: bpy.types.Mesh) -> None:
-    """Free an object mesh (and its material) once nothing shows it."""
+    """Free an object mesh (and its material and texture image) once nothing shows it."""
     if mesh.users == 0:
         used = [m for m in mesh.materials if m is not None]
         bpy.data.meshes.remove(mesh)
         for material in used:
             if material.users == 0:
+                images = [n.image for n in material.node_tree.nodes if n.type == "TEX_IMAGE" and n.image]
                 bpy.data.materials.remove(material)
+                for image in images:
+                    if image.users == 0:
+                        bpy.data.images.remove(image)
 
 
 def _remove_object(obj: bpy.types.Object) -> None:
