@@ -12,6 +12,7 @@ or mesh hulls) and carries its catalog mass with the inertia of its uniform-dens
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -169,7 +170,7 @@ def write_object_model(scene: GraspScene, out_dir: Path) -> Path:
 
 def hand_geometry(scene: GraspScene) -> list[dict[str, Any]]:
     """Every hand link's geoms as compiled (MuJoCo size convention, pose in the link frame). A
-    user's hand may add mesh geoms (`"mesh"`: a name in `hand_meshes`) and visual geoms (`"visual":
+    user's hand may add mesh geoms (`"mesh"`: a key of `hand_meshes`) and visual geoms (`"visual":
     true`, in no contact); those carry their colour (`"rgba"`, the material's when they have one)."""
     model = scene.model
     sizes = {
@@ -178,6 +179,7 @@ def hand_geometry(scene: GraspScene) -> list[dict[str, Any]]:
         mujoco.mjtGeom.mjGEOM_CAPSULE: 2,
         mujoco.mjtGeom.mjGEOM_CYLINDER: 2,
     }
+    keys = _hand_mesh_data(scene)[0]
     links = []
     for name, body in scene.link_bodies.items():
         geoms = []
@@ -185,7 +187,7 @@ def hand_geometry(scene: GraspScene) -> list[dict[str, Any]]:
             kind = mujoco.mjtGeom(int(model.geom_type[geom]))
             record: dict[str, Any] = {"type": kind.name.removeprefix("mjGEOM_").lower()}
             if kind == mujoco.mjtGeom.mjGEOM_MESH:
-                record["mesh"] = model.mesh(int(model.geom_dataid[geom])).name
+                record["mesh"] = keys[int(model.geom_dataid[geom])]
             else:
                 record["size"] = [float(v) for v in model.geom_size[geom][: sizes[kind]]]
             record["p"] = [float(v) for v in model.geom_pos[geom]]
@@ -201,20 +203,30 @@ def hand_geometry(scene: GraspScene) -> list[dict[str, Any]]:
 
 
 def hand_meshes(scene: GraspScene) -> dict[str, dict[str, Any]]:
-    """The meshes a user's hand geoms name (`hand_geometry`), by name: vertices (m, the mesh frame
-    MuJoCo compiled, rounded to 0.1 µm) and triangles (vertex indices). Empty for primitive hands."""
+    """The meshes a user's hand geoms name (`hand_geometry`), each once by a key of its content
+    (a visual and a collision mesh from one file, or four fingers' copies, are one): vertices (m,
+    the mesh frame MuJoCo compiled, rounded to 1 µm) and triangles (vertex indices). Empty for
+    primitive hands."""
+    return _hand_mesh_data(scene)[1]
+
+
+def _hand_mesh_data(scene: GraspScene) -> tuple[dict[int, str], dict[str, dict[str, Any]]]:
+    """Each hand mesh id's content key, and each key's vertices and faces."""
     model = scene.model
-    out = {}
+    keys: dict[int, str] = {}
+    meshes: dict[str, dict[str, Any]] = {}
     for m in range(model.nmesh):
-        name = model.mesh(m).name
-        if not name.startswith(HAND_MESH_PREFIX):
+        if not model.mesh(m).name.startswith(HAND_MESH_PREFIX):
             continue
         first, count = int(model.mesh_vertadr[m]), int(model.mesh_vertnum[m])
         face_first, face_count = int(model.mesh_faceadr[m]), int(model.mesh_facenum[m])
-        vertices = np.round(model.mesh_vert[first : first + count].astype(np.float64), 7)
-        faces = model.mesh_face[face_first : face_first + face_count]
-        out[name] = {"vertices": vertices.tolist(), "faces": faces.astype(int).tolist()}
-    return out
+        vertices = np.round(model.mesh_vert[first : first + count].astype(np.float64), 6)
+        faces = model.mesh_face[face_first : face_first + face_count].astype(np.int64)
+        key = "mesh_" + hashlib.sha256(vertices.tobytes() + faces.tobytes()).hexdigest()[:16]
+        keys[m] = key
+        if key not in meshes:
+            meshes[key] = {"vertices": vertices.tolist(), "faces": faces.tolist()}
+    return keys, meshes
 
 
 def geom_distance(model: mujoco.MjModel, data: mujoco.MjData, geom1: int, geom2: int, cap: float) -> float:

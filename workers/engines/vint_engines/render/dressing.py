@@ -59,12 +59,10 @@ ARM_LINK_LENGTH_M = 0.100
 
 # Principled BSDF inputs of the dressed pieces.
 ANODISED_BLACK = {
-    "Base Color": (0.025, 0.025, 0.028, 1.0),
+    "Base Color": (0.018, 0.018, 0.02, 1.0),
     "Metallic": 0.0,
-    "Roughness": 0.38,
-    "Specular IOR Level": 0.55,
-    "Coat Weight": 0.25,
-    "Coat Roughness": 0.3,
+    "Roughness": 0.5,
+    "Specular IOR Level": 0.35,
 }
 FINGERTIP_PAD = {"Base Color": (0.78, 0.77, 0.72, 1.0), "Metallic": 0.0, "Roughness": 0.7}
 TAXEL_SKIN = {"Base Color": (0.035, 0.05, 0.09, 1.0), "Metallic": 0.0, "Roughness": 0.55}

@@ -267,9 +267,8 @@ class BlenderScene:
 
     def set_hand(self, hand: Mapping[str, Any]) -> None:
         """Create the hand's link objects (and the arm pieces at its `mount`, when it names one),
-        unless this exact geometry is already loaded. A user's hand with visual geoms is drawn
-        from those alone (its colliding geoms are what the physics felt, often cruder); mesh and
-        visual geoms are painted in their own colour."""
+        unless this exact geometry is already loaded. A user's link with visual geoms is drawn
+        from those alone (`_drawn`); mesh and visual geoms are painted in their own colour."""
         key = json.dumps(
             {
                 "links": hand.get("links"),
@@ -288,9 +287,8 @@ class BlenderScene:
             names = [link["name"] for link in hand["links"]]
             layout = dressing.built_in_taxels(hand, names)
             taxels = layout.indices_by_link() if layout is not None else {}
-            visual_only = any(g.get("visual") for link in hand["links"] for g in link["geoms"])
             for k, link in enumerate(hand["links"]):
-                shown = [g for g in link["geoms"] if _drawn(g, visual_only)]
+                shown = _drawn(link["geoms"])
                 slots = list(self._hand_materials)
                 primitives, indices, triangles = [], [], []
                 for g in shown:
@@ -414,7 +412,8 @@ class BlenderScene:
         shown = [self._object, *self._links.values()]
         if self.dressing.flange:
             shown += [piece for piece, _ in self._arm.values()]
-        lowest = min(_lowest_z(obj) for obj in shown if obj is not None)
+        # A user's link may show nothing (a body with no geom of its own).
+        lowest = min(_lowest_z(obj) for obj in shown if obj is not None and len(obj.data.vertices))
         top = dressing.table_top_z(lowest, self.dressing.table_gap_m)
         thickness = dressing.TABLE_SIZE_M[2]
         self._table.location = (float(object_position[0]), float(object_position[1]), top - thickness / 2)
@@ -580,12 +579,12 @@ def _rebuilt_mesh(spec: ObjectSpec) -> tuple[np.ndarray, np.ndarray]:
     return mesh.vertices, mesh.faces
 
 
-def _drawn(geom: Mapping[str, Any], visual_only: bool) -> bool:
-    """Whether a hand geom is drawn: the visual ones of a hand that has any, else every one; a
-    fully transparent geom never."""
-    if visual_only and not geom.get("visual"):
-        return False
-    return "rgba" not in geom or float(geom["rgba"][3]) > 0.0
+def _drawn(geoms: Sequence[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
+    """The geoms of a hand link that are drawn: its visual ones when it has any (a user's hand;
+    the colliding ones are what the physics felt, often cruder), else every one; a fully
+    transparent geom never."""
+    visual = [g for g in geoms if g.get("visual")]
+    return [g for g in visual or geoms if "rgba" not in g or float(g["rgba"][3]) > 0.0]
 
 
 def _colour_slot(slots: list[bpy.types.Material], rgba: Sequence[float]) -> int:
