@@ -26,7 +26,7 @@ from vint_engines.grasp.hands.mjcf import mesh_file_path
 from vint_engines.grasp.skin import generate_layout
 from vint_engines.objects import load_catalog
 from vint_engines.objects.meshio import read_ply_m
-from vint_engines.poses import quat_to_matrix
+from vint_engines.poses import matrix_to_quat, quat_to_matrix
 from vint_engines.protocol import BadInput, InputRef, TaskRequest
 
 Mesh = tuple[np.ndarray, np.ndarray]  # vertices (m), outward-wound triangles
@@ -351,3 +351,144 @@ def test_the_layout_generator_asks_a_mesh_hand_for_a_layout_of_its_own(tmp_path:
     )
     with pytest.raises(ValueError, match="a hand with mesh geoms needs a layout of its own"):
         generate_layout(hand, 100)
+
+
+def robosuite_grippers() -> Path | None:
+    """robosuite's gripper models when installed (`pip install --no-deps robosuite`, or
+    VINT_ROBOSUITE_DIR naming its package directory); never required."""
+    import importlib.util
+    import os
+
+    named = os.environ.get("VINT_ROBOSUITE_DIR")
+    if named:
+        return Path(named) / "models" / "assets" / "grippers"
+    found = importlib.util.find_spec("robosuite")
+    if found is None or found.origin is None:
+        return None
+    return Path(found.origin).parent / "models" / "assets" / "grippers"
+
+
+def adapt_robosuite_hand(xml: str) -> str:
+    """robosuite's Inspire hand adapted as docs/hands.md says: `r_palm` becomes the worldbody's only
+    body, `palm`, turned into vint's palm frame; the wrapper, the end-effector sites and the force
+    sensor on them go."""
+    import xml.etree.ElementTree as ET
+
+    root = ET.fromstring(xml)
+    world = root.find("worldbody")
+    assert world is not None
+    wrapper = world.find("body")
+    assert wrapper is not None
+    palm = wrapper.find("body[@name='r_palm']")
+    assert palm is not None
+    world.remove(wrapper)
+    palm.set("name", "palm")
+    world.append(palm)
+    # Turned into vint's palm frame: the fingers grow along the palm's -y and curl towards its -x,
+    # so the palm's new axes are x = -z, y = -y (the fingers' way), z = -x (the palm normal).
+    turn = np.array([[0.0, 0.0, -1.0], [0.0, -1.0, 0.0], [-1.0, 0.0, 0.0]])  # columns: new axes
+    turn_quat = matrix_to_quat(turn.T)
+    for child in palm:
+        if child.tag not in ("geom", "body", "site"):
+            continue
+        assert child.get("euler") is None and child.get("axisangle") is None, child.attrib
+        pos = np.array([float(v) for v in child.get("pos", "0 0 0").split()])
+        quat = np.array([float(v) for v in child.get("quat", "1 0 0 0").split()])
+        child.set("pos", " ".join(f"{v:.9g}" for v in turn.T @ pos))
+        child.set("quat", " ".join(f"{v:.9g}" for v in quat_multiply(turn_quat, quat)))
+    for sensor in root.findall("sensor"):
+        root.remove(sensor)
+    for exclude in root.iter("exclude"):
+        for key in ("body1", "body2"):
+            if exclude.get(key) == "r_palm":
+                exclude.set(key, "palm")
+    return ET.tostring(root, encoding="unicode")
+
+
+def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    w1, x1, y1, z1 = a
+    w2, x2, y2, z2 = b
+    return np.array(
+        [
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        ]
+    )
+
+
+def surface_layout(hand: Any, per_link: int = 40) -> str:
+    """A crude layout for a test: vertices of each link's colliding meshes (link frame), the
+    normal pointing away from the mesh's centre."""
+    model = hand.model
+    lines = ["taxel,link,x,y,z,nx,ny,nz,region"]
+    for link in hand.link_names():
+        body = model.body(link).id
+        for g in np.flatnonzero(model.geom_bodyid == body):
+            if not model.geom_contype[g] or int(model.geom_type[g]) != 7:  # colliding meshes
+                continue
+            m = int(model.geom_dataid[g])
+            local = model.mesh_vert[model.mesh_vertadr[m] : model.mesh_vertadr[m] + model.mesh_vertnum[m]]
+            rotation = quat_to_matrix(model.geom_quat[g])
+            points = local @ rotation.T + model.geom_pos[g]
+            centre = points.mean(axis=0)
+            region = "palm" if link == "palm" else "tip" if link in hand.fingertips() else "pulp"
+            for p in points[:: max(1, len(points) // per_link)][:per_link]:
+                n = (p - centre) / max(np.linalg.norm(p - centre), 1e-9)
+                cells = [*(f"{v:.6f}" for v in p), *(f"{v:.6f}" for v in n)]
+                lines.append(",".join([str(len(lines) - 1), link, *cells, region]))
+    return "\n".join(lines) + "\n"
+
+
+def test_robosuites_inspire_hand_adapted_as_documented_loads_and_grasps(
+    tmp_path: Path, engine: EngineProcess
+) -> None:
+    grippers = robosuite_grippers()
+    if grippers is None or not (grippers / "inspire_right_hand.xml").is_file():
+        pytest.skip("robosuite is not installed (optional: pip install --no-deps robosuite)")
+    xml = adapt_robosuite_hand((grippers / "inspire_right_hand.xml").read_text())
+    spec_dir = tmp_path / "spec"
+    (spec_dir / "hands").mkdir(parents=True)
+    (spec_dir / "hands" / "inspire.xml").write_text(xml)
+    files = {"hands/inspire.xml": spec_dir / "hands" / "inspire.xml"}
+    for mesh in sorted((grippers / "meshes" / "inspire_hands").glob("rh_*.STL")):
+        files[f"hands/meshes/inspire_hands/{mesh.name}"] = mesh
+    hand = load_mjcf_hand("inspire", xml, "params.hand.mjcf", "hands/inspire.xml", files)
+    assert len(hand.mesh_files) == 13 and len(hand.visual_geoms()) == 13
+    (spec_dir / "hands" / "inspire_taxels.csv").write_text(surface_layout(hand))
+    files["hands/inspire_taxels.csv"] = spec_dir / "hands" / "inspire_taxels.csv"
+    assets, inputs, sha = staged(files)
+    params = {
+        "assets": assets,
+        "hand": {
+            "name": "inspire",
+            "mjcf": sha["hands/inspire.xml"],
+            "taxels": sha["hands/inspire_taxels.csv"],
+        },
+        "object": load_catalog()["tomato_soup_can"].to_json(),
+        "trials": [{"grasp_index": i, "seed": 900 + i} for i in range(4)],
+        "physics": {"hold_s": 0.3},
+    }
+    out = new_dir(tmp_path, "grasp")
+    GraspEngine().run(TaskRequest("grasp", params, inputs, out))
+    doc = json.loads((out / "grasps.json").read_text())
+    for trial in doc["trials"]:
+        assert trial["accepted"] or trial["reason"], trial
+    # 26 meshes from 13 files, a visual and a collision one each: each content once (the four
+    # fingers' proximal links are one file's copies too).
+    assert len(doc["hand"]["meshes"]) <= 13, len(doc["hand"]["meshes"])
+    accepted = [t for t in doc["trials"] if t["accepted"]]
+    if not accepted:  # the palm frame above is a rough one: grasps of this hand are not tuned
+        return
+    views = new_dir(tmp_path, "views")
+    render = {
+        "grasp_index": accepted[0]["grasp_index"],
+        "render": {**RENDER, "width": 64, "height": 64},
+        "views": [{"view_index": 0, "seed": 1}],
+        "outputs": ["depth", "segmentation"],
+    }
+    reply = engine.task(views.name, render, views, [out / "grasps.json", out / "object.ply"])
+    assert reply["ok"] is True, reply
+    seg = cv2.imread(str(views / "v00_segmentation.png"), cv2.IMREAD_UNCHANGED)
+    assert (seg >= 2).any(), "the hand is drawn"
