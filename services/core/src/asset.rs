@@ -27,6 +27,11 @@ pub const MESH_EXTENSIONS: &[&str] = &["obj", "stl", "ply", "gltf", "glb"];
 /// binary buffers.
 pub const SIDECAR_EXTENSIONS: &[&str] = &["mtl", "png", "jpg", "jpeg", "bin"];
 
+/// Mesh file formats a hand MJCF's `<mesh file=…>` may be (MuJoCo reads these).
+pub const HAND_MESH_EXTENSIONS: &[&str] = &["stl", "obj", "msh"];
+/// Most mesh files one hand may list: a Menagerie or robosuite hand has 15–40.
+pub const MAX_HAND_FILES: usize = 256;
+
 /// Where a spec names an asset: the field (`hand.gripper.mjcf`) and its path, relative to the
 /// spec file, exactly as written.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize)]

@@ -191,7 +191,6 @@ impl JobPlan {
                 elevation_deg: r.elevation_deg,
                 roll_deg: r.roll_deg,
                 offcentre: r.offcentre,
-                intrinsics_jitter: r.intrinsics_jitter,
                 scene: r.scene.clone(),
                 sensor: r.sensor.clone(),
             },
@@ -326,7 +325,8 @@ pub fn grasp_task(spec: &DatasetSpec, plan: &JobPlan, c: &GraspChunk, assets: &[
 
 /// A grasp task's parameters. A built-in hand is its name, a user's hand adds its `mjcf` and
 /// `taxels` files; a built-in object is its catalog entry, a user's object an entry of the same
-/// schema whose shape is a `mesh` asset. The files they name are the task's `assets`.
+/// schema whose shape is a `mesh` asset. The files they name, and a user hand's mesh `files`, are
+/// the task's `assets`.
 fn grasp_params(
     spec: &DatasetSpec,
     plan: &JobPlan,
@@ -342,11 +342,18 @@ fn grasp_params(
         Ok(a.sha256.clone())
     };
     let hand = match spec.hand_defs.get(&c.hand) {
-        Some(h) => grasp::HandRef {
-            name: c.hand.clone(),
-            mjcf: Some(sha(format!("hand.{}.mjcf", c.hand), &h.mjcf)?),
-            taxels: Some(sha(format!("hand.{}.taxels", c.hand), &h.taxels)?),
-        },
+        Some(h) => {
+            let hand = grasp::HandRef {
+                name: c.hand.clone(),
+                mjcf: Some(sha(format!("hand.{}.mjcf", c.hand), &h.mjcf)?),
+                taxels: Some(sha(format!("hand.{}.taxels", c.hand), &h.taxels)?),
+            };
+            // The MJCF's mesh files: the engine finds them among the task's assets by spec path.
+            for (i, file) in h.files.iter().enumerate() {
+                sha(format!("hand.{}.files[{i}]", c.hand), file)?;
+            }
+            hand
+        }
         None => grasp::HandRef { name: c.hand.clone(), mjcf: None, taxels: None },
     };
     let object = match spec.object_defs.get(&c.object) {
@@ -693,6 +700,39 @@ mod tests {
         let depth = DatasetSpec::parse(&text("[outputs]\nmodalities = [\"depth\", \"pose\"]\n")).unwrap();
         let render = &after_grasp(&JobPlan::new(&depth, &assets).unwrap(), &box_chunk, &[0]).unwrap()[0];
         assert!(render.params.get("assets").is_none());
+    }
+
+    #[test]
+    fn a_user_hands_mesh_files_reach_its_grasp_tasks() {
+        let s = DatasetSpec::parse(
+            "hands = [\"grip\"]\nobjects = [\"tomato_soup_can\"]\n[dataset]\nname = \"t\"\nseed = 1\n\
+             [hand.grip]\nmjcf = \"a/grip.xml\"\ntaxels = \"a/grip.csv\"\n\
+             files = [\"a/meshes/palm.stl\", \"a/meshes/link.obj\"]\n",
+        )
+        .unwrap();
+        let uses: Vec<String> = s.asset_uses().into_iter().map(|u| u.field).collect();
+        assert_eq!(uses, ["hand.grip.mjcf", "hand.grip.taxels", "hand.grip.files[0]", "hand.grip.files[1]"]);
+        let asset = |p: &str, h: &str| Asset { path: p.into(), sha256: h.repeat(64), size: 10 };
+        let assets = [
+            asset("a/grip.xml", "a"),
+            asset("a/grip.csv", "b"),
+            asset("a/meshes/palm.stl", "c"),
+            asset("a/meshes/link.obj", "d"),
+        ];
+        let t = &initial_tasks(&s, &assets).unwrap()[0];
+        let staged: Vec<&str> =
+            t.params["assets"].as_array().unwrap().iter().map(|a| a["path"].as_str().unwrap()).collect();
+        assert_eq!(staged, ["a/grip.xml", "a/grip.csv", "a/meshes/palm.stl", "a/meshes/link.obj"]);
+        // The hand's reference is unchanged: the engine finds the meshes by path among the assets.
+        assert_eq!(t.params["hand"], json!({"name": "grip", "mjcf": "a".repeat(64), "taxels": "b".repeat(64)}));
+        assert_eq!(
+            initial_tasks(&s, &assets[..3]),
+            Err(PlanError::MissingAsset { field: "hand.grip.files[1]".into(), path: "a/meshes/link.obj".into() })
+        );
+        let job = JobPlan::new(&s, &assets).unwrap();
+        let chunk = GraspChunk { object: s.objects[0].clone(), hand: "grip".into(), chunk: 0 };
+        let render = &after_grasp(&job, &chunk, &[0]).unwrap()[0];
+        assert!(render.params.get("assets").is_none(), "grasps.json carries the hand's meshes to render");
     }
 
     #[test]

@@ -62,12 +62,16 @@ pub struct NoiseSettings {
     pub ignore_min_range: bool,
 }
 
-/// A user's hand: an MJCF model following `docs/hands.md` and its taxel layout (the format of
-/// `catalog/hands/*/taxels.csv`). Paths are relative to the spec file.
+/// A user's hand: an MJCF model following `docs/hands.md`, its taxel layout (the format of
+/// `catalog/hands/*/taxels.csv`) and the mesh files the MJCF refers to. Paths are relative to the
+/// spec file.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct UserHand {
     pub mjcf: String,
     pub taxels: String,
+    /// The MJCF's mesh files (`asset::HAND_MESH_EXTENSIONS`), as MuJoCo finds them from the MJCF
+    /// (its `meshdir`), written relative to the spec file: they travel to its grasp tasks.
+    pub files: Vec<String>,
 }
 
 /// A user's object: a triangle mesh file (OBJ, STL, PLY, glTF or GLB; convex-decomposed for
@@ -171,8 +175,6 @@ pub struct RenderSettings {
     pub roll_deg: [f64; 2],
     /// How far off the image centre the object may be framed (fraction of the way to the edge).
     pub offcentre: f64,
-    /// Per-view spread of the focal length and principal point (σ; 0 keeps the nominal pinhole).
-    pub intrinsics_jitter: f64,
     /// The table and the arm's flange around the grasp (`[render.scene]`).
     pub scene: render_contract::Scene,
     /// The colour camera's sensor model (`[render.sensor]`).
@@ -315,7 +317,6 @@ pub fn number_fields() -> Vec<NumberField> {
         pair(float("render.elevation_deg", render_contract::ELEVATION_DEG)),
         pair(float("render.roll_deg", render_contract::ROLL_DEG)),
         float("render.offcentre", render_contract::OFFCENTRE),
-        float("render.intrinsics_jitter", render_contract::INTRINSICS_JITTER),
         float("render.clamp_indirect", render_contract::CLAMP_INDIRECT),
         float("render.scene.table_gap_m", render_contract::TABLE_GAP_M),
         float("render.sensor.exposure_ev_sigma", render_contract::EXPOSURE_EV_SIGMA),
@@ -417,6 +418,9 @@ impl DatasetSpec {
             if let Some(h) = self.hand_defs.get(name) {
                 add(format!("hand.{name}.mjcf"), &h.mjcf);
                 add(format!("hand.{name}.taxels"), &h.taxels);
+                for (i, file) in h.files.iter().enumerate() {
+                    add(format!("hand.{name}.files[{i}]"), file);
+                }
             }
         }
         for name in &self.objects {
@@ -592,7 +596,6 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
             render_contract::ROLL_DEG_DEFAULT,
         ),
         offcentre: r.number(&mut rd, "render", "offcentre", render_contract::OFFCENTRE),
-        intrinsics_jitter: r.number(&mut rd, "render", "intrinsics_jitter", render_contract::INTRINSICS_JITTER),
         scene: read_scene(r, &mut rd),
         sensor: read_sensor(r, &mut rd),
     };
@@ -623,7 +626,6 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
             "elevation_deg",
             "roll_deg",
             "offcentre",
-            "intrinsics_jitter",
             "scene",
             "sensor",
         ],
@@ -755,7 +757,7 @@ fn check_min_range(r: &mut Reader, render: &RenderSettings, noise: &NoiseSetting
     }
 }
 
-/// `[hand.NAME]` tables: `mjcf` and `taxels` file paths.
+/// `[hand.NAME]` tables: `mjcf` and `taxels` file paths, and the MJCF's mesh `files`.
 fn read_user_hands(r: &mut Reader, root: &mut Table) -> BTreeMap<String, UserHand> {
     let mut out = BTreeMap::new();
     for (name, mut t) in r.definitions(root, "hand") {
@@ -763,8 +765,9 @@ fn read_user_hands(r: &mut Reader, root: &mut Table) -> BTreeMap<String, UserHan
         let hand = UserHand {
             mjcf: r.asset_path(&mut t, &path, "mjcf", &["xml"]),
             taxels: r.asset_path(&mut t, &path, "taxels", &["csv"]),
+            files: r.asset_paths(&mut t, &path, "files", asset::HAND_MESH_EXTENSIONS, asset::MAX_HAND_FILES),
         };
-        r.finish(t, &path, &["mjcf", "taxels"]);
+        r.finish(t, &path, &["mjcf", "taxels", "files"]);
         if catalog::hand(&name).is_some() {
             r.error(&path, Value::String(name), "must not reuse the name of a built-in hand");
         } else {

@@ -16,6 +16,7 @@ mod export;
 mod failure;
 mod formats;
 mod handover;
+mod mjcf;
 mod plan;
 mod preview;
 mod report;

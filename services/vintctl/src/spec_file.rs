@@ -8,7 +8,7 @@ use vint_core::asset::{self, MAX_ASSET_BYTES, MAX_ASSETS_TOTAL_BYTES, MAX_MESH_F
 use vint_core::{DatasetSpec, SpecError, SpecErrors};
 use vint_proto::v1 as pb;
 
-use crate::{Failure, InvalidSpec, bad_input};
+use crate::{Failure, InvalidSpec, bad_input, mjcf};
 
 /// A spec as a submission carries it: its text, its parsed form and the user files it names.
 pub struct LoadedSpec {
@@ -25,6 +25,7 @@ pub fn load_spec(path: &Path) -> Result<LoadedSpec, Failure> {
     let spec = DatasetSpec::parse(&text).map_err(invalid)?;
     let assets = read_assets(path, &spec).map_err(invalid)?;
     check_meshes(&spec, &assets).map_err(invalid)?;
+    check_hand_files(&spec, &assets).map_err(invalid)?;
     Ok(LoadedSpec { text, spec, assets })
 }
 
@@ -118,6 +119,43 @@ pub fn check_meshes(spec: &DatasetSpec, files: &[pb::AssetFile]) -> Result<(), S
                     });
                 }
             }
+        }
+    }
+    if errors.is_empty() { Ok(()) } else { Err(SpecErrors(errors)) }
+}
+
+/// Each user hand's `files` are exactly the mesh files its MJCF refers to, found as MuJoCo finds
+/// them (`mjcf::mjcf_files`), so its grasp tasks get all of them and nothing else; an MJCF that
+/// includes other files, or names a file outside the spec's directory, is refused here too.
+pub fn check_hand_files(spec: &DatasetSpec, files: &[pb::AssetFile]) -> Result<(), SpecErrors> {
+    let mut errors = Vec::new();
+    for name in &spec.hands {
+        let Some(h) = spec.hand_defs.get(name) else { continue };
+        let Some(xml) = files.iter().find(|f| f.path == h.mjcf) else { continue };
+        let found = mjcf::mjcf_files(&h.mjcf, &String::from_utf8_lossy(&xml.content));
+        let error =
+            |field: &str, value: String, rule: String| SpecError { path: format!("hand.{name}.{field}"), value, rule };
+        for refused in found.refused {
+            errors.push(error("mjcf", format!("{:?}", h.mjcf), format!("must follow docs/hands.md: it {refused}")));
+        }
+        let missing: Vec<&String> = found.meshes.iter().filter(|p| !h.files.contains(p)).collect();
+        if !missing.is_empty() {
+            errors.push(error(
+                "files",
+                format!("{:?}", h.files),
+                format!(
+                    "must list every mesh file {} refers to (relative to the spec file); missing {missing:?}",
+                    h.mjcf
+                ),
+            ));
+        }
+        let unused: Vec<&String> = h.files.iter().filter(|p| !found.meshes.contains(p)).collect();
+        if !unused.is_empty() {
+            errors.push(error(
+                "files",
+                format!("{:?}", h.files),
+                format!("must list only mesh files {} refers to; it names none of {unused:?}", h.mjcf),
+            ));
         }
     }
     if errors.is_empty() { Ok(()) } else { Err(SpecErrors(errors)) }
