@@ -191,6 +191,7 @@ impl JobPlan {
                 elevation_deg: r.elevation_deg,
                 roll_deg: r.roll_deg,
                 offcentre: r.offcentre,
+                intrinsics_jitter: r.intrinsics_jitter,
                 scene: r.scene.clone(),
                 sensor: r.sensor.clone(),
             },

@@ -175,6 +175,8 @@ pub struct RenderSettings {
     pub roll_deg: [f64; 2],
     /// How far off the image centre the object may be framed (fraction of the way to the edge).
     pub offcentre: f64,
+    /// Per-view spread of the focal length and principal point (σ; 0 keeps the nominal pinhole).
+    pub intrinsics_jitter: f64,
     /// The table and the arm's flange around the grasp (`[render.scene]`).
     pub scene: render_contract::Scene,
     /// The colour camera's sensor model (`[render.sensor]`).
@@ -317,6 +319,7 @@ pub fn number_fields() -> Vec<NumberField> {
         pair(float("render.elevation_deg", render_contract::ELEVATION_DEG)),
         pair(float("render.roll_deg", render_contract::ROLL_DEG)),
         float("render.offcentre", render_contract::OFFCENTRE),
+        float("render.intrinsics_jitter", render_contract::INTRINSICS_JITTER),
         float("render.clamp_indirect", render_contract::CLAMP_INDIRECT),
         float("render.scene.table_gap_m", render_contract::TABLE_GAP_M),
         float("render.sensor.exposure_ev_sigma", render_contract::EXPOSURE_EV_SIGMA),
@@ -596,6 +599,7 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
             render_contract::ROLL_DEG_DEFAULT,
         ),
         offcentre: r.number(&mut rd, "render", "offcentre", render_contract::OFFCENTRE),
+        intrinsics_jitter: r.number(&mut rd, "render", "intrinsics_jitter", render_contract::INTRINSICS_JITTER),
         scene: read_scene(r, &mut rd),
         sensor: read_sensor(r, &mut rd),
     };
@@ -626,6 +630,7 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
             "elevation_deg",
             "roll_deg",
             "offcentre",
+            "intrinsics_jitter",
             "scene",
             "sensor",
         ],

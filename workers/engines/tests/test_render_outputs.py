@@ -126,10 +126,17 @@ def assert_valid_view(view: dict[str, Any]) -> None:
 
 @pytest.fixture(scope="module")
 def views(engine: EngineProcess, grasp: dict[str, Any], workdir: Path) -> Path:
+    """Views whose intrinsics are jittered as units of a camera model differ (principal point
+    off the centre, focal length off nominal): every test on them projects with the recorded K,
+    so they hold the renderer's K — Blender's shift and angle — to independent projections."""
     out = new_dir(workdir, "views")
     views = [{"view_index": v, "seed": seed} for v, seed in enumerate(SEEDS)]
-    reply = render(engine, grasp, out, ALL, views)
+    reply = render(engine, grasp, out, ALL, views, intrinsics_jitter=0.04)
     assert reply["metrics"]["device"] == "CPU"
+    nominal_f = 32 / np.tan(np.radians(RENDER["fov_deg"]) / 2)
+    for v in range(len(SEEDS)):
+        K = np.array(json.loads((out / f"v{v:02d}_camera.json").read_text())["K"])
+        assert abs(K[0, 2] - 31.5) + abs(K[1, 2] - 31.5) > 0.3 and abs(K[0, 0] / nominal_f - 1) > 1e-4
     return out
 
 
@@ -218,7 +225,7 @@ def test_segmentation_ids_name_the_hand_links_they_show(views: Path, grasp: dict
             inside = (u >= 0) & (u < 64) & (w >= 0) & (w < 64)
             u, w, z = u[inside], w[inside], points[inside, 2]
             shown = np.abs(depth[w, u] - z) < 0.0005
-            if shown.sum() >= 5:
+            if shown.sum() >= 10:  # enough points that one pixel-edge case is not 10 %
                 assert np.mean(seg[w[shown], u[shown]] == 2 + k) > 0.9, link["name"]
         assert labelled_links >= 2
 

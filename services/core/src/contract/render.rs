@@ -30,6 +30,10 @@ pub const ROLL_DEG_DEFAULT: [f64; 2] = [-5.0, 5.0];
 /// image edge (0: always centred). The renderer shrinks the draw so the object's bounding sphere
 /// stays in the frame with `FRAME_MARGIN` of the image left over.
 pub const OFFCENTRE: Bound<f64> = Bound::new(0.0, 0.9, 0.6);
+/// The intrinsics' spread between units of a camera model (σ): the focal length is scaled by
+/// 1 + N(0, σ), the principal point moved by N(0, σ) of the image's width and height, per view.
+/// 0 (the default) keeps the nominal pinhole: principal point at the centre, `fov_deg`.
+pub const INTRINSICS_JITTER: Bound<f64> = Bound::new(0.0, 0.1, 0.0);
 /// Cycles' clamp on indirect light (`sample_clamp_indirect`, Cycles' default 10; 0 is off).
 pub const CLAMP_INDIRECT: Bound<f64> = Bound::new(0.0, 1000.0, 10.0);
 /// The table top's gap below the lowest point of the hand, the object and the arm's flange (m).
@@ -112,6 +116,9 @@ pub struct Settings {
     /// How far off the image centre the object may be framed (fraction of the way to the edge).
     #[schemars(range(min = OFFCENTRE.min, max = OFFCENTRE.max))]
     pub offcentre: f64,
+    /// Per-view spread of the focal length and principal point (σ, fraction; 0: nominal).
+    #[schemars(range(min = INTRINSICS_JITTER.min, max = INTRINSICS_JITTER.max))]
+    pub intrinsics_jitter: f64,
     /// What stands around the grasp.
     pub scene: Scene,
     /// The colour camera's sensor: exposure and white-balance errors, shot and read noise.
@@ -185,6 +192,7 @@ impl Default for Settings {
             elevation_deg: ELEVATION_DEG_DEFAULT,
             roll_deg: ROLL_DEG_DEFAULT,
             offcentre: OFFCENTRE.default,
+            intrinsics_jitter: INTRINSICS_JITTER.default,
             scene: Scene::default(),
             sensor: Sensor::default(),
         }

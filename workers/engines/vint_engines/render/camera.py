@@ -9,7 +9,7 @@ view; pixels are square. Pure numpy: no Blender import here.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -27,17 +27,53 @@ FRAME_MARGIN = 0.05
 
 @dataclass(frozen=True)
 class Intrinsics:
+    """A pinhole of `fov_deg` horizontal field of view over a `width`×`height` image, its principal
+    point `offset_px` (x, y) pixels from the image centre and its focal length scaled by
+    `focal_scale` (both as a calibrated real camera's differ from the nominal: `jittered`)."""
+
     width: int
     height: int
     fov_deg: float
+    offset_px: tuple[float, float] = (0.0, 0.0)
+    focal_scale: float = 1.0
 
     @property
     def focal_px(self) -> float:
-        return (self.width / 2) / math.tan(math.radians(self.fov_deg) / 2)
+        return self.focal_scale * (self.width / 2) / math.tan(math.radians(self.fov_deg) / 2)
+
+    @property
+    def principal_point(self) -> tuple[float, float]:
+        return (self.width - 1) / 2 + self.offset_px[0], (self.height - 1) / 2 + self.offset_px[1]
 
     def matrix(self) -> Mat:
         f = self.focal_px
-        return np.array([[f, 0.0, (self.width - 1) / 2], [0.0, f, (self.height - 1) / 2], [0.0, 0.0, 1.0]])
+        cx, cy = self.principal_point
+        return np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
+
+    def jittered(self, rng: np.random.Generator, sigma: float) -> Intrinsics:
+        """These intrinsics as one unit of a camera model calibrates: the focal length scaled by
+        1 + N(0, σ), the principal point moved by N(0, σ) of the image width and height. Three
+        draws, always made; σ 0 returns them unchanged."""
+        scale, dx, dy = rng.normal(0.0, 1.0, size=3)
+        if sigma <= 0.0:
+            return self
+        return replace(
+            self,
+            offset_px=(float(dx * sigma * self.width), float(dy * sigma * self.height)),
+            focal_scale=float(1.0 + scale * sigma),
+        )
+
+    def blender_shift(self) -> tuple[float, float]:
+        """Blender's camera shift (fractions of the larger image side) that puts the principal
+        point at `principal_point`: a shift to the right moves the optical axis's image left, a
+        shift up moves it down (image v grows downwards)."""
+        side = max(self.width, self.height)
+        return -self.offset_px[0] / side, self.offset_px[1] / side
+
+    @property
+    def angle_rad(self) -> float:
+        """Blender's horizontal field of view for `focal_px`."""
+        return 2.0 * math.atan((self.width / 2) / self.focal_px)
 
 
 @dataclass(frozen=True)

@@ -42,6 +42,7 @@ from vint_engines.render.scene import OBJECT_PASS_INDEX, BlenderScene, Geometry,
 from vint_engines.render.sensor import SensorModel, capture
 
 GRASPS_INPUT = "grasps.json"
+INTRINSICS_STREAM = 0x1C  # appended to the view's seed: the intrinsics jitter's own random stream
 SIDECAR_SUFFIXES = (".mtl", ".png", ".jpg", ".jpeg", ".bin")  # vint_core::asset::SIDECAR_EXTENSIONS
 
 
@@ -58,6 +59,7 @@ class RenderSettings:
     elevation_deg: tuple[float, float]
     roll_deg: tuple[float, float]
     offcentre: float
+    intrinsics_jitter: float
     scene: SceneDressing
     sensor: SensorModel
 
@@ -82,6 +84,7 @@ class RenderSettings:
             elevation_deg=(float(fields["elevation_deg"][0]), float(fields["elevation_deg"][1])),
             roll_deg=(float(fields["roll_deg"][0]), float(fields["roll_deg"][1])),
             offcentre=float(fields["offcentre"]),
+            intrinsics_jitter=float(fields["intrinsics_jitter"]),
             scene=SceneDressing(
                 table=bool(fields["scene"]["table"]),
                 table_gap_m=float(fields["scene"]["table_gap_m"]),
@@ -281,8 +284,11 @@ class RenderEngine:
         sensors: dict[int, dict[str, Any]] = {}  # what each view's colour sensor drew
         for view in self._render_order(views):
             started = time.perf_counter()
-            camera = view.camera or sampled_camera(view.seed, object_pose[0], object_radius, settings)
-            self.scene.place_camera(camera, settings.intrinsics)
+            intrinsics = view_intrinsics(view.seed, settings)
+            camera = view.camera or sampled_camera(
+                view.seed, object_pose[0], object_radius, settings, intrinsics
+            )
+            self.scene.place_camera(camera, intrinsics)
             geometry = self.scene.render_geometry()
             geometry_s += time.perf_counter() - started
             if "rgb" in outputs:
@@ -298,7 +304,7 @@ class RenderEngine:
                 task.out_dir,
                 view,
                 camera,
-                settings,
+                intrinsics,
                 outputs,
                 object_pose,
                 geometry,
@@ -341,7 +347,7 @@ class RenderEngine:
         out_dir: Path,
         view: RenderView,
         camera: CameraPose,
-        settings: RenderSettings,
+        intrinsics: Intrinsics,
         outputs: frozenset[str],
         object_pose: tuple[np.ndarray, np.ndarray],
         geometry: Geometry,
@@ -366,7 +372,6 @@ class RenderEngine:
             result.add(path, "image/png")
         p_obj, q_obj = object_pose
         R_m2c, t_m2c = camera.object_in_camera(quat_to_matrix(q_obj), p_obj)
-        intrinsics = settings.intrinsics
         visible_px = int(np.count_nonzero(visible))
         full_px = int(np.count_nonzero(geometry.object_full | visible))
         record = {
@@ -397,14 +402,21 @@ class RenderEngine:
         return float(record["occlusion"])
 
 
+def view_intrinsics(seed: int, settings: RenderSettings) -> Intrinsics:
+    """The view's intrinsics: the nominal ones, jittered by `intrinsics_jitter` from the view's
+    seed on a stream of its own (so the camera's draws do not move)."""
+    rng = np.random.default_rng([seed, INTRINSICS_STREAM])
+    return settings.intrinsics.jittered(rng, settings.intrinsics_jitter)
+
+
 def sampled_camera(
-    seed: int, target: np.ndarray, object_radius: float, settings: RenderSettings
+    seed: int, target: np.ndarray, object_radius: float, settings: RenderSettings, intrinsics: Intrinsics
 ) -> CameraPose:
     """The camera of a view without an explicit one: on the hemisphere around the object, then
     turned so the object lands off the image centre (`framed`), all from the view's seed."""
     rng = np.random.default_rng(seed)
     camera = sample_on_hemisphere(rng, target, settings.radius_m, settings.elevation_deg, settings.roll_deg)
-    return framed(rng, camera, target, object_radius, settings.intrinsics, settings.offcentre)
+    return framed(rng, camera, target, object_radius, intrinsics, settings.offcentre)
 
 
 def object_look(entry: Mapping[str, Any], assets: dict[str, StagedAsset]) -> MeshSource | None:

@@ -468,7 +468,8 @@ class BlenderScene:
         for scene in self.scenes:
             scene.render.resolution_x = intrinsics.width
             scene.render.resolution_y = intrinsics.height
-        self.camera.data.angle = math.radians(intrinsics.fov_deg)
+        self.camera.data.angle = intrinsics.angle_rad
+        self.camera.data.shift_x, self.camera.data.shift_y = intrinsics.blender_shift()
         self.camera.matrix_world = Matrix(camera.blender_matrix_world().tolist())
         if self.table_top_z is not None:
             self._table.hide_render = not dressing.camera_sees_table(
