@@ -21,6 +21,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from vint_engines import hand_meshes as hand_mesh_codec
 from vint_engines.grasp.hand import HAND_MESH_PREFIX, WORLD_CONAFFINITY, WORLD_CONTYPE, GraspHand, add_hand
 from vint_engines.grasp.surface import ObjectSurface
 from vint_engines.objects import MODEL_FILE, ObjectModel, ObjectSpec, build_model
@@ -205,13 +206,13 @@ def hand_geometry(scene: GraspScene) -> list[dict[str, Any]]:
 def hand_meshes(scene: GraspScene) -> dict[str, dict[str, Any]]:
     """The meshes a user's hand geoms name (`hand_geometry`), each once by a key of its content
     (a visual and a collision mesh from one file, or four fingers' copies, are one): vertices (m,
-    the mesh frame MuJoCo compiled, rounded to 1 µm) and triangles (vertex indices). Empty for
-    primitive hands."""
+    the mesh frame MuJoCo compiled) and triangles, encoded as `vint_engines.hand_meshes` says.
+    Empty for primitive hands."""
     return _hand_mesh_data(scene)[1]
 
 
 def _hand_mesh_data(scene: GraspScene) -> tuple[dict[int, str], dict[str, dict[str, Any]]]:
-    """Each hand mesh id's content key, and each key's vertices and faces."""
+    """Each hand mesh id's content key, and each key's encoded mesh."""
     model = scene.model
     keys: dict[int, str] = {}
     meshes: dict[str, dict[str, Any]] = {}
@@ -220,12 +221,12 @@ def _hand_mesh_data(scene: GraspScene) -> tuple[dict[int, str], dict[str, dict[s
             continue
         first, count = int(model.mesh_vertadr[m]), int(model.mesh_vertnum[m])
         face_first, face_count = int(model.mesh_faceadr[m]), int(model.mesh_facenum[m])
-        vertices = np.round(model.mesh_vert[first : first + count].astype(np.float64), 6)
-        faces = model.mesh_face[face_first : face_first + face_count].astype(np.int64)
+        vertices = model.mesh_vert[first : first + count].astype("<f4")
+        faces = model.mesh_face[face_first : face_first + face_count].astype("<u4")
         key = "mesh_" + hashlib.sha256(vertices.tobytes() + faces.tobytes()).hexdigest()[:16]
         keys[m] = key
         if key not in meshes:
-            meshes[key] = {"vertices": vertices.tolist(), "faces": faces.tolist()}
+            meshes[key] = hand_mesh_codec.encode(vertices, faces)
     return keys, meshes
 
 

@@ -38,6 +38,7 @@ import numpy as np
 import numpy.typing as npt
 from mathutils import Matrix
 
+from vint_engines import hand_meshes
 from vint_engines.objects import ObjectSpec, build_model
 from vint_engines.objects.meshio import read_ply_m
 from vint_engines.objects.textured import MeshSource, SurfaceLook
@@ -298,8 +299,7 @@ class BlenderScene:
                         slot = 1 if dressing.geom_role(link["name"], g) == "pad" else 0
                     matrix = meshes.geom_matrix(g["p"], g["q"])
                     if g["type"] == "mesh":
-                        data = hand["meshes"][g["mesh"]]
-                        vertices, faces = np.asarray(data["vertices"]), np.asarray(data["faces"])
+                        vertices, faces = hand_meshes.decode(hand["meshes"][g["mesh"]])
                         triangles.append((vertices, faces, matrix, slot))
                     else:
                         primitives.append((g["type"], g["size"], matrix))
