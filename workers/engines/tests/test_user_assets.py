@@ -83,6 +83,19 @@ def test_a_convention_violation_is_bad_input_naming_it(change: tuple[str, str], 
     assert message in str(error.value)
 
 
+def test_a_general_actuator_written_as_a_position_servo_is_one() -> None:
+    """As some Menagerie hands write them: gain kp, affine bias 0 -kp -kv, with a force limit."""
+    old = '<position joint="left_j0" ctrlrange="-0.5 1.6" forcerange="-1.2 1.2"/>'
+    general = (
+        '<general joint="left_j0" ctrlrange="-0.5 1.6" ctrllimited="true" forcerange="-1.2 1.2" '
+        'forcelimited="true" biastype="affine" gainprm="6" biasprm="0 -6 -0.1"/>'
+    )
+    assert old in GRIPPER
+    assert load(GRIPPER.replace(old, general)).dof == 4
+    with pytest.raises(BadInput, match="must be a position actuator"):
+        load(GRIPPER.replace(old, general.replace('biasprm="0 -6 -0.1"', 'biasprm="0 -3 -0.1"')))
+
+
 def test_the_taxel_layout_is_checked_against_the_models_bodies() -> None:
     hand = load(GRIPPER)
     text = (ASSETS / "gripper_taxels.csv").read_text(encoding="utf-8")
