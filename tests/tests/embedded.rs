@@ -470,3 +470,71 @@ fn a_textured_mesh_must_list_the_files_it_refers_to_and_fit_the_face_limit() {
         stderr(&big)
     );
 }
+
+#[test]
+fn a_bop_models_object_keeps_its_obj_id_and_symmetries_in_the_native_and_bop_layouts() {
+    let tmp = tempfile::tempdir().unwrap();
+    std::fs::create_dir(tmp.path().join("models")).unwrap();
+    for name in ["box.obj", "box.mtl", "box.png"] {
+        std::fs::copy(repo_root().join("examples/assets").join(name), tmp.path().join("models").join(name)).unwrap();
+    }
+    let turn = "[-1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0]";
+    let spec = tmp.path().join("spec.toml");
+    std::fs::write(
+        &spec,
+        format!(
+            "hands = [\"trx3\"]\nobjects = [\"carton\", \"tomato_soup_can\"]\n\
+             [object.carton]\nmesh = \"models/box.obj\"\nfiles = [\"models/box.mtl\", \"models/box.png\"]\n\
+             unit = \"mm\"\nmass_kg = 0.12\nmaterial = \"cardboard\"\nobj_id = 7\nsymmetries_discrete = [{turn}]\n\
+             [dataset]\nname = \"bop_ids\"\nseed = 5\n[grasp]\ntrials_per_pair = 4\nchunk_size = 4\nhold_s = 0.5\n\
+             [render]\nresolution = [64, 64]\nsamples = 4\nviews_per_environment = 1\nenvironments = [\"studio\"]\n\
+             [outputs]\nmodalities = [\"depth\", \"mask\", \"pose\"]\n"
+        ),
+    )
+    .unwrap();
+    let (out, state) = (tmp.path().join("out"), tmp.path().join("state"));
+    let run =
+        vintctl(&["run", spec.to_str().unwrap(), "--out", out.to_str().unwrap(), "--state", state.to_str().unwrap()]);
+    assert_eq!(run.status.code(), Some(0), "{}", stderr(&run));
+    let dataset: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("dataset.json")).unwrap()).unwrap();
+    let objects = dataset["objects"].as_array().unwrap();
+    let carton = objects.iter().find(|o| o["name"] == "carton").unwrap();
+    assert_eq!((carton["obj_id"].as_u64(), carton["model_source"].as_str()), (Some(7), Some("bop")), "{carton}");
+    assert_eq!(carton["symmetries_discrete"], serde_json::from_str::<serde_json::Value>(&format!("[{turn}]")).unwrap());
+    let soup = objects.iter().find(|o| o["name"] == "tomato_soup_can").unwrap();
+    assert_eq!(soup["obj_id"].as_u64(), catalog_obj_id("tomato_soup_can"));
+
+    let bop = tmp.path().join("bop");
+    let convert = vintctl(&["convert", out.to_str().unwrap(), "--out", bop.to_str().unwrap(), "--format", "bop"]);
+    assert_eq!(convert.status.code(), Some(0), "{}", stderr(&convert));
+    let mut ids = std::collections::BTreeSet::new();
+    let mut info_keys = Vec::new();
+    for entry in walk(&bop) {
+        let name = entry.file_name().unwrap().to_string_lossy().to_string();
+        if name == "scene_gt.json" {
+            let gt: BTreeMap<String, Vec<serde_json::Value>> =
+                serde_json::from_str(&std::fs::read_to_string(&entry).unwrap()).unwrap();
+            ids.extend(gt.values().flatten().filter_map(|g| g["obj_id"].as_u64()));
+        } else if name == "models_info.json" {
+            let info: BTreeMap<String, serde_json::Value> =
+                serde_json::from_str(&std::fs::read_to_string(&entry).unwrap()).unwrap();
+            info_keys.extend(info.into_keys());
+        }
+    }
+    assert!(ids.contains(&7), "scene_gt obj_ids {ids:?}");
+    assert!(info_keys.contains(&"7".to_string()), "models_info keys {info_keys:?}");
+}
+
+fn catalog_obj_id(name: &str) -> Option<u64> {
+    vint_core::catalog::obj_id(name).map(u64::from)
+}
+
+fn walk(dir: &Path) -> Vec<std::path::PathBuf> {
+    let mut out = Vec::new();
+    for entry in std::fs::read_dir(dir).unwrap().flatten() {
+        let path = entry.path();
+        if path.is_dir() { out.extend(walk(&path)) } else { out.push(path) }
+    }
+    out
+}

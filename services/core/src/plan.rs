@@ -359,7 +359,7 @@ fn grasp_params(
     };
     let object = match spec.object_defs.get(&c.object) {
         Some(o) => {
-            let (symmetries_continuous, symmetries_discrete) = o.symmetry.expand();
+            let (symmetries_continuous, symmetries_discrete) = o.symmetry_sets();
             ObjectEntry {
                 name: c.object.clone(),
                 ycb_id: String::new(),
@@ -375,6 +375,7 @@ fn grasp_params(
                     asset: Some(sha(format!("object.{}.mesh", c.object), &o.mesh)?),
                     scale: o.scale(),
                 },
+                obj_id: o.obj_id,
             }
         }
         None => {

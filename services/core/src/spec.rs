@@ -89,12 +89,23 @@ pub struct UserObject {
     pub mass_kg: f64,
     pub material: object::Material,
     pub symmetry: object::Symmetry,
+    /// The object's BOP `obj_id` when it is a BOP dataset's model (`object::BOP_OBJ_ID`), which the
+    /// exports keep; absent, they number it from `catalog::USER_OBJECT_IDS`.
+    pub obj_id: Option<u32>,
+    /// Symmetry sets given in BOP's `models_info.json` form (metres), as `vintctl bop-objects`
+    /// writes them; absent, `symmetry` says them.
+    pub symmetries: Option<(Vec<object::ContinuousSymmetry>, Vec<object::DiscreteSymmetry>)>,
 }
 
 /// Length units a mesh file may be in, with their size in metres.
 pub const MESH_UNITS: &[(&str, f64)] = &[("m", 1.0), ("cm", 0.01), ("mm", 0.001)];
 
 impl UserObject {
+    /// The object's symmetry sets (continuous, discrete): the explicit ones, else `symmetry`'s.
+    pub fn symmetry_sets(&self) -> (Vec<object::ContinuousSymmetry>, Vec<object::DiscreteSymmetry>) {
+        self.symmetries.clone().unwrap_or_else(|| self.symmetry.expand())
+    }
+
     /// File units to metres.
     pub fn scale(&self) -> f64 {
         MESH_UNITS.iter().find(|(u, _)| *u == self.unit).map_or(1.0, |(_, s)| *s)
@@ -786,8 +797,27 @@ fn read_user_hands(r: &mut Reader, root: &mut Table) -> BTreeMap<String, UserHan
 fn read_user_objects(r: &mut Reader, root: &mut Table) -> BTreeMap<String, UserObject> {
     let mut out = BTreeMap::new();
     let units: Vec<&str> = MESH_UNITS.iter().map(|(u, _)| *u).collect();
+    let mut obj_ids: BTreeMap<u32, String> = BTreeMap::new();
     for (name, mut t) in r.definitions(root, "object") {
         let path = format!("object.{name}");
+        let explicit = t.contains_key("symmetries_continuous") || t.contains_key("symmetries_discrete");
+        if explicit && t.contains_key("symmetry") {
+            let value = t.get("symmetry").cloned().unwrap_or(Value::Boolean(true));
+            r.error(&format!("{path}.symmetry"), value, "must not be given with symmetries_continuous/_discrete");
+        }
+        let obj_id = t.remove("obj_id").and_then(|v| {
+            let id = r.int_value(
+                &format!("{path}.obj_id"),
+                v,
+                i64::from(object::BOP_OBJ_ID.min)..=i64::from(object::BOP_OBJ_ID.max),
+            )? as u32;
+            if let Some(other) = obj_ids.insert(id, name.clone()) {
+                let rule = format!("must differ from object.{other}.obj_id (each obj_id names one model)");
+                r.error(&format!("{path}.obj_id"), Value::Integer(i64::from(id)), rule);
+            }
+            Some(id)
+        });
+        let symmetries = explicit.then(|| read_symmetries(r, &mut t, &path));
         let object = UserObject {
             mesh: r.asset_path(&mut t, &path, "mesh", asset::MESH_EXTENSIONS),
             files: r.asset_paths(&mut t, &path, "files", asset::SIDECAR_EXTENSIONS, asset::MAX_SIDECARS),
@@ -801,8 +831,24 @@ fn read_user_objects(r: &mut Reader, root: &mut Table) -> BTreeMap<String, UserO
             ),
             material: r.tag(&mut t, &path, "material", &object::Material::ALL, None),
             symmetry: r.tag(&mut t, &path, "symmetry", &object::Symmetry::ALL, Some(object::Symmetry::None)),
+            obj_id,
+            symmetries,
         };
-        r.finish(t, &path, &["mesh", "files", "unit", "mass_kg", "material", "symmetry"]);
+        r.finish(
+            t,
+            &path,
+            &[
+                "mesh",
+                "files",
+                "unit",
+                "mass_kg",
+                "material",
+                "symmetry",
+                "obj_id",
+                "symmetries_continuous",
+                "symmetries_discrete",
+            ],
+        );
         if catalog::object(&name).is_some() {
             r.error(&path, Value::String(name), "must not reuse the name of a built-in object");
         } else {
@@ -810,6 +856,105 @@ fn read_user_objects(r: &mut Reader, root: &mut Table) -> BTreeMap<String, UserO
         }
     }
     out
+}
+
+/// Most symmetries of each kind an object may list (T-LESS's most symmetric model has 4 discrete).
+const MAX_SYMMETRIES: usize = 64;
+/// How far a symmetry's rotation may be from orthonormal (and its axis from unit length).
+const ORTHONORMAL_TOLERANCE: f64 = 1e-6;
+
+/// `symmetries_continuous` (`{ axis = [x, y, z], offset = [x, y, z] }`, a unit axis, metres) and
+/// `symmetries_discrete` (16 numbers: a row-major rigid transform, translation in metres) of an
+/// object table, in the form and with the checks the engines apply.
+fn read_symmetries(
+    r: &mut Reader,
+    t: &mut Table,
+    parent: &str,
+) -> (Vec<object::ContinuousSymmetry>, Vec<object::DiscreteSymmetry>) {
+    let mut list = |key: &str| -> Vec<(String, Value)> {
+        let path = join(parent, key);
+        match t.remove(key) {
+            None => Vec::new(),
+            Some(Value::Array(items)) if items.len() <= MAX_SYMMETRIES => {
+                items.into_iter().enumerate().map(|(i, v)| (format!("{path}[{i}]"), v)).collect()
+            }
+            Some(v) => {
+                r.error(&path, v, format!("must be an array of at most {MAX_SYMMETRIES} symmetries"));
+                Vec::new()
+            }
+        }
+    };
+    let (continuous_items, discrete_items) = (list("symmetries_continuous"), list("symmetries_discrete"));
+    let position = (object::POSITION_M.min, object::POSITION_M.max);
+    let numbers = |r: &mut Reader, path: &str, v: Value, n: usize, bounds: (f64, f64)| -> Option<Vec<f64>> {
+        match v {
+            Value::Array(items) if items.len() == n => {
+                let parsed: Vec<Option<f64>> = items
+                    .into_iter()
+                    .enumerate()
+                    .map(|(k, x)| r.float_value(&format!("{path}[{k}]"), x, bounds))
+                    .collect();
+                parsed.into_iter().collect()
+            }
+            v => {
+                r.error(path, v, format!("must be an array of {n} numbers"));
+                None
+            }
+        }
+    };
+    let mut continuous = Vec::new();
+    for (path, v) in continuous_items {
+        let Value::Table(mut entry) = v else {
+            r.error(&path, v, "must be a table { axis = [x, y, z], offset = [x, y, z] } (metres)");
+            continue;
+        };
+        let axis = entry.remove("axis").and_then(|a| numbers(r, &format!("{path}.axis"), a, 3, (-1.0, 1.0)));
+        let offset = match entry.remove("offset") {
+            None => Some(vec![0.0; 3]),
+            Some(o) => numbers(r, &format!("{path}.offset"), o, 3, position),
+        };
+        r.finish(entry, &path, &["axis", "offset"]);
+        let (Some(axis), Some(offset)) = (axis, offset) else { continue };
+        let norm = axis.iter().map(|x| x * x).sum::<f64>().sqrt();
+        if (norm - 1.0).abs() > ORTHONORMAL_TOLERANCE {
+            r.error(&format!("{path}.axis"), Value::Float(norm), "must be a unit vector (its length is shown)");
+            continue;
+        }
+        continuous.push(object::ContinuousSymmetry {
+            axis: [axis[0], axis[1], axis[2]],
+            offset: [offset[0], offset[1], offset[2]],
+        });
+    }
+    let mut discrete = Vec::new();
+    for (path, v) in discrete_items {
+        let Some(m) = numbers(r, &path, v, 16, (-1e3, 1e3)) else { continue };
+        if !is_rigid(&m) {
+            r.error(
+                &path,
+                Value::String(format!("{m:?}")),
+                "must be a rigid transform: a rotation (orthonormal, det +1) and a translation in metres, row-major, the last row 0 0 0 1",
+            );
+            continue;
+        }
+        let mut transform = [0.0; 16];
+        transform.copy_from_slice(&m);
+        discrete.push(transform);
+    }
+    (continuous, discrete)
+}
+
+/// A row-major 4×4 whose rotation is orthonormal with det +1 and whose last row is `0 0 0 1`.
+fn is_rigid(m: &[f64]) -> bool {
+    let r = |i: usize, j: usize| m[4 * i + j];
+    let orthonormal = (0..3).all(|a| {
+        (0..3).all(|b| {
+            let dot: f64 = (0..3).map(|k| r(k, a) * r(k, b)).sum();
+            (dot - if a == b { 1.0 } else { 0.0 }).abs() <= ORTHONORMAL_TOLERANCE
+        })
+    });
+    let det = r(0, 0) * (r(1, 1) * r(2, 2) - r(1, 2) * r(2, 1)) - r(0, 1) * (r(1, 0) * r(2, 2) - r(1, 2) * r(2, 0))
+        + r(0, 2) * (r(1, 0) * r(2, 1) - r(1, 1) * r(2, 0));
+    orthonormal && (det - 1.0).abs() <= ORTHONORMAL_TOLERANCE && m[12..16] == [0.0, 0.0, 0.0, 1.0]
 }
 
 const ENVIRONMENT_RULE: &str = "one of Blender's bundled HDRIs (city, courtyard, forest, interior, night, studio, \

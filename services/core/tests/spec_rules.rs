@@ -402,7 +402,8 @@ fn user_definitions_check_paths_units_and_tags() {
             "hand.grip.taxels: must name a .csv file, got \"assets/grip_taxels.txt\"",
             "object.vase.unit: must be one of m, cm, mm, got \"inch\"",
             "object.vase.material: must be one of plastic, metal, glass, paper, cardboard, wood, ceramic, rubber, got \"cheese\"",
-            "object.vase.colour: unknown key (known keys: mesh, files, unit, mass_kg, material, symmetry), got \"red\"",
+            "object.vase.colour: unknown key (known keys: mesh, files, unit, mass_kg, material, symmetry, obj_id, \
+             symmetries_continuous, symmetries_discrete), got \"red\"",
         ]
     );
     let missing = custom("").replace("mesh = \"assets/vase.obj\"\n", "").replace("[hand.grip]", "[hand.Grip]");
@@ -578,4 +579,44 @@ fn the_vint_sim_recipe_is_valid_and_asks_for_one_and_a_half_million_samples() {
     assert_eq!(spec.objects.len(), vint_core::catalog::objects().len(), "every built-in object");
     assert_eq!(spec.grasp.accepted_per_pair, Some(2500));
     assert_eq!(spec.max_samples(), 26 * 2 * 2500 * 4 * 3);
+}
+
+#[test]
+fn a_bop_model_keeps_its_obj_id_and_explicit_symmetries() {
+    let bop = "[object.vase]\nmesh = \"assets/vase.obj\"\nunit = \"mm\"\nmass_kg = 0.25\nmaterial = \"ceramic\"\n";
+    let text =
+        |extra: &str| custom("").replace(&format!("{bop}symmetry = \"continuous_z\"\n"), &format!("{bop}{extra}"));
+    let spec = DatasetSpec::parse(&text(
+        "obj_id = 5\nsymmetries_continuous = [{ axis = [0, 0, 1], offset = [0, 0, 0.01] }]\n\
+         symmetries_discrete = [[-1, 0, 0, 0, 0, -1, 0, 0, 0, 0, 1, 0.002, 0, 0, 0, 1]]\n",
+    ))
+    .unwrap();
+    let vase = &spec.object_defs["vase"];
+    assert_eq!(vase.obj_id, Some(5));
+    let (continuous, discrete) = vase.symmetry_sets();
+    assert_eq!((continuous[0].axis, continuous[0].offset), ([0.0, 0.0, 1.0], [0.0, 0.0, 0.01]));
+    assert_eq!(discrete[0][11], 0.002);
+    // Without explicit sets, the shorthand says them.
+    assert_eq!(DatasetSpec::parse(&custom("")).unwrap().object_defs["vase"].symmetry_sets().0.len(), 1);
+
+    assert_eq!(
+        errors(&text(
+            "obj_id = 101\nsymmetry = \"none\"\nsymmetries_discrete = [[1, 0, 0, 0, 0, 2, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]]\n\
+             symmetries_continuous = [{ axis = [0, 0.5, 0] }]\n"
+        )),
+        vec![
+            "object.vase.symmetry: must not be given with symmetries_continuous/_discrete, got \"none\"",
+            "object.vase.obj_id: must be 1..=100, got 101",
+            "object.vase.symmetries_continuous[0].axis: must be a unit vector (its length is shown), got 0.5",
+            "object.vase.symmetries_discrete[0]: must be a rigid transform: a rotation (orthonormal, det +1) and a \
+             translation in metres, row-major, the last row 0 0 0 1, got \"[1.0, 0.0, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0, \
+             0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0]\"",
+        ]
+    );
+    let twice = text("obj_id = 5\n").replace("objects = [\"vase\", \"mug\"]", "objects = [\"vase\", \"cup\"]")
+        + "[object.cup]\nmesh = \"assets/cup.obj\"\nunit = \"mm\"\nmass_kg = 0.2\nmaterial = \"ceramic\"\nobj_id = 5\n";
+    assert_single_error(
+        &twice,
+        "object.vase.obj_id: must differ from object.cup.obj_id (each obj_id names one model), got 5",
+    );
 }

@@ -317,24 +317,42 @@ fn dataset_record(
     dir: &Path,
 ) -> Result<Value, Failure> {
     let mut objects = Vec::new();
+    let records: BTreeMap<&str, Value> = listed
+        .models
+        .iter()
+        .map(|m| Ok((m.object.as_str(), object_record(grasps, &m.object, dir)?)))
+        .collect::<Result<_, Failure>>()?;
+    // A spec's own object keeps the BOP id its entry names (a BOP dataset's model); the others are
+    // numbered in name order from USER_OBJECT_IDS.
+    let own_id =
+        |name: &str| records.get(name).and_then(|r| r["obj_id"].as_u64()).and_then(|id| u32::try_from(id).ok());
     let mut user_objects: Vec<&str> = listed
         .models
         .iter()
         .map(|m| m.object.as_str())
-        .filter(|o| catalog::objects().iter().all(|c| c.name != *o))
+        .filter(|o| catalog::objects().iter().all(|c| c.name != *o) && own_id(o).is_none())
         .collect();
     user_objects.sort_unstable();
+    let mut taken: BTreeMap<u32, &str> = BTreeMap::new();
     for m in &listed.models {
         // A built-in object is a procedural stand-in with an id of its own, never the id of the
         // ycbv model it approximates; `stand_in_for` names that model.
-        let (obj_id, source, stand_in) = match catalog::object(&m.object) {
-            Some(entry) => (catalog::obj_id(&m.object), "procedural", catalog::stand_in_for(entry)),
-            None => {
+        let (obj_id, source, stand_in) = match (catalog::object(&m.object), own_id(&m.object)) {
+            (Some(entry), _) => (catalog::obj_id(&m.object), "procedural", catalog::stand_in_for(entry)),
+            (None, Some(id)) => (Some(id), "bop", None),
+            (None, None) => {
                 let position = user_objects.iter().position(|o| *o == m.object).unwrap_or(0);
                 (u32::try_from(position).ok().map(|p| USER_OBJECT_IDS + p), "user", None)
             }
         };
-        let record = object_record(grasps, &m.object, dir)?;
+        if let Some(other) = obj_id.and_then(|id| taken.insert(id, &m.object)) {
+            return Err(bad_input(anyhow!(
+                "objects {other} and {} both have obj_id {}: a BOP dataset names each model by one id",
+                m.object,
+                obj_id.unwrap_or_default()
+            )));
+        }
+        let record = records[m.object.as_str()].clone();
         let model = &record["model"];
         // Micrometre resolution: the record's metres have nine decimals, and ×1000 adds float noise.
         let mm = |v: &Value| v.as_f64().map(|m| (m * 1e9).round() / 1e6);

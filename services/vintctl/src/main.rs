@@ -6,6 +6,7 @@
 //! (an invalid spec, an unknown job or sample, a bad argument). With `--json`, a failure is JSON
 //! on stdout too (`{"error": {"message", "code", …}}`), with the same exit code.
 
+mod bop_objects;
 mod client;
 mod commands;
 mod diff;
@@ -233,6 +234,25 @@ enum Command {
     /// Score pose estimates (a BOP results CSV) against a BOP dataset: ADD, ADD-S and ADD(S) AUC up
     /// to 10 cm, ADD(S)-0.1d and -0.05d, overall, per object and per occlusion bucket.
     Eval(eval::EvalArgs),
+    /// Print `[object.NAME]` tables for models of a BOP dataset's models folder (models_info.json
+    /// and obj_NNNNNN.ply, millimetres, with their textures): each keeps its obj_id and its
+    /// symmetries (in metres); paste them into a spec (docs/assets.md).
+    BopObjects {
+        /// The models folder, relative to the spec's directory (run this there), e.g. `ycbv_models/models`.
+        models: PathBuf,
+        /// The models' obj_ids, e.g. `--ids 2,5,14`.
+        #[arg(long, value_delimiter = ',', required = true)]
+        ids: Vec<u32>,
+        /// Each model's mass (BOP gives none): `--mass 2=0.411,5=0.603,14=0.349`.
+        #[arg(long, required = true)]
+        mass: Vec<String>,
+        /// The material tag of every model (roughness, metal, glass; the texture gives the colour).
+        #[arg(long, default_value = "plastic")]
+        material: String,
+        /// The objects' names: PREFIX + obj_id.
+        #[arg(long, default_value = "bop_")]
+        prefix: String,
+    },
     /// List the built-in hands with their DoF and taxel counts per region.
     Hands,
     /// List the built-in objects: BOP obj_id, the ycbv object each stands in for, mass, material,
@@ -334,6 +354,9 @@ async fn dispatch(command: Command, json: bool, coordinator: &vint_connect::Remo
         }
         Command::Diff(args) => diff::run(&args, json),
         Command::Eval(args) => eval::run(&args, json),
+        Command::BopObjects { models, ids, mass, material, prefix } => {
+            bop_objects::run(&models, &ids, &mass, &material, &prefix)
+        }
         Command::Hands => {
             report::hands(json);
             Ok(())

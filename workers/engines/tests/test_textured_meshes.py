@@ -287,3 +287,12 @@ def test_each_face_shows_its_texture_colour_where_it_projects(
             assert np.median(saturation) >= 80, (name, v, np.median(saturation))
             seen[name] = seen.get(name, 0) + len(pixels)
     assert len(seen) >= 3, seen
+
+
+def test_a_bop_models_obj_id_travels_through_the_entry() -> None:
+    entry = {**box_entry("a" * 64), "obj_id": 5}
+    spec = ObjectSpec.parse(entry)
+    assert spec.obj_id == 5 and spec.to_json() == entry
+    assert "obj_id" not in ObjectSpec.parse(box_entry("a" * 64)).to_json()
+    with pytest.raises(BadInput, match=r"params\.object\.obj_id: 101 is outside \[1, 100\]"):
+        ObjectSpec.parse({**entry, "obj_id": 101})

@@ -24,6 +24,10 @@ pub const PROFILE_POINTS: Bound<u32> = Bound::new(2, 256, 2);
 pub const PARTS: Bound<u32> = Bound::new(1, 32, 1);
 /// File units to metres of a mesh file.
 pub const MESH_SCALE: Bound<f64> = Bound::new(1e-6, 1e3, 1.0);
+/// A BOP dataset's own `obj_id` a spec's object may keep (ycbv's are 1–21, T-LESS's 1–30): below
+/// the built-in objects' ids (`catalog::CATALOG_OBJECT_IDS`, 101 up) and the numbered user objects'
+/// (`catalog::USER_OBJECT_IDS`, 1001 up), so no two sources can meet.
+pub const BOP_OBJ_ID: Bound<u32> = Bound::new(1, 100, 1);
 
 /// An object: a catalog entry, or a spec's own mesh object in the same schema.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
@@ -56,6 +60,11 @@ pub struct ObjectEntry {
     pub symmetries_discrete: Vec<DiscreteSymmetry>,
     pub description: String,
     pub shape: Shape,
+    /// The BOP `obj_id` the exports give the object: a BOP dataset's model keeps its own. Absent:
+    /// the exports number it (built-in objects from 101, a spec's own from 1001).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schemars(range(min = BOP_OBJ_ID.min, max = BOP_OBJ_ID.max))]
+    pub obj_id: Option<u32>,
 }
 
 /// A continuous symmetry: rotation by any angle about `axis` (a unit vector) through `offset`.

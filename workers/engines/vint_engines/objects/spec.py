@@ -43,6 +43,7 @@ SHA256 = re.compile(r"[0-9a-f]{64}")
 # Bounds from the stage contract (vint_core::contract::object, via contract.schema.json).
 LENGTH_M = contract.bounds("Shape", "radius_m", "cylinder")  # any single dimension
 MASS_KG = contract.bounds("ObjectEntry", "mass_kg")
+BOP_OBJ_ID = contract.bounds("ObjectEntry", "obj_id")
 POSITION_M = contract.bounds("Part", "pos_m", "box")
 EULER_DEG = contract.bounds("Part", "euler_deg", "box")
 MIN_PROFILE_POINTS, MAX_PROFILE_POINTS = contract.count_bounds("Shape", "profile_m", "revolved")
@@ -194,6 +195,7 @@ class ObjectSpec:
     symmetries: Symmetries = Symmetries()
     ycb_id: str = ""
     description: str = ""
+    obj_id: int | None = None  # a BOP dataset's own id, kept by the exports
 
     @staticmethod
     def parse(obj: Mapping[str, Any], where: str = "params.object") -> ObjectSpec:
@@ -215,6 +217,11 @@ class ObjectSpec:
             shape=parse_shape(P.section(obj, "shape", where), f"{where}.shape"),
             ycb_id=_text(obj, "ycb_id", where),
             description=_text(obj, "description", where),
+            obj_id=(
+                P.integer(obj, "obj_id", where, low=int(BOP_OBJ_ID[0]), high=int(BOP_OBJ_ID[1]))
+                if "obj_id" in obj
+                else None
+            ),
         )
 
     def to_json(self) -> dict[str, Any]:
@@ -229,6 +236,7 @@ class ObjectSpec:
             **self.symmetries.to_json(),
             "description": self.description,
             "shape": shape_json(self.shape),
+            **({} if self.obj_id is None else {"obj_id": self.obj_id}),
         }
 
 
@@ -244,6 +252,7 @@ ENTRY_KEYS = (
     "symmetries_discrete",
     "description",
     "shape",
+    "obj_id",
     "model",
 )
 SHAPE_KEYS = {
