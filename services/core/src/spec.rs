@@ -1023,14 +1023,7 @@ fn read_environments(r: &mut Reader, rd: &mut Table) -> Vec<Environment> {
 
 /// `[render.bounces]`: Cycles' caps, each 0..=1024.
 fn read_bounces(r: &mut Reader, rd: &mut Table) -> Bounces {
-    let mut b = match rd.remove("bounces") {
-        None => Table::new(),
-        Some(Value::Table(t)) => t,
-        Some(v) => {
-            r.error("render.bounces", v, "must be a table");
-            Table::new()
-        }
-    };
+    let mut b = render_subtable(r, rd, "bounces");
     let defaults = Bounces::default();
     let mut cap =
         |key: &str, default: u32| r.count(&mut b, "render.bounces", key, Bound { default, ..render_contract::BOUNCES });
@@ -1045,16 +1038,21 @@ fn read_bounces(r: &mut Reader, rd: &mut Table) -> Bounces {
     bounces
 }
 
-/// `[render.scene]`: the table and the flange around the grasp.
-fn read_scene(r: &mut Reader, rd: &mut Table) -> render_contract::Scene {
-    let mut t = match rd.remove("scene") {
+/// `[render.KEY]` taken out of `[render]`: empty when absent, an error when not a table.
+fn render_subtable(r: &mut Reader, rd: &mut Table, key: &str) -> Table {
+    match rd.remove(key) {
         None => Table::new(),
         Some(Value::Table(t)) => t,
         Some(v) => {
-            r.error("render.scene", v, "must be a table");
+            r.error(&format!("render.{key}"), v, "must be a table");
             Table::new()
         }
-    };
+    }
+}
+
+/// `[render.scene]`: the table and the flange around the grasp.
+fn read_scene(r: &mut Reader, rd: &mut Table) -> render_contract::Scene {
+    let mut t = render_subtable(r, rd, "scene");
     let defaults = render_contract::Scene::default();
     let scene = render_contract::Scene {
         table: r.boolean(&mut t, "render.scene.table", "table", defaults.table),
@@ -1067,14 +1065,7 @@ fn read_scene(r: &mut Reader, rd: &mut Table) -> render_contract::Scene {
 
 /// `[render.sensor]`: the colour camera's sensor model.
 fn read_sensor(r: &mut Reader, rd: &mut Table) -> render_contract::Sensor {
-    let mut t = match rd.remove("sensor") {
-        None => Table::new(),
-        Some(Value::Table(t)) => t,
-        Some(v) => {
-            r.error("render.sensor", v, "must be a table");
-            Table::new()
-        }
-    };
+    let mut t = render_subtable(r, rd, "sensor");
     let on = render_contract::Sensor::default();
     let sensor = render_contract::Sensor {
         enabled: r.boolean(&mut t, "render.sensor.enabled", "enabled", on.enabled),
