@@ -89,18 +89,8 @@ pub fn mesh_file_path(mjcf_path: &str, meshdir: &str, file: &str, strippath: boo
     if [&file, &meshdir].iter().any(|p| p.starts_with('/') || p.contains(':')) {
         return None;
     }
-    let mut parts: Vec<&str> = mjcf_path.split('/').collect();
-    parts.pop();
-    for part in meshdir.split('/').chain(file.split('/')) {
-        match part {
-            "" | "." => {}
-            ".." => {
-                parts.pop()?;
-            }
-            p => parts.push(p),
-        }
-    }
-    Some(parts.join("/"))
+    let reference = if meshdir.is_empty() { file } else { format!("{meshdir}/{file}") };
+    vint_core::asset::resolve_reference(mjcf_path, &reference)
 }
 
 #[cfg(test)]
