@@ -538,3 +538,91 @@ fn walk(dir: &Path) -> Vec<std::path::PathBuf> {
     }
     out
 }
+
+#[test]
+fn a_bop_models_object_keeps_its_files_frame_in_the_bop_layout() {
+    // A box whose file origin is a corner-ish point far from its bounding-box centre (40, 35, 15) mm.
+    let tmp = tempfile::tempdir().unwrap();
+    let (lo, hi) = ([0.0, 10.0, 0.0], [80.0, 60.0, 30.0]);
+    let corners: Vec<[f64; 3]> =
+        (0..8).map(|i| [0, 1, 2].map(|k| if i & (1 << k) == 0 { lo[k] } else { hi[k] })).collect();
+    let mut obj = String::from("# a box off its origin, millimetres\n");
+    for c in &corners {
+        obj += &format!("v {} {} {}\n", c[0], c[1], c[2]);
+    }
+    // Outward triangles (OBJ counts from 1; vertex i has bit k set when at hi[k]).
+    for f in [[1, 3, 4, 2], [5, 6, 8, 7], [1, 2, 6, 5], [3, 7, 8, 4], [1, 5, 7, 3], [2, 4, 8, 6]] {
+        obj += &format!("f {} {} {}\nf {} {} {}\n", f[0], f[1], f[2], f[0], f[2], f[3]);
+    }
+    std::fs::create_dir(tmp.path().join("models")).unwrap();
+    std::fs::write(tmp.path().join("models/offset_box.obj"), obj).unwrap();
+    // A half turn about the vertical axis through the box's centre, in the file's frame (metres).
+    let turn = "[-1.0, 0.0, 0.0, 0.08, 0.0, -1.0, 0.0, 0.07, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0]";
+    let spec = tmp.path().join("spec.toml");
+    std::fs::write(
+        &spec,
+        format!(
+            "hands = [\"trx3\"]\nobjects = [\"offset_box\"]\n\
+             [object.offset_box]\nmesh = \"models/offset_box.obj\"\n\
+             unit = \"mm\"\nmass_kg = 0.12\nmaterial = \"cardboard\"\nobj_id = 9\nsymmetries_discrete = [{turn}]\n\
+             [dataset]\nname = \"bop_frame\"\nseed = 5\n[grasp]\ntrials_per_pair = 4\nchunk_size = 4\nhold_s = 0.5\n\
+             [render]\nresolution = [64, 64]\nsamples = 4\nviews_per_environment = 2\nenvironments = [\"studio\"]\n\
+             [outputs]\nmodalities = [\"depth\", \"mask\", \"pose\"]\n"
+        ),
+    )
+    .unwrap();
+    let (out, state) = (tmp.path().join("out"), tmp.path().join("state"));
+    let run =
+        vintctl(&["run", spec.to_str().unwrap(), "--out", out.to_str().unwrap(), "--state", state.to_str().unwrap()]);
+    assert_eq!(run.status.code(), Some(0), "{}", stderr(&run));
+
+    // The native layout stays in the object frame (bounding-box centre) and names the file's.
+    let dataset: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("dataset.json")).unwrap()).unwrap();
+    let native = &dataset["objects"][0];
+    assert_eq!(native["file_offset_mm"], serde_json::json!([40.0, 35.0, 15.0]), "{native}");
+    let centred_turn = [-1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0];
+    assert_eq!(native["symmetries_discrete"], serde_json::json!([centred_turn]), "{native}");
+
+    let bop = tmp.path().join("bop");
+    let convert = vintctl(&["convert", out.to_str().unwrap(), "--out", bop.to_str().unwrap(), "--format", "bop"]);
+    assert_eq!(convert.status.code(), Some(0), "{}", stderr(&convert));
+    // The BOP model is the file's box, vertex for vertex (float32 mm), not the centred one.
+    let mut shipped = ply_vertices_mm(&std::fs::read(bop.join("models/obj_000009.ply")).unwrap());
+    let mut original = corners.clone();
+    for list in [&mut shipped, &mut original] {
+        list.sort_by(|a, b| a.partial_cmp(b).unwrap());
+    }
+    assert_eq!(shipped.len(), original.len(), "{shipped:?}");
+    for (s, o) in shipped.iter().zip(&original) {
+        assert!(s.iter().zip(o).all(|(a, b)| (a - b).abs() < 1e-3), "shipped {shipped:?}, file {original:?}");
+    }
+    let info: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(bop.join("models/models_info.json")).unwrap()).unwrap();
+    let entry = &info["9"];
+    let mins = ["min_x", "min_y", "min_z"].map(|k| entry[k].as_f64().unwrap());
+    assert!(mins.iter().zip(lo).all(|(m, l)| (m - l).abs() < 1e-3), "{entry}");
+    let in_mm = [-1.0, 0.0, 0.0, 80.0, 0.0, -1.0, 0.0, 70.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0];
+    assert_eq!(entry["symmetries_discrete"], serde_json::json!([in_mm]), "{entry}");
+    // Poses and model agree in the file's frame: the independent re-projection of the shipped
+    // model with scene_gt's poses matches the rendered depth and masks.
+    let check = std::process::Command::new(python())
+        .arg(repo_root().join("tests/python/check_bop.py"))
+        .arg(&bop)
+        .output()
+        .unwrap();
+    assert!(check.status.success(), "check_bop.py failed:\n{}\n{}", stdout(&check), stderr(&check));
+    let summary: serde_json::Value = serde_json::from_str(&stdout(&check)).unwrap();
+    assert!(summary["images"].as_u64().unwrap_or(0) > 0, "{summary}");
+}
+
+/// The vertices of a binary little-endian PLY whose vertex element (first) is float32 x y z.
+fn ply_vertices_mm(bytes: &[u8]) -> Vec<[f64; 3]> {
+    let end = bytes.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+    let header = std::str::from_utf8(&bytes[..end]).unwrap();
+    let count: usize = header.lines().find_map(|l| l.strip_prefix("element vertex ")).unwrap().trim().parse().unwrap();
+    bytes[end..end + 12 * count]
+        .chunks_exact(12)
+        .map(|v| [0, 1, 2].map(|k| f64::from(f32::from_le_bytes(v[4 * k..4 * k + 4].try_into().unwrap()))))
+        .collect()
+}

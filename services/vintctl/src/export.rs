@@ -356,7 +356,26 @@ fn dataset_record(
         let model = &record["model"];
         // Micrometre resolution: the record's metres have nine decimals, and ×1000 adds float noise.
         let mm = |v: &Value| v.as_f64().map(|m| (m * 1e9).round() / 1e6);
-        objects.push(json!({
+        // A BOP dataset's model keeps its file's frame: the record says where the file's origin is
+        // (`file_offset_m`, the bounding-box centre in the file's coordinates). This layout stays in
+        // the object frame (models, poses and, moved into it, the symmetries) and names the
+        // offset; the BOP conversion writes everything in the file's frame.
+        let offset = model["file_offset_m"].as_array().filter(|_| source == "bop").and_then(|c| {
+            let c: Vec<f64> = c.iter().filter_map(Value::as_f64).collect();
+            <[f64; 3]>::try_from(c).ok()
+        });
+        let symmetries = |key: &str| -> Result<Value, Failure> {
+            match offset {
+                Some(c) if c != [0.0; 3] => {
+                    let moved = formats::bop::moved_symmetries(key, &record[key], c.map(|v| -v))
+                        .ok_or_else(|| anyhow!("object {}: {key} is not in BOP's form", m.object))?;
+                    Ok(moved)
+                }
+                _ => Ok(record[key].clone()),
+            }
+        };
+        let (continuous, discrete) = (symmetries("symmetries_continuous")?, symmetries("symmetries_discrete")?);
+        let mut object = json!({
             "name": m.object,
             "obj_id": obj_id,
             "model_source": source,
@@ -366,9 +385,13 @@ fn dataset_record(
             "units": "mm",
             "diameter_mm": mm(&model["diameter_m"]),
             "extent_mm": model["extent_m"].as_array().map(|e| e.iter().map(mm).collect::<Vec<_>>()),
-            "symmetries_continuous": record["symmetries_continuous"],
-            "symmetries_discrete": record["symmetries_discrete"],
-        }));
+            "symmetries_continuous": continuous,
+            "symmetries_discrete": discrete,
+        });
+        if let Some(c) = offset {
+            object["file_offset_mm"] = json!(c.map(|v| (v * 1e9).round() / 1e6 + 0.0));
+        }
+        objects.push(object);
     }
     objects.sort_by_key(|o| o["obj_id"].as_u64());
     let pairs: Vec<Value> = listed

@@ -296,3 +296,31 @@ def test_a_bop_models_obj_id_travels_through_the_entry() -> None:
     assert "obj_id" not in ObjectSpec.parse(box_entry("a" * 64)).to_json()
     with pytest.raises(BadInput, match=r"params\.object\.obj_id: 101 is outside \[1, 100\]"):
         ObjectSpec.parse({**entry, "obj_id": 101})
+
+
+def test_a_bop_models_record_says_where_its_files_origin_is(tmp_path: Path) -> None:
+    # A box spanning x 0..80, y 10..60, z 0..30 mm: its origin is far from its bounding-box centre.
+    lo, hi = np.array([0.0, 10.0, 0.0]), np.array([80.0, 60.0, 30.0])
+    corners = np.array([[hi[k] if i >> k & 1 else lo[k] for k in range(3)] for i in range(8)])
+    quads = [(1, 3, 4, 2), (5, 6, 8, 7), (1, 2, 6, 5), (3, 7, 8, 4), (1, 5, 7, 3), (2, 4, 8, 6)]
+    lines = [f"v {x} {y} {z}" for x, y, z in corners]
+    lines += [f"f {a} {b} {c}\nf {a} {c} {d}" for a, b, c, d in quads]
+    path = tmp_path / "offset_box.obj"
+    path.write_text("\n".join(lines) + "\n")
+    sha = sha256(path)
+    model = build_model(ObjectSpec.parse({**box_entry(sha), "obj_id": 9}), assets={sha: path})
+    offset = np.array(model.record()["file_offset_m"])
+    assert offset == pytest.approx([0.04, 0.035, 0.015], abs=1e-12)
+    # The object frame is still the bounding-box centre; adding the offset gives the file's points.
+    assert model.mesh.vertices.min(axis=0) == pytest.approx(-(hi - lo) / 2000)
+
+    def in_file(vertices: np.ndarray) -> np.ndarray:
+        return np.unique(np.round((vertices + offset) * 1000, 6), axis=0)
+
+    assert in_file(model.mesh.vertices) == pytest.approx(np.unique(corners, axis=0))
+    # The render engine places the file's surface in the same frame.
+    look = load_look(path, 0.001, "params.object", {})
+    assert in_file(look.vertices) == pytest.approx(np.unique(corners, axis=0))
+    # Objects that keep no BOP id keep their records as they were.
+    plain = build_model(ObjectSpec.parse(box_entry(sha)), assets={sha: path})
+    assert "file_offset_m" not in plain.record()

@@ -26,10 +26,11 @@ use serde_json::{Value, json};
 use vint_core::SampleId;
 
 use super::Converted;
+pub use frames::moved_symmetries;
 use frames::{Mat3, Rigid, Vec3, row_major};
 pub use images::DEPTH_SCALE_MM;
 use images::{Mask, depth_units, encode_depth};
-use model::ModelGeometry;
+use model::{ModelGeometry, moved_ply};
 
 /// Lengths are written in mm to 1 nm and unitless numbers (rotations, normals) to 1e-9: far below
 /// anything measured, short and stable text.
@@ -96,10 +97,18 @@ pub fn write(native: &Path, out: &Path) -> anyhow::Result<Converted> {
 
     let mut described = dataset.clone();
     described["format"] = json!("vint-bop");
-    // Each object's model is where this layout keeps it.
+    // Each object's model is where this layout keeps it, in the frame it is written in.
     for o in described["objects"].as_array_mut().into_iter().flatten() {
         if let Some(id) = o["obj_id"].as_u64() {
             o["model"] = json!(format!("models/obj_{id:06}.ply"));
+            let c = objects.file_offset_m(id);
+            if c != [0.0; 3] {
+                for key in ["symmetries_continuous", "symmetries_discrete"] {
+                    let moved = moved_symmetries(key, &o[key], c).ok_or_else(|| anyhow!("dataset.json: {key}"))?;
+                    o[key] = moved;
+                }
+                o["frame"] = json!("mesh file");
+            }
         }
     }
     described["bop"] = json!({
@@ -163,6 +172,15 @@ impl Objects {
     fn id(&self, name: &str) -> anyhow::Result<u64> {
         self.ids.get(name).copied().ok_or_else(|| anyhow!("object {name} is not in dataset.json's objects"))
     }
+
+    /// Where the object's mesh file has its origin, as `dataset.json`'s `file_offset_mm` says (a
+    /// BOP dataset's model: the bounding-box centre in the file's coordinates), in metres; zero for
+    /// every other object, whose frame is the native one. This layout writes the model, its poses
+    /// and symmetries in the file's frame: `x_file = x + c`, `t_file = t − R·c`.
+    fn file_offset_m(&self, id: u64) -> Vec3 {
+        let offset = self.by_id.get(&id).and_then(|o| numbers(&o["file_offset_mm"], 3));
+        offset.map_or([0.0; 3], |c| [c[0] / 1000.0, c[1] / 1000.0, c[2] / 1000.0])
+    }
 }
 
 /// Every grasp (sorted by id) with its views' sample ids by view index, from `manifest.jsonl`.
@@ -197,6 +215,12 @@ fn write_models(native: &Path, objects: &Objects, sink: &mut Sink) -> anyhow::Re
         let file = o["model"].as_str().ok_or_else(|| anyhow!("dataset.json: object {name} has no model file"))?;
         let path = native.join(file);
         let bytes = fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
+        let c = objects.file_offset_m(id);
+        let bytes = if c == [0.0; 3] {
+            bytes
+        } else {
+            moved_ply(&bytes, c.map(|v| v * 1000.0)).with_context(|| format!("{}", path.display()))?
+        };
         let vertices = crate::eval::ply::vertices(&bytes).with_context(|| format!("{}", path.display()))?;
         let geometry = ModelGeometry::of(&vertices).with_context(|| format!("{}", path.display()))?;
         check_declared(name, &geometry, o)?;
@@ -213,7 +237,13 @@ fn write_models(native: &Path, objects: &Objects, sink: &mut Sink) -> anyhow::Re
         // BOP lists symmetry keys only for symmetric objects.
         for key in ["symmetries_continuous", "symmetries_discrete"] {
             if o[key].as_array().is_some_and(|s| !s.is_empty()) {
-                entry[key] = symmetries_in_mm(key, &o[key], name)?;
+                let in_file = if c == [0.0; 3] {
+                    o[key].clone()
+                } else {
+                    moved_symmetries(key, &o[key], c)
+                        .ok_or_else(|| anyhow!("dataset.json: object {name}'s {key} is not in BOP's form"))?
+                };
+                entry[key] = symmetries_in_mm(key, &in_file, name)?;
             }
         }
         info.insert(id, entry);
@@ -307,6 +337,8 @@ fn write_scene(
 struct Grasp<'a> {
     record: &'a Value,
     obj_id: u64,
+    /// The model's file frame in the native object frame (`Objects::file_offset_m`).
+    file_offset_m: Vec3,
     /// Palm frame → world, for the taxels (`touch.active[].p_palm` is in the palm frame).
     palm_to_world: Rigid,
     /// Every link's pose in the world.
@@ -330,7 +362,8 @@ impl<'a> Grasp<'a> {
         {
             bail!("trial.link_poses.palm differs from trial.hand_pose: which frame is the palm's is unclear");
         }
-        Ok(Grasp { record, obj_id: objects.id(object)?, palm_to_world, links })
+        let obj_id = objects.id(object)?;
+        Ok(Grasp { record, obj_id, file_offset_m: objects.file_offset_m(obj_id), palm_to_world, links })
     }
 }
 
@@ -348,6 +381,9 @@ fn write_image(
     let meta = read_json(&meta_path)?;
     let camera = &meta["camera"];
     let view = View::of(camera).with_context(|| format!("{}: camera", meta_path.display()))?;
+    // The model's pose in its file's frame: x_cam = R·x + t = R·x_file + (t − R·c).
+    let model_to_camera =
+        Rigid { r: view.model_to_camera.r, t: view.model_to_camera.point(grasp.file_offset_m.map(|v| -v)) };
     let name = |folder: &str| format!("{dir}/{folder}/{im:06}.png");
 
     if sample.join("rgb.png").is_file() {
@@ -373,8 +409,8 @@ fn write_image(
         (
             "scene_gt.json",
             json!([{
-                "cam_R_m2c": row_major(&view.model_to_camera.r).map(|v| round(v, UNIT_DECIMALS)),
-                "cam_t_m2c": view.model_to_camera.t.map(mm),
+                "cam_R_m2c": row_major(&model_to_camera.r).map(|v| round(v, UNIT_DECIMALS)),
+                "cam_t_m2c": model_to_camera.t.map(mm),
                 "obj_id": grasp.obj_id,
             }]),
         ),

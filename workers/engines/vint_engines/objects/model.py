@@ -5,6 +5,11 @@ Object frame (shared by physics, rendering and the exported PLY): the origin is 
 mesh's axis-aligned bounding box, the axes are the shape's own (for cylinders and revolved shapes
 +z is the axis). The bounding-box centre does not depend on an assumed density, and for the
 symmetric shapes it is the usual centre.
+
+A BOP dataset's model (an entry with `obj_id`) keeps its file's own frame through the exports: its
+record names `file_offset_m`, the bounding-box centre in the mesh file's coordinates (metres), so a
+point x of the object frame is x + file_offset_m in the file's, and a pose (R, t) of the object
+frame is (R, t - R·file_offset_m) of the file's (`docs/assets.md`).
 """
 
 from __future__ import annotations
@@ -38,6 +43,7 @@ class ObjectModel:
     centroid: Array  # centre of mass (uniform density), object frame
     inertia: Array  # 3×3 about the centroid, object axes, kg·m² for spec.mass
     rest: RestPose
+    file_offset: Array  # bounding-box centre in the shape's own (file) coordinates, m
 
     @property
     def extent(self) -> Array:
@@ -49,7 +55,13 @@ class ObjectModel:
         return meshio.ply_bytes(self.mesh.vertices, self.mesh.faces)
 
     def record(self) -> dict[str, Any]:
-        """What grasps.json says about the model file next to it."""
+        """What grasps.json says about the model file next to it; a BOP dataset's model (`obj_id`)
+        adds where its file's frame is (`file_offset_m`), for the exports."""
+        keep_frame = (
+            {"file_offset_m": [round(float(v), DECIMALS) + 0.0 for v in self.file_offset]}
+            if self.spec.obj_id is not None
+            else {}
+        )
         return {
             "file": MODEL_FILE,
             "units": "mm",
@@ -58,6 +70,7 @@ class ObjectModel:
             "volume_m3": round(self.volume, DECIMALS + 3),
             "centroid_m": [round(float(v), DECIMALS) + 0.0 for v in self.centroid],
             "diameter_m": round(diameter(self.mesh.vertices), DECIMALS),
+            **keep_frame,
         }
 
 
@@ -84,6 +97,7 @@ def build_model(
         centroid=centroid,
         inertia=unit_inertia * spec.mass,
         rest=rest_pose(mesh.vertices, centroid),
+        file_offset=(low + high) / 2,
     )
 
 

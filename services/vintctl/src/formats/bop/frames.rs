@@ -65,6 +65,40 @@ pub fn row_major(m: &Mat3) -> [f64; 9] {
     [m[0][0], m[0][1], m[0][2], m[1][0], m[1][1], m[1][2], m[2][0], m[2][1], m[2][2]]
 }
 
+/// An object's symmetry list (BOP's form, in the units of `d`) re-expressed in the frame whose
+/// coordinates are `x + d`: a symmetry `x ↦ R·x + t` becomes `x ↦ R·x + t + d − R·d`, a continuous
+/// one's axis keeps its direction and its point moves by `d`; every number to 1e-9 (nanometres),
+/// as the native records write them. `None` when the list is not in
+/// BOP's form (`key` says which list: `symmetries_continuous` or `symmetries_discrete`).
+pub fn moved_symmetries(key: &str, list: &serde_json::Value, d: Vec3) -> Option<serde_json::Value> {
+    let nano = |x: f64| (x * 1e9).round() / 1e9 + 0.0;
+    let numbers = |v: &serde_json::Value, n: usize| -> Option<Vec<f64>> {
+        let l = v.as_array().filter(|l| l.len() == n)?;
+        l.iter().map(serde_json::Value::as_f64).collect()
+    };
+    let moved = list
+        .as_array()?
+        .iter()
+        .map(|s| {
+            if key == "symmetries_continuous" {
+                let offset = numbers(&s["offset"], 3)?;
+                let mut s = s.clone();
+                s["offset"] = serde_json::json!([0, 1, 2].map(|k| nano(offset[k] + d[k])));
+                Some(s)
+            } else {
+                let mut m = numbers(s, 16)?;
+                let r = [[m[0], m[1], m[2]], [m[4], m[5], m[6]], [m[8], m[9], m[10]]];
+                let rd = Rigid { r, t: [0.0; 3] }.direction(d);
+                for k in 0..3 {
+                    m[4 * k + 3] += d[k] - rd[k];
+                }
+                Some(serde_json::json!(m.into_iter().map(nano).collect::<Vec<_>>()))
+            }
+        })
+        .collect::<Option<Vec<_>>>()?;
+    Some(serde_json::Value::Array(moved))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -103,5 +137,46 @@ mod tests {
     fn row_major_reads_rows_first() {
         let m = [[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0]];
         assert_eq!(row_major(&m), [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0]);
+    }
+
+    #[test]
+    fn a_moved_symmetry_maps_the_moved_points_as_the_original_maps_the_originals() {
+        // Half turn about z through (0.01, 0.02, 0) in the old frame.
+        let (c, d) = ([0.01, 0.02, 0.0], [0.3, -0.1, 0.05]);
+        let flip = serde_json::json!([[
+            -1.0,
+            0.0,
+            0.0,
+            2.0 * c[0],
+            0.0,
+            -1.0,
+            0.0,
+            2.0 * c[1],
+            0.0,
+            0.0,
+            1.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            1.0
+        ]]);
+        let moved = moved_symmetries("symmetries_discrete", &flip, d).expect("bop form");
+        let m: Vec<f64> = moved[0].as_array().unwrap().iter().filter_map(serde_json::Value::as_f64).collect();
+        let apply = |m: &[f64], x: Vec3| {
+            [0, 1, 2].map(|k| m[4 * k] * x[0] + m[4 * k + 1] * x[1] + m[4 * k + 2] * x[2] + m[4 * k + 3])
+        };
+        let old: Vec<f64> = flip[0].as_array().unwrap().iter().filter_map(serde_json::Value::as_f64).collect();
+        let x = [0.04, -0.02, 0.07];
+        let image = apply(&old, x);
+        let (got, want) = (apply(&m, [x[0] + d[0], x[1] + d[1], x[2] + d[2]]), [0, 1, 2].map(|k| image[k] + d[k]));
+        assert!(got.iter().zip(want).all(|(a, b)| (a - b).abs() < 1e-8), "{got:?} {want:?}");
+        let axis = serde_json::json!([{"axis": [0.0, 0.0, 1.0], "offset": c}]);
+        let moved = moved_symmetries("symmetries_continuous", &axis, d).expect("bop form");
+        assert_eq!(moved[0]["axis"], axis[0]["axis"]);
+        let offset: Vec<f64> =
+            moved[0]["offset"].as_array().unwrap().iter().filter_map(serde_json::Value::as_f64).collect();
+        assert!(close([offset[0], offset[1], offset[2]], [c[0] + d[0], c[1] + d[1], c[2] + d[2]]));
+        assert!(moved_symmetries("symmetries_discrete", &serde_json::json!([[1.0, 0.0]]), d).is_none());
     }
 }

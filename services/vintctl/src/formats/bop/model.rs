@@ -2,7 +2,7 @@
 //! itself (millimetres, read with `eval::ply`, the one PLY reader), so they describe exactly the file
 //! the export ships.
 
-use anyhow::anyhow;
+use anyhow::{anyhow, bail};
 
 use super::frames::Vec3;
 
@@ -27,6 +27,44 @@ impl ModelGeometry {
         }
         Ok(ModelGeometry { min: lo, size: [hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]], diameter: diameter(vertices) })
     }
+}
+
+/// The model PLY as vint writes it (binary little-endian, the `vertex` element first with float32
+/// `x y z` alone) with every vertex moved by `d` (mm): the same triangles in another frame. Any
+/// other layout is refused rather than guessed at.
+pub fn moved_ply(bytes: &[u8], d: Vec3) -> anyhow::Result<Vec<u8>> {
+    const END: &[u8] = b"end_header\n";
+    let end =
+        bytes.windows(END.len()).position(|w| w == END).ok_or_else(|| anyhow!("PLY has no end_header"))? + END.len();
+    let header = std::str::from_utf8(&bytes[..end]).map_err(|_| anyhow!("PLY header is not text"))?;
+    let lines: Vec<&str> =
+        header.lines().map(str::trim).filter(|l| !l.is_empty() && !l.starts_with("comment")).collect();
+    let count = match lines.as_slice() {
+        [
+            "ply",
+            "format binary_little_endian 1.0",
+            vertex,
+            "property float x",
+            "property float y",
+            "property float z",
+            rest @ ..,
+        ] if rest.first().is_none_or(|l| l.starts_with("element ")) => {
+            vertex.strip_prefix("element vertex ").and_then(|n| n.parse::<usize>().ok())
+        }
+        _ => None,
+    };
+    let Some(count) = count else {
+        bail!("the model PLY is not vint's layout (binary little-endian, vertex element of float x y z first)");
+    };
+    let mut out = bytes.to_vec();
+    let body = out.get_mut(end..end + count * 12).ok_or_else(|| anyhow!("PLY vertex data ends early"))?;
+    for vertex in body.chunks_exact_mut(12) {
+        for (k, value) in vertex.chunks_exact_mut(4).enumerate() {
+            let v = f32::from_le_bytes([value[0], value[1], value[2], value[3]]);
+            value.copy_from_slice(&((f64::from(v) + d[k]) as f32).to_le_bytes());
+        }
+    }
+    Ok(out)
 }
 
 /// The exact largest vertex distance. Pairs are visited farthest-from-the-centroid first and the
@@ -102,5 +140,23 @@ mod tests {
         let line: Vec<Vec3> = (0..50).map(|i| [f64::from(i), 0.0, 0.0]).collect();
         assert_eq!(diameter(&line), 49.0);
         assert_eq!(diameter(&[[1.0, 2.0, 3.0], [1.0, 2.0, 3.0]]), 0.0);
+    }
+
+    #[test]
+    fn a_moved_model_keeps_its_triangles_and_moves_each_vertex() {
+        let mut ply = b"ply\nformat binary_little_endian 1.0\ncomment vint object model, units: mm\nelement vertex 2\n\
+            property float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+            .to_vec();
+        for v in [1.0f32, 2.0, 3.0, -4.0, 5.5, 0.0] {
+            ply.extend_from_slice(&v.to_le_bytes());
+        }
+        ply.extend_from_slice(&[3, 0, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0]);
+        let moved = moved_ply(&ply, [40.0, 35.0, 15.0]).expect("vint's layout");
+        let vertices = crate::eval::ply::vertices(&moved).expect("still a PLY");
+        assert_eq!(vertices, vec![[41.0, 37.0, 18.0], [36.0, 40.5, 15.0]]);
+        assert_eq!(moved.len(), ply.len());
+        assert_eq!(moved[moved.len() - 13..], ply[ply.len() - 13..]);
+        let ascii = b"ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\nend_header\n";
+        assert!(moved_ply(ascii, [1.0; 3]).is_err());
     }
 }
