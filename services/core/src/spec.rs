@@ -162,8 +162,8 @@ pub struct RenderSettings {
     /// [width, height] in pixels.
     pub resolution: [u32; 2],
     /// Cycles samples per pixel (of the RGB image; depth, masks and segmentation are not path traced).
-    /// Default 16 with the denoiser: the cheapest setting whose foreground reaches 35 dB PSNR for an
-    /// opaque object at 640×480 in the render study (docs/studies/render/render_study.md).
+    /// Default 32 with the denoiser: the cheapest setting whose foreground reaches 35 dB median PSNR
+    /// at 640×480 over the render study's objects (docs/studies/render/render_study.md).
     pub samples: u32,
     /// OpenImageDenoise on the RGB image (guided by albedo and normals): on by default, since it is
     /// what removes fireflies (docs/rendering.md).

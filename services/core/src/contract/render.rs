@@ -10,12 +10,11 @@ use crate::asset::Asset;
 
 pub const WIDTH_PX: Bound<u32> = Bound::new(16, 8192, 128);
 pub const HEIGHT_PX: Bound<u32> = Bound::new(16, 8192, 128);
-/// Cycles samples per pixel of the RGB image. Default 16 (with the denoiser, on by default): the
-/// cheapest setting whose foreground — the object and hand pixels — reaches 35 dB PSNR against a
-/// 512-sample reference at 640×480 for an opaque object in the render study
-/// (docs/studies/render/render_study.md; glass needs more, and the study says why it cannot yet
-/// say how many).
-pub const SAMPLES: Bound<u32> = Bound::new(1, 65_536, 16);
+/// Cycles samples per pixel of the RGB image. Default 32 (with the denoiser, on by default): the
+/// cheapest setting whose foreground — the object, hand and arm pixels — reaches 35 dB median PSNR
+/// against a 512-sample reference at 640×480 over the render study's opaque and glass objects,
+/// with no firefly (docs/studies/render/render_study.md: an opaque object alone reaches it at 8).
+pub const SAMPLES: Bound<u32> = Bound::new(1, 65_536, 32);
 /// Horizontal field of view (degrees).
 pub const FOV_DEG: Bound<f64> = Bound::new(5.0, 150.0, 60.0);
 /// Each end of the camera's distance range from the object (m).
