@@ -194,6 +194,7 @@ impl JobPlan {
                 intrinsics_jitter: r.intrinsics_jitter,
                 scene: r.scene.clone(),
                 sensor: r.sensor.clone(),
+                light: r.light.clone(),
             },
             environments,
             render_assets,

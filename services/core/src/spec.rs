@@ -192,6 +192,8 @@ pub struct RenderSettings {
     pub scene: render_contract::Scene,
     /// The colour camera's sensor model (`[render.sensor]`).
     pub sensor: render_contract::Sensor,
+    /// Per-view light randomisation (`[render.light]`).
+    pub light: render_contract::Light,
 }
 
 /// Views of one grasp at most: view ids are two digits (`v00`..`v99`).
@@ -333,6 +335,9 @@ pub fn number_fields() -> Vec<NumberField> {
         float("render.intrinsics_jitter", render_contract::INTRINSICS_JITTER),
         float("render.clamp_indirect", render_contract::CLAMP_INDIRECT),
         float("render.scene.table_gap_m", render_contract::TABLE_GAP_M),
+        float("render.light.strength_ev_sigma", render_contract::STRENGTH_EV_SIGMA),
+        float("render.light.rotation_jitter_deg", render_contract::ROTATION_JITTER_DEG),
+        pair(float("render.light.temperature_k", render_contract::TEMPERATURE_K)),
         float("render.sensor.exposure_ev_sigma", render_contract::EXPOSURE_EV_SIGMA),
         float("render.sensor.white_balance_sigma", render_contract::WHITE_BALANCE_SIGMA),
         float("render.sensor.shot_noise", render_contract::SHOT_NOISE),
@@ -613,6 +618,7 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
         intrinsics_jitter: r.number(&mut rd, "render", "intrinsics_jitter", render_contract::INTRINSICS_JITTER),
         scene: read_scene(r, &mut rd),
         sensor: read_sensor(r, &mut rd),
+        light: read_light(r, &mut rd),
     };
     if !render.environments.is_empty() && render.views_per_grasp() > MAX_VIEWS_PER_GRASP {
         r.error(
@@ -644,6 +650,7 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
             "intrinsics_jitter",
             "scene",
             "sensor",
+            "light",
         ],
     );
 
@@ -1061,6 +1068,29 @@ fn read_scene(r: &mut Reader, rd: &mut Table) -> render_contract::Scene {
     };
     r.finish(t, "render.scene", &["table", "table_gap_m", "flange"]);
     scene
+}
+
+/// `[render.light]`: per-view randomisation of the environment's light.
+fn read_light(r: &mut Reader, rd: &mut Table) -> render_contract::Light {
+    let mut t = render_subtable(r, rd, "light");
+    let light = render_contract::Light {
+        strength_ev_sigma: r.number(&mut t, "render.light", "strength_ev_sigma", render_contract::STRENGTH_EV_SIGMA),
+        rotation_jitter_deg: r.number(
+            &mut t,
+            "render.light",
+            "rotation_jitter_deg",
+            render_contract::ROTATION_JITTER_DEG,
+        ),
+        temperature_k: r.float_range(
+            &mut t,
+            "render.light",
+            "temperature_k",
+            render_contract::TEMPERATURE_K,
+            render_contract::TEMPERATURE_K_DEFAULT,
+        ),
+    };
+    r.finish(t, "render.light", &["strength_ev_sigma", "rotation_jitter_deg", "temperature_k"]);
+    light
 }
 
 /// `[render.sensor]`: the colour camera's sensor model.

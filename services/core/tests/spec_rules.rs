@@ -548,6 +548,10 @@ fn cycles_settings_have_defaults_and_ranges() {
         "render.scene.table_gap_m: must be in [0, 1], got -0.1",
     );
     assert_single_error(
+        &tiny_with("samples = 16", "samples = 16\nlight = { temperature_k = [1000.0, 6504.0] }"),
+        "render.light.temperature_k[0]: must be in [1667, 25000], got 1000.0",
+    );
+    assert_single_error(
         &tiny_with("samples = 16", "samples = 16\nscene = { tabel = true }"),
         "render.scene.tabel: unknown key (did you mean `table`? known keys: table, table_gap_m, flange), got true",
     );

@@ -347,10 +347,11 @@ def test_pruning_and_skipping_path_tracing_change_no_geometry_pixel(
             assert pruned == (routes["full"][0] / f"v{v:02d}_{name}").read_bytes(), name
             if name != "camera.json":
                 assert pruned == (routes["geometry_only"][0] / f"v{v:02d}_{name}").read_bytes(), name
-        # Without RGB no colour sensor records a draw; the rest of the record is the same.
+        # Without RGB neither the colour sensor nor the light draws; the rest of the record is the same.
         with_rgb = json.loads((routes["pruned"][0] / f"v{v:02d}_camera.json").read_text())
         without = json.loads((routes["geometry_only"][0] / f"v{v:02d}_camera.json").read_text())
         assert with_rgb.pop("sensor")["enabled"] is True and "sensor" not in without
+        assert with_rgb.pop("light")["tint_rgb"] == [1.0, 1.0, 1.0] and "light" not in without
         assert with_rgb == without
         rgb = f"v{v:02d}_rgb.png"
         assert (routes["pruned"][0] / rgb).read_bytes() == (routes["full"][0] / rgb).read_bytes()

@@ -40,6 +40,13 @@ pub const INTRINSICS_JITTER: Bound<f64> = Bound::new(0.0, 0.1, 0.0);
 pub const CLAMP_INDIRECT: Bound<f64> = Bound::new(0.0, 1000.0, 10.0);
 /// The table top's gap below the lowest point of the hand, the object and the arm's flange (m).
 pub const TABLE_GAP_M: Bound<f64> = Bound::new(0.0, 1.0, 0.05);
+/// The light's per-view strength spread (standard deviation, EV; 0: the environment's own).
+pub const STRENGTH_EV_SIGMA: Bound<f64> = Bound::new(0.0, 3.0, 0.0);
+/// The light's per-view turn about world +z, uniform within ± this (degrees; 0: none).
+pub const ROTATION_JITTER_DEG: Bound<f64> = Bound::new(0.0, 180.0, 0.0);
+/// Each end of the light's colour temperature range (kelvin; 6504 is neutral daylight).
+pub const TEMPERATURE_K: Bound<f64> = Bound::new(1667.0, 25_000.0, 6504.0);
+pub const TEMPERATURE_K_DEFAULT: [f64; 2] = [6504.0, 6504.0];
 /// The colour sensor's exposure error (standard deviation, EV).
 pub const EXPOSURE_EV_SIGMA: Bound<f64> = Bound::new(0.0, 3.0, 0.2);
 /// The white balance's error on red and blue (standard deviation of the log gain).
@@ -125,6 +132,33 @@ pub struct Settings {
     pub scene: Scene,
     /// The colour camera's sensor: exposure and white-balance errors, shot and read noise.
     pub sensor: Sensor,
+    /// Per-view randomisation of the environment's strength, turn and colour temperature.
+    pub light: Light,
+}
+
+/// Per-view light randomisation (`vint_engines/render/lighting.py`), drawn from the view's seed:
+/// off by default (every field at its neutral value).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+#[schemars(rename = "RenderLight")]
+pub struct Light {
+    #[schemars(range(min = STRENGTH_EV_SIGMA.min, max = STRENGTH_EV_SIGMA.max))]
+    pub strength_ev_sigma: f64,
+    #[schemars(range(min = ROTATION_JITTER_DEG.min, max = ROTATION_JITTER_DEG.max))]
+    pub rotation_jitter_deg: f64,
+    /// [min, max] (min ≤ max); [6504, 6504] keeps the environment's own colour.
+    #[schemars(inner(range(min = TEMPERATURE_K.min, max = TEMPERATURE_K.max)))]
+    pub temperature_k: [f64; 2],
+}
+
+impl Default for Light {
+    fn default() -> Light {
+        Light {
+            strength_ev_sigma: STRENGTH_EV_SIGMA.default,
+            rotation_jitter_deg: ROTATION_JITTER_DEG.default,
+            temperature_k: TEMPERATURE_K_DEFAULT,
+        }
+    }
 }
 
 /// The colour sensor model applied to the path-traced image (`vint_engines/render/sensor.py`:
@@ -197,6 +231,7 @@ impl Default for Settings {
             intrinsics_jitter: INTRINSICS_JITTER.default,
             scene: Scene::default(),
             sensor: Sensor::default(),
+            light: Light::default(),
         }
     }
 }

@@ -35,6 +35,7 @@ from vint_engines.objects.spec import MeshFile
 from vint_engines.objects.textured import MeshSource
 from vint_engines.poses import quat_to_matrix, read_pose
 from vint_engines.protocol import BadInput, Json, TaskRequest, TaskResult
+from vint_engines.render import lighting
 from vint_engines.render.camera import CameraPose, Intrinsics, framed, look_at, sample_on_hemisphere
 from vint_engines.render.cycles import Bounces, PathTracing
 from vint_engines.render.dressing import SceneDressing
@@ -62,6 +63,7 @@ class RenderSettings:
     intrinsics_jitter: float
     scene: SceneDressing
     sensor: SensorModel
+    light: lighting.LightJitter
 
     @staticmethod
     def parse(obj: Any, where: str = "params.render") -> RenderSettings:
@@ -70,6 +72,9 @@ class RenderSettings:
             low, high = fields[key]
             if low > high:
                 raise BadInput(f"{where}.{key}: min {low} exceeds max {high}")
+        low, high = fields["light"]["temperature_k"]
+        if low > high:
+            raise BadInput(f"{where}.light.temperature_k: min {low} exceeds max {high}")
         return RenderSettings(
             intrinsics=Intrinsics(width=fields["width"], height=fields["height"], fov_deg=fields["fov_deg"]),
             tracing=PathTracing(
@@ -91,6 +96,7 @@ class RenderSettings:
                 flange=bool(fields["scene"]["flange"]),
             ),
             sensor=SensorModel.from_fields(fields["sensor"]),
+            light=lighting.LightJitter.from_fields(fields["light"]),
         )
 
 
@@ -282,6 +288,7 @@ class RenderEngine:
         geometry_s = rgb_s = 0.0
         occluded: dict[int, float] = {}
         sensors: dict[int, dict[str, Any]] = {}  # what each view's colour sensor drew
+        lights: dict[int, lighting.LightDraw] = {}  # what each view's light drew
         for view in self._render_order(views):
             started = time.perf_counter()
             intrinsics = view_intrinsics(view.seed, settings)
@@ -294,7 +301,11 @@ class RenderEngine:
             if "rgb" in outputs:
                 started = time.perf_counter()
                 environment = view.environment
-                self.scene.set_environment(hdris[environment], environment.rotation_deg, environment.strength)
+                light = lighting.draw(
+                    settings.light, view.seed, environment.rotation_deg, environment.strength
+                )
+                lights[view.index] = light
+                self.scene.set_environment(hdris[environment], light.rotation_deg, light.strength, light.tint)
                 image, sensors[view.index] = capture(
                     self.scene.render_rgb(tracing, view.seed), settings.sensor, view.seed
                 )
@@ -309,6 +320,7 @@ class RenderEngine:
                 object_pose,
                 geometry,
                 sensors.get(view.index),
+                lights.get(view.index),
                 result,
             )
         n = len(views)
@@ -338,7 +350,9 @@ class RenderEngine:
         return sorted(
             (view for group in groups.values() for view in group),
             key=lambda view: (
-                (view.environment.key, view.environment.rotation_deg, view.environment.strength) != loaded
+                loaded is None
+                or (view.environment.key, view.environment.rotation_deg, view.environment.strength)
+                != loaded[:3]
             ),
         )
 
@@ -352,6 +366,7 @@ class RenderEngine:
         object_pose: tuple[np.ndarray, np.ndarray],
         geometry: Geometry,
         sensor: dict[str, Any] | None,
+        light: lighting.LightDraw | None,
         result: TaskResult,
     ) -> float:
         """Writes one view's files and camera record; returns its occlusion."""
@@ -396,6 +411,8 @@ class RenderEngine:
         }
         if sensor is not None:
             record["sensor"] = sensor
+        if light is not None:
+            record["light"] = light.to_json()
         path = out_dir / f"{prefix}_camera.json"
         path.write_text(json.dumps(record, indent=1))
         result.add(path, "application/json")

@@ -124,10 +124,11 @@ class BlenderScene:
         self._configure_rgb()
         self._configure_geometry()
         self.camera = self._add_camera()
-        self._environment_node, self._background_node = self._add_world()
+        self._environment_node, self._tint_node, self._background_node = self._add_world()
         self._turned_images: dict[tuple[str, float], bpy.types.Image] = {}  # (key, turn) → image, LRU
         self._environment_images: dict[str, bpy.types.Image] = {}  # by `Hdri.key`
-        self.environment: tuple[str, float, float] | None = None  # (Hdri.key, rotation_deg, strength)
+        # (Hdri.key, rotation_deg, strength, tint) of the environment set last
+        self.environment: tuple[str, float, float, tuple[float, float, float]] | None = None
         self._hand_key: str | None = None
         self._links: dict[str, bpy.types.Object] = {}
         self._object: bpy.types.Object | None = None
@@ -181,8 +182,9 @@ class BlenderScene:
             scene.camera = camera
         return camera
 
-    def _add_world(self) -> tuple[bpy.types.Node, bpy.types.Node]:
-        """The RGB scene's world: environment texture → background (strength). The geometry
+    def _add_world(self) -> tuple[bpy.types.Node, bpy.types.Node, bpy.types.Node]:
+        """The RGB scene's world: environment texture → × tint → background (strength); a tint of
+        (1, 1, 1) passes the colour through exactly (a + 1·(a·1 - a) = a). The geometry
         scenes have no world. An environment is turned by rolling its image's columns
         (`_turned_image`) rather than by a Mapping node turning the texture lookup; an unturned
         environment renders exactly as without the feature.
@@ -197,10 +199,16 @@ class BlenderScene:
         world.cycles.sample_map_resolution = ENVIRONMENT_MAP_RESOLUTION
         tree = world.node_tree
         environment = tree.nodes.new("ShaderNodeTexEnvironment")
+        tint = tree.nodes.new("ShaderNodeMix")
+        tint.data_type = "RGBA"
+        tint.blend_type = "MULTIPLY"
+        tint.inputs["Factor"].default_value = 1.0
+        _socket(tint.inputs, "B_Color").default_value = (1.0, 1.0, 1.0, 1.0)
         background = tree.nodes["Background"]
-        tree.links.new(environment.outputs["Color"], background.inputs["Color"])
+        tree.links.new(environment.outputs["Color"], _socket(tint.inputs, "A_Color"))
+        tree.links.new(_socket(tint.outputs, "Result_Color"), background.inputs["Color"])
         self.rgb_scene.world = world
-        return environment, background
+        return environment, tint, background
 
     # -- scene content ---------------------------------------------------------------------------
 
@@ -223,16 +231,24 @@ class BlenderScene:
             raise BadInput(f"{hdri.label}: Blender cannot read the file as an image")
         self._environment_images[hdri.key] = image
 
-    def set_environment(self, hdri: Hdri, rotation_deg: float = 0.0, strength: float = 1.0) -> None:
+    def set_environment(
+        self,
+        hdri: Hdri,
+        rotation_deg: float = 0.0,
+        strength: float = 1.0,
+        tint: tuple[float, float, float] = (1.0, 1.0, 1.0),
+    ) -> None:
         """Light the RGB scene with `hdri`, turned by `rotation_deg` about world +z
-        (counter-clockwise seen from above) and scaled by `strength`. Each HDRI is loaded on first
-        use and kept, so switching between views only swaps the texture's image."""
-        if (hdri.key, rotation_deg, strength) == self.environment:
+        (counter-clockwise seen from above), scaled by `strength` and its colour multiplied by
+        `tint` (linear RGB; `lighting.py`). Each HDRI is loaded on first use and kept, so switching
+        between views only swaps the texture's image."""
+        if (hdri.key, rotation_deg, strength, tint) == self.environment:
             return
         self.load_environment(hdri)
         self._environment_node.image = self._turned_image(hdri.key, rotation_deg)
         self._background_node.inputs["Strength"].default_value = strength
-        self.environment = (hdri.key, rotation_deg, strength)
+        _socket(self._tint_node.inputs, "B_Color").default_value = (*tint, 1.0)
+        self.environment = (hdri.key, rotation_deg, strength, tint)
 
     def _turned_image(self, key: str, rotation_deg: float) -> bpy.types.Image:
         """The loaded HDRI `key` turned by `rotation_deg` about world +z: its columns rolled.
@@ -528,6 +544,12 @@ class BlenderScene:
         table = self._add_object(mesh, (_table_material(),), 0)
         table.hide_render = True
         return table
+
+
+def _socket(sockets: Any, identifier: str) -> Any:
+    """The socket with `identifier`: a Mix node has an A, B and Result per data type, and a name
+    finds the first (the float one)."""
+    return next(socket for socket in sockets if socket.identifier == identifier)
 
 
 def _table_material() -> bpy.types.Material:
