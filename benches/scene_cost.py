@@ -63,7 +63,13 @@ def main() -> int:
                 for view in range(args.views):
                     params = {
                         "grasp_index": scene.accepted[0],
-                        "render": {"width": width, "height": height, "samples": args.samples, **extra},
+                        "render": {
+                            "width": width,
+                            "height": height,
+                            "samples": args.samples,
+                            "denoise": True,
+                            **extra,
+                        },
                         "views": [{"view_index": view, "seed": 900 + view}],
                     }
                     out = work / "out"

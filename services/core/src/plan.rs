@@ -180,6 +180,7 @@ impl JobPlan {
                 height: r.resolution[1],
                 samples: r.samples,
                 denoise: r.denoise,
+                despeckle: r.despeckle,
                 clamp_indirect: r.clamp_indirect,
                 bounces: r.bounces.clone(),
                 prune_bounces: true,

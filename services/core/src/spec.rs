@@ -165,9 +165,11 @@ pub struct RenderSettings {
     /// Default 32 with the denoiser: the cheapest setting whose foreground reaches 35 dB median PSNR
     /// at 640×480 over the render study's objects (docs/studies/render/render_study.md).
     pub samples: u32,
-    /// OpenImageDenoise on the RGB image (guided by albedo and normals): on by default, since it is
-    /// what removes fireflies (docs/rendering.md).
+    /// OpenImageDenoise on the RGB image (guided by albedo and normals): what reaches 35 dB on the
+    /// foreground, but not byte-reproducible between processes, so off by default (docs/rendering.md).
     pub denoise: bool,
+    /// The firefly filter's threshold (share of full scale; 0: off).
+    pub despeckle: f64,
     /// Cycles' clamp on indirect light (0: off).
     pub clamp_indirect: f64,
     /// Light-path caps; the renderer lowers them to what the scene's materials can use.
@@ -334,6 +336,7 @@ pub fn number_fields() -> Vec<NumberField> {
         float("render.offcentre", render_contract::OFFCENTRE),
         float("render.intrinsics_jitter", render_contract::INTRINSICS_JITTER),
         float("render.clamp_indirect", render_contract::CLAMP_INDIRECT),
+        float("render.despeckle", render_contract::DESPECKLE),
         float("render.scene.table_gap_m", render_contract::TABLE_GAP_M),
         float("render.light.strength_ev_sigma", render_contract::STRENGTH_EV_SIGMA),
         float("render.light.rotation_jitter_deg", render_contract::ROTATION_JITTER_DEG),
@@ -587,7 +590,8 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
     let render = RenderSettings {
         resolution,
         samples: r.count(&mut rd, "render", "samples", render_contract::SAMPLES),
-        denoise: r.boolean(&mut rd, "render.denoise", "denoise", true),
+        denoise: r.boolean(&mut rd, "render.denoise", "denoise", false),
+        despeckle: r.number(&mut rd, "render", "despeckle", render_contract::DESPECKLE),
         clamp_indirect: r.number(&mut rd, "render", "clamp_indirect", render_contract::CLAMP_INDIRECT),
         bounces: read_bounces(r, &mut rd),
         views_per_environment: r.count(&mut rd, "render", "views_per_environment", VIEWS_PER_ENVIRONMENT),
@@ -637,6 +641,7 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
             "resolution",
             "samples",
             "denoise",
+            "despeckle",
             "clamp_indirect",
             "bounces",
             "views_per_environment",

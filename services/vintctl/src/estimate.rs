@@ -28,10 +28,10 @@ const GRASP_REFERENCE_TIMESTEP_S: f64 = 0.002;
 /// Render: path tracing per pixel and sample, with the default scene (the table fills most of the
 /// image with a diffuse surface that shades and bounces where the bare HDRI background only
 /// looked up a colour: ~2.5–3× the bare scene's cost at 640×480, `benches/scene_cost.py`).
-/// Calibrated on tiny.toml (128×128, 16 spp + denoise): ~0.85 CPU-s per view in all, of which the
-/// denoiser ~0.48 s, the fixed and geometry parts ~0.11 s, leaving ~0.26 s for 262 144
-/// pixel-samples (the test below).
-const RENDER_S_PER_PIXEL_SAMPLE: f64 = 1.2e-6;
+/// Calibrated on tiny.toml (128×128, 16 raw spp, the default scene): ~0.59 CPU-s per view in all,
+/// of which the fixed and geometry parts ~0.11 s, leaving ~0.47 s for 262 144 pixel-samples (the
+/// test below).
+const RENDER_S_PER_PIXEL_SAMPLE: f64 = 1.8e-6;
 /// Render: the geometry passes (depth, masks, segmentation) per pixel: the same table's 217 ms
 /// for 307 200 px without path tracing.
 const RENDER_S_PER_PIXEL: f64 = 0.7e-6;
@@ -39,10 +39,10 @@ const RENDER_S_PER_PIXEL: f64 = 0.7e-6;
 /// docs/benchmarks.md, "tiny.toml": 72 views at 128×128 / 16 spp in ~270 ms each, of which the two
 /// rates above accounted for ~160 ms.
 const RENDER_S_PER_VIEW: f64 = 0.1;
-/// Render: OpenImageDenoise (with its albedo and normal passes) per view and per pixel: ~0.4 s
-/// per view at 128×128 whatever the sample count (docs/rendering.md's study at 128×128: 4 spp
-/// 115 ms raw, 561 ms denoised), ~2.5 s more at 640×480 (FACTS: 5–6.5 s, 8.4 s with denoise).
-const DENOISE_S_PER_VIEW: f64 = 0.35;
+/// Render: OpenImageDenoise (with its albedo and normal passes) per view and per pixel: ~0.31 s
+/// per view at 128×128 (tiny.toml with and without it: 62.6 against 43.9 CPU-s for 60 views),
+/// ~2.5 s more at 640×480 (FACTS: 5–6.5 s, 8.4 s with denoise).
+const DENOISE_S_PER_VIEW: f64 = 0.18;
 const DENOISE_S_PER_PIXEL: f64 = 8e-6;
 /// Noise: per pixel of a noisy depth image with every piece of the ToF model on. docs/depth_noise.md
 /// (benches/noise_cost.py): 8.5 ms per 128×128 view, 146 ms per 512×512, 602 ms per 1024×1024.
@@ -322,9 +322,10 @@ mod tests {
     }
 
     /// The figures are calibrated on tiny.toml, so they must reproduce its measurement: with the
-    /// default scene (table, flange, taxel skin), the denoiser and the sensor model, one
-    /// `vintctl run examples/tiny.toml --workers 1` took 62.6 CPU-s (user + system, every
-    /// process) for its 60 samples on 2026-11-27 (commit 318db2c), ~75 s for tiny's bound of 72;
+    /// default scene (table, flange, taxel skin), the firefly filter and the sensor model, one
+    /// `vintctl run examples/tiny.toml --workers 1` took 43.9 CPU-s (user + system, every
+    /// process, engine start-ups included) for its 60 samples on 2026-11-27, ~52 s for tiny's
+    /// bound of 72 (62.6 CPU-s with the denoiser on);
     /// 12.83 MB written since each grasp's record is stored once rather than in every view's
     /// meta.json (docs/benchmarks.md).
     #[test]
@@ -332,7 +333,7 @@ mod tests {
         let e = Estimate::of(&DatasetSpec::parse(TINY).unwrap());
         assert_eq!(e.tasks, Tasks { grasp: 6, render_max: 12, noise_max: 12, package_max: 6 });
         assert_eq!(e.samples_max, 72);
-        assert!((56.0..94.0).contains(&e.cpu_seconds.total), "{:?}", e.cpu_seconds);
+        assert!((39.0..66.0).contains(&e.cpu_seconds.total), "{:?}", e.cpu_seconds);
         assert!((9.6e6..16e6).contains(&e.output_bytes), "{}", e.output_bytes);
         assert!(e.warnings.is_empty(), "{:?}", e.warnings);
     }

@@ -10,10 +10,12 @@ use crate::asset::Asset;
 
 pub const WIDTH_PX: Bound<u32> = Bound::new(16, 8192, 128);
 pub const HEIGHT_PX: Bound<u32> = Bound::new(16, 8192, 128);
-/// Cycles samples per pixel of the RGB image. Default 32 (with the denoiser, on by default): the
-/// cheapest setting whose foreground — the object, hand and arm pixels — reaches 35 dB median PSNR
-/// against a 512-sample reference at 640×480 over the render study's opaque and glass objects,
-/// with no firefly (docs/studies/render/render_study.md: an opaque object alone reaches it at 8).
+/// Cycles samples per pixel of the RGB image. Default 32: with `denoise` on, the cheapest setting
+/// whose foreground — the object, hand and arm pixels — reaches 35 dB median PSNR against a
+/// 512-sample reference at 640×480 over the render study's opaque and glass objects, with no
+/// firefly (docs/studies/render/render_study.md). The denoiser is off by default (it is not
+/// byte-reproducible between processes), so the default image is 32 raw samples with the firefly
+/// filter (`DESPECKLE`).
 pub const SAMPLES: Bound<u32> = Bound::new(1, 65_536, 32);
 /// Horizontal field of view (degrees).
 pub const FOV_DEG: Bound<f64> = Bound::new(5.0, 150.0, 60.0);
@@ -36,6 +38,9 @@ pub const OFFCENTRE: Bound<f64> = Bound::new(0.0, 0.9, 0.6);
 /// 1 + N(0, σ), the principal point moved by N(0, σ) of the image's width and height, per view.
 /// 0 (the default) keeps the nominal pinhole: principal point at the centre, `fov_deg`.
 pub const INTRINSICS_JITTER: Bound<f64> = Bound::new(0.0, 0.1, 0.0);
+/// The firefly filter's threshold: a pixel brighter than all 8 neighbours by more than this share
+/// of full scale takes their median (`vint_engines/render/fireflies.py`); 0 is off.
+pub const DESPECKLE: Bound<f64> = Bound::new(0.0, 1.0, 0.3);
 /// Cycles' clamp on indirect light (`sample_clamp_indirect`, Cycles' default 10; 0 is off).
 pub const CLAMP_INDIRECT: Bound<f64> = Bound::new(0.0, 1000.0, 10.0);
 /// The table top's gap below the lowest point of the hand, the object and the arm's flange (m).
@@ -99,8 +104,12 @@ pub struct Settings {
     pub height: u32,
     #[schemars(range(min = SAMPLES.min, max = SAMPLES.max))]
     pub samples: u32,
-    /// OpenImageDenoise on the RGB image, guided by the albedo and normal passes.
+    /// OpenImageDenoise on the RGB image, guided by the albedo and normal passes. Off by default:
+    /// it is not byte-reproducible between processes (docs/rendering.md).
     pub denoise: bool,
+    /// The firefly filter's threshold (share of full scale; 0: off).
+    #[schemars(range(min = DESPECKLE.min, max = DESPECKLE.max))]
+    pub despeckle: f64,
     /// Cycles' clamp on indirect light; 0 is off.
     #[schemars(range(min = CLAMP_INDIRECT.min, max = CLAMP_INDIRECT.max))]
     pub clamp_indirect: f64,
@@ -218,7 +227,8 @@ impl Default for Settings {
             width: WIDTH_PX.default,
             height: HEIGHT_PX.default,
             samples: SAMPLES.default,
-            denoise: true,
+            denoise: false,
+            despeckle: DESPECKLE.default,
             clamp_indirect: CLAMP_INDIRECT.default,
             bounces: Bounces::default(),
             prune_bounces: true,

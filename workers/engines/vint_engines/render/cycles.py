@@ -74,9 +74,11 @@ class PathTracing:
 
     The denoiser is OpenImageDenoise fed the albedo and normal passes as well as the noisy image
     (its "RGB_ALBEDO_NORMAL" mode): the guides keep texture and edges sharp where the noisy colour
-    alone would blur them. It is what removes the isolated bright pixels (fireflies) of a low
-    sample count: on three tiny.toml-like scenes at 16 spp, 100 (of 12 views) without it and 0 with
-    it; clamping indirect light at 3 or 10 removed none (docs/rendering.md). A clamp of 0 is off."""
+    alone would blur them. It removes the noise and the isolated bright pixels (fireflies) of a low
+    sample count (on three tiny.toml-like scenes at 16 spp, 100 fireflies in 12 views without it, 0
+    with it; clamping indirect light at 3 or 10 removed none), but its output differs by an 8-bit
+    level at about one pixel per image between processes, so it is off by default and the firefly
+    filter (`fireflies.py`) stands in (docs/rendering.md). A clamp of 0 is off."""
 
     samples: int
     denoise: bool

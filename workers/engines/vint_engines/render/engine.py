@@ -39,6 +39,7 @@ from vint_engines.render import lighting
 from vint_engines.render.camera import CameraPose, Intrinsics, framed, look_at, sample_on_hemisphere
 from vint_engines.render.cycles import Bounces, PathTracing
 from vint_engines.render.dressing import SceneDressing
+from vint_engines.render.fireflies import despeckle
 from vint_engines.render.scene import OBJECT_PASS_INDEX, BlenderScene, Geometry, Hdri, environments
 from vint_engines.render.sensor import SensorModel, capture
 
@@ -60,6 +61,7 @@ class RenderSettings:
     elevation_deg: tuple[float, float]
     roll_deg: tuple[float, float]
     offcentre: float
+    despeckle: float
     intrinsics_jitter: float
     scene: SceneDressing
     sensor: SensorModel
@@ -89,6 +91,7 @@ class RenderSettings:
             elevation_deg=(float(fields["elevation_deg"][0]), float(fields["elevation_deg"][1])),
             roll_deg=(float(fields["roll_deg"][0]), float(fields["roll_deg"][1])),
             offcentre=float(fields["offcentre"]),
+            despeckle=float(fields["despeckle"]),
             intrinsics_jitter=float(fields["intrinsics_jitter"]),
             scene=SceneDressing(
                 table=bool(fields["scene"]["table"]),
@@ -289,6 +292,7 @@ class RenderEngine:
         occluded: dict[int, float] = {}
         sensors: dict[int, dict[str, Any]] = {}  # what each view's colour sensor drew
         lights: dict[int, lighting.LightDraw] = {}  # what each view's light drew
+        fireflies_removed = 0
         for view in self._render_order(views):
             started = time.perf_counter()
             intrinsics = view_intrinsics(view.seed, settings)
@@ -306,9 +310,9 @@ class RenderEngine:
                 )
                 lights[view.index] = light
                 self.scene.set_environment(hdris[environment], light.rotation_deg, light.strength, light.tint)
-                image, sensors[view.index] = capture(
-                    self.scene.render_rgb(tracing, view.seed), settings.sensor, view.seed
-                )
+                rendered, fireflies = despeckle(self.scene.render_rgb(tracing, view.seed), settings.despeckle)
+                fireflies_removed += fireflies
+                image, sensors[view.index] = capture(rendered, settings.sensor, view.seed)
                 result.add(write_png(task.out_dir / f"v{view.index:02d}_rgb.png", image), "image/png")
                 rgb_s += time.perf_counter() - started
             occluded[view.index] = self._write_view(
@@ -337,6 +341,7 @@ class RenderEngine:
             device=self.scene.device,
             threads=self.scene.threads,
             bounces=vars(tracing.bounces) if "rgb" in outputs else None,
+            fireflies_removed=fireflies_removed,
         )
         return result
 
