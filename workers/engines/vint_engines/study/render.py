@@ -120,6 +120,7 @@ def render_params(scene: GraspedScene, view: int, plan: Plan, config: Config) ->
             "radius_m": list(plan.radius_m),
             "elevation_deg": [15.0, 75.0],
             "sensor": {"enabled": False},  # the renderer's error alone, not the camera's noise
+            "despeckle": 0.0,  # raw configurations as Cycles renders them: their fireflies are counted
         },
         "views": [{"view_index": view, "seed": 7000 + 31 * view, "environment": environment}],
     }
