@@ -310,9 +310,13 @@ class RenderEngine:
                 )
                 lights[view.index] = light
                 self.scene.set_environment(hdris[environment], light.rotation_deg, light.strength, light.tint)
-                rendered, fireflies = despeckle(self.scene.render_rgb(tracing, view.seed), settings.despeckle)
+                # The sensor first, then the filter: the sensor's gains could lift a pixel just under
+                # the threshold over it (a camera's defect-pixel correction also runs last).
+                captured, sensors[view.index] = capture(
+                    self.scene.render_rgb(tracing, view.seed), settings.sensor, view.seed
+                )
+                image, fireflies = despeckle(captured, settings.despeckle)
                 fireflies_removed += fireflies
-                image, sensors[view.index] = capture(rendered, settings.sensor, view.seed)
                 result.add(write_png(task.out_dir / f"v{view.index:02d}_rgb.png", image), "image/png")
                 rgb_s += time.perf_counter() - started
             occluded[view.index] = self._write_view(

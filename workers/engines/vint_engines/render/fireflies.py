@@ -7,7 +7,8 @@ byte-reproducible between processes in this Blender build (one 8-bit level at ab
 per image differs from run to run, whatever its thread count, prefilter or quality:
 docs/rendering.md), and a dataset must be the same bytes for the same spec. A firefly by this
 definition is the one the checks count (`tests/python/check_fireflies.py`, the render study); a
-detail two or more pixels wide is never touched.
+detail two or more pixels wide is never touched. The engine runs it last, on the colour sensor's
+output, so the sensor's gains cannot lift a pixel back over the threshold.
 """
 
 from __future__ import annotations

@@ -39,8 +39,12 @@ def add_primitive(
     before = set(bm.faces)
     _create(bm, kind, size, matrix)
     if kind == "box" and edge_radius > 0.0:
-        new_faces = set(bm.faces) - before
-        edges = list({edge for face in new_faces for edge in face.edges})
+        # In mesh order, never a set's: bevelling edges in another order moves vertices by a few
+        # ULP, and a set of BMesh elements iterates in memory-address order, which differs between
+        # processes (the depth of a bevelled palm differed at a few pixels).
+        edges = []
+        for face in (f for f in bm.faces if f not in before):
+            edges.extend(edge for edge in face.edges if edge not in edges)
         radius = min(edge_radius, 0.45 * min(size))
         bmesh.ops.bevel(
             bm,
@@ -95,34 +99,6 @@ def _create(bm: bmesh.types.BMesh, kind: str, size: Sequence[float], matrix: Mat
         raise BadInput(f"unsupported geom type {kind!r}")
 
 
-def add_discs(
-    bm: bmesh.types.BMesh,
-    centres: np.ndarray,
-    normals: np.ndarray,
-    radius: float,
-    half_height: float,
-    material_index: int,
-    segments: int = 10,
-) -> None:
-    """Add one flat disc (a short cylinder) per row of `centres`, its axis along the matching unit
-    normal, all on material slot `material_index`."""
-    before = set(bm.faces)
-    for centre, normal in zip(centres, normals, strict=True):
-        matrix = axis_matrix(centre, normal)
-        bmesh.ops.create_cone(
-            bm,
-            cap_ends=True,
-            segments=segments,
-            radius1=radius,
-            radius2=radius,
-            depth=2 * half_height,
-            matrix=matrix,
-        )
-    for face in set(bm.faces) - before:
-        face.material_index = material_index
-        face.smooth = False
-
-
 def geom_matrix(p: Sequence[float], q: Sequence[float]) -> Matrix:
     return Matrix.LocRotScale(Vector(p), Quaternion(q), None)
 
@@ -136,7 +112,6 @@ def axis_matrix(centre: Sequence[float], axis: Sequence[float]) -> Matrix:
 Primitive = tuple[str, Sequence[float], Matrix]
 
 
-Discs = tuple[np.ndarray, np.ndarray, float, float, int]  # centres, normals, radius, half height, slot
 Triangles = tuple[np.ndarray, np.ndarray, Matrix, int]  # vertices, faces, placement, material slot
 
 # Edges of a triangle mesh geom sharper than this are drawn sharp; the rest are shaded smooth.
@@ -172,12 +147,11 @@ def new_mesh(
     geoms: Sequence[Primitive],
     material_indices: Sequence[int] = (),
     edge_radius: float = 0.0,
-    discs: Discs | None = None,
     triangles: Sequence[Triangles] = (),
 ) -> bpy.types.Mesh:
     """One mesh holding every (kind, size, matrix) primitive, the i-th on material slot
-    `material_indices[i]` (0 when not given); boxes get rounded edges of `edge_radius`; `discs`
-    adds flat discs (`add_discs`), `triangles` triangle meshes (`add_triangles`)."""
+    `material_indices[i]` (0 when not given); boxes get rounded edges of `edge_radius`;
+    `triangles` adds triangle meshes (`add_triangles`)."""
     bm = bmesh.new()
     try:
         for i, (kind, size, matrix) in enumerate(geoms):
@@ -185,8 +159,6 @@ def new_mesh(
             add_primitive(bm, kind, size, matrix, slot, edge_radius)
         for vertices, faces, matrix, slot in triangles:
             add_triangles(bm, vertices, faces, matrix, slot)
-        if discs is not None:
-            add_discs(bm, *discs)
         mesh = bpy.data.meshes.new(name)
         bm.to_mesh(mesh)
     finally:
