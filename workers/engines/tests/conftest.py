@@ -8,6 +8,7 @@ import struct
 import subprocess
 import sys
 from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -94,6 +95,18 @@ class EngineProcess:
         for stream in (self.proc.stdin, self.proc.stdout):
             if stream is not None:
                 stream.close()
+
+
+@contextmanager
+def started_engine(stage: str, cwd: Path) -> Iterator[EngineProcess]:
+    """An engine process that has said hello; at the end it must shut down cleanly (exit 0)."""
+    process = EngineProcess(stage, cwd)
+    try:
+        assert process.receive() is not None, process.stderr_tail()
+        yield process
+        assert process.shutdown(60) == 0
+    finally:
+        process.kill()
 
 
 @pytest.fixture

@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from conftest import EngineProcess, new_dir
+from conftest import new_dir, started_engine
 
 from vint_engines.grasp.engine import GraspEngine
 from vint_engines.objects import load_catalog
@@ -60,9 +60,7 @@ def grasp(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_a_warm_light_warms_the_image_and_the_record_says_what_it_drew(grasp: Path, tmp_path: Path) -> None:
     doc = json.loads((grasp / "grasps.json").read_text())
     index = next(t["grasp_index"] for t in doc["trials"] if t["accepted"])
-    engine = EngineProcess("render", tmp_path)
-    try:
-        assert engine.receive() is not None, engine.stderr_tail()
+    with started_engine("render", tmp_path) as engine:
         base = {"width": 48, "height": 48, "samples": 4, "sensor": {"enabled": False}}
         images = {}
         for name, light in (
@@ -82,9 +80,6 @@ def test_a_warm_light_warms_the_image_and_the_record_says_what_it_drew(grasp: Pa
             record = json.loads((out / "v00_camera.json").read_text())["light"]
             expected_tint = [1.0, 1.0, 1.0] if name == "neutral" else list(blackbody_tint(2500.0))
             np.testing.assert_allclose(record["tint_rgb"], expected_tint, atol=1e-6)
-        assert engine.shutdown(60) == 0
-    finally:
-        engine.kill()
     neutral, warm = images["neutral"], images["warm"]  # BGR
     red_over_blue = lambda img: img[..., 2].mean() / max(img[..., 0].mean(), 1.0)  # noqa: E731
     assert red_over_blue(warm) > 1.3 * red_over_blue(neutral)

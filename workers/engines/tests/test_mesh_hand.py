@@ -17,7 +17,7 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-from conftest import EngineProcess, new_dir
+from conftest import EngineProcess, new_dir, started_engine
 from geometry import rasterise_depth
 
 from vint_engines import hand_meshes
@@ -294,11 +294,8 @@ def placed_visual(link: str, pose: dict[str, Any]) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def engine(workdir: Path) -> Iterator[EngineProcess]:
-    process = EngineProcess("render", workdir)
-    assert process.receive() is not None, process.stderr_tail()
-    yield process
-    assert process.shutdown(60) == 0
-    process.kill()
+    with started_engine("render", workdir) as process:
+        yield process
 
 
 def test_the_rendered_segmentation_matches_a_projection_of_the_visual_meshes(

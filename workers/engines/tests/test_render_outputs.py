@@ -13,7 +13,7 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-from conftest import EngineProcess, new_dir
+from conftest import EngineProcess, new_dir, started_engine
 from geometry import rasterise_depth, signed_distance_to_primitive
 
 from vint_engines.grasp.engine import GraspEngine
@@ -63,11 +63,8 @@ def grasp(workdir: Path) -> dict[str, Any]:
 
 @pytest.fixture(scope="module")
 def engine(workdir: Path) -> Iterator[EngineProcess]:
-    process = EngineProcess("render", workdir)
-    assert process.receive() is not None, process.stderr_tail()
-    yield process
-    assert process.shutdown(60) == 0
-    process.kill()
+    with started_engine("render", workdir) as process:
+        yield process
 
 
 def render(
