@@ -24,6 +24,7 @@ def main(dataset_dir: Path, out: Path, samples: int, as_json: bool) -> int:
     or file of a chosen sample is unreadable (said on stderr, naming the path)."""
     from vint_engines.objects.catalog import CATALOG_DIR
     from vint_engines.preview import dataset, sheet
+    from vint_engines.stats.dataset import DatasetError
 
     if not 1 <= samples <= MAX_SAMPLES:
         print(f"preview: --samples must be 1 to {MAX_SAMPLES}, got {samples}", file=sys.stderr)
@@ -31,7 +32,7 @@ def main(dataset_dir: Path, out: Path, samples: int, as_json: bool) -> int:
     try:
         chosen = [dataset.load(ref) for ref in dataset.choose(dataset.list_samples(dataset_dir), samples)]
         made = sheet.compose(chosen, CATALOG_DIR)
-    except dataset.PreviewError as exc:
+    except DatasetError as exc:  # a PreviewError, or a record stats.dataset.read_json refused
         print(f"preview: {exc}", file=sys.stderr)
         return 2
     out.parent.mkdir(parents=True, exist_ok=True)

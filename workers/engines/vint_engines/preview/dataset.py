@@ -8,12 +8,12 @@ naming the path.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 from vint_engines.preview.taxels import Camera
+from vint_engines.stats.dataset import DatasetError, read_json
 
 META_FILE = "meta.json"
 RGB_FILE = "rgb.png"
@@ -22,7 +22,7 @@ NOISY_DEPTH_FILE = "depth_noisy.npy"
 SEGMENTATION_FILE = "segmentation.png"
 
 
-class PreviewError(Exception):
+class PreviewError(DatasetError):
     """The directory is not a native dataset with samples, or a record in it is malformed."""
 
 
@@ -126,13 +126,3 @@ def load(ref: SampleRef) -> Sample:
     except (KeyError, TypeError) as exc:
         raise PreviewError(f"{record}: malformed grasp record ({exc!r})") from exc
     return replace(sample, active_taxels=active, grasp=grasp)
-
-
-def read_json(path: Path) -> dict[str, Any]:
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        raise PreviewError(f"{path}: cannot read ({exc})") from exc
-    if not isinstance(doc, dict):
-        raise PreviewError(f"{path}: expected a JSON object")
-    return doc
