@@ -40,6 +40,7 @@ import cv2
 import numpy as np
 
 from vint_engines.protocol import TaskRequest
+from vint_engines.render.fireflies import spike_mask
 from vint_engines.study.grasped import GraspedScene, grasp
 
 ROWS_CSV = "render_study.csv"
@@ -158,15 +159,6 @@ def ssim_map(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return ((2 * mu_a * mu_b + c1) * (2 * cov + c2)) / ((mu_a**2 + mu_b**2 + c1) * (var_a + var_b + c2))
 
 
-def spikes(rgb: np.ndarray) -> np.ndarray:
-    """Pixels brighter than all 8 neighbours by more than `SPIKE` (brightest channel, [0, 1])."""
-    g = rgb.max(axis=2)
-    p = np.pad(g, 1, mode="edge")
-    h, w = g.shape
-    shifts = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx]
-    return (g - np.max([p[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w] for dy, dx in shifts], axis=0)) > SPIKE
-
-
 def compare(images: ViewImages, reference: ViewImages) -> dict[str, Any]:
     error = (images.rgb - reference.rgb) ** 2
     rmse = float(np.sqrt(np.mean(error)))
@@ -186,7 +178,7 @@ def compare(images: ViewImages, reference: ViewImages) -> dict[str, Any]:
         "fg_rmse": fg_rmse,
         "fg_psnr_db": psnr(fg_rmse),
         "fg_ssim": float(ssim[fg].mean()) if fg.any() else 1.0,
-        "fg_spikes": int((spikes(images.rgb) & fg).sum()),
+        "fg_spikes": int((spike_mask(np.rint(images.rgb * 255.0).astype(np.uint8), SPIKE) & fg).sum()),
         "exact_pixels_differing": sum(differing.values()),
         "exact_outputs": "+".join(sorted(differing)),
     }
