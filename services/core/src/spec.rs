@@ -166,7 +166,7 @@ pub struct RenderSettings {
     /// at 640×480 over the render study's objects (docs/studies/render/render_study.md).
     pub samples: u32,
     /// OpenImageDenoise on the RGB image (guided by albedo and normals): what reaches 35 dB on the
-    /// foreground, but not byte-reproducible between processes, so off by default (docs/rendering.md).
+    /// foreground; on by default (docs/rendering.md).
     pub denoise: bool,
     /// The firefly filter's threshold (share of full scale; 0: off).
     pub despeckle: f64,
@@ -590,7 +590,7 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
     let render = RenderSettings {
         resolution,
         samples: r.count(&mut rd, "render", "samples", render_contract::SAMPLES),
-        denoise: r.boolean(&mut rd, "render.denoise", "denoise", false),
+        denoise: r.boolean(&mut rd, "render.denoise", "denoise", render_contract::DENOISE),
         despeckle: r.number(&mut rd, "render", "despeckle", render_contract::DESPECKLE),
         clamp_indirect: r.number(&mut rd, "render", "clamp_indirect", render_contract::CLAMP_INDIRECT),
         bounces: read_bounces(r, &mut rd),

@@ -1,6 +1,6 @@
-//! The tiny run's pictures at the spec defaults (denoised; three objects, both hands): no
-//! firefly on the object, the hand or the arm (`tests/python/check_fireflies.py`, which reads
-//! only the dataset's PNGs and id maps).
+//! The tiny run's pictures at the spec defaults (denoised, then the firefly filter; three objects,
+//! both hands): no firefly on the object, the hand or the arm (`tests/python/check_fireflies.py`,
+//! which reads only the dataset's PNGs and id maps).
 
 use super::{path_str, tiny};
 use vint_tests::{python, repo_root, stdout};

@@ -18,6 +18,7 @@ from vint_engines.render import materials
 from vint_engines.render.camera import Intrinsics, look_at
 from vint_engines.render.cycles import Bounces, PathTracing
 from vint_engines.render.scene import BlenderScene, Hdri
+from vint_engines.render.sensor import encode_srgb8
 from vint_engines.render.textures import pick
 
 CATALOG = load_catalog()
@@ -64,7 +65,7 @@ def colour_portrait(
     scene.place_camera(
         look_at(np.array([1.1 * reach, 0.0, 0.35 * reach]), np.zeros(3)), Intrinsics(SIZE, SIZE, 60.0)
     )
-    bgr = scene.render_rgb(TRACING, SEED)
+    bgr = encode_srgb8(scene.render_rgb(TRACING, SEED).image)[:, :, ::-1]
     mask = scene.render_geometry().object_full.astype(np.uint8)
     return bgr, cv2.erode(mask, np.ones((5, 5), np.uint8)).astype(bool)
 

@@ -69,16 +69,12 @@ class Bounces:
 
 @dataclass(frozen=True)
 class PathTracing:
-    """How the RGB image is rendered: samples per pixel, the denoiser, the bounce caps and the
-    clamp on indirect light.
+    """How the RGB image is rendered: samples per pixel, whether it is denoised, the bounce caps
+    and the clamp on indirect light (0 is off).
 
-    The denoiser is OpenImageDenoise fed the albedo and normal passes as well as the noisy image
-    (its "RGB_ALBEDO_NORMAL" mode): the guides keep texture and edges sharp where the noisy colour
-    alone would blur them. It removes the noise and the isolated bright pixels (fireflies) of a low
-    sample count (on three tiny.toml-like scenes at 16 spp, 100 fireflies in 12 views without it, 0
-    with it; clamping indirect light at 3 or 10 removed none), but its output differs by an 8-bit
-    level at about one pixel per image between processes, so it is off by default and the firefly
-    filter (`fireflies.py`) stands in (docs/rendering.md). A clamp of 0 is off."""
+    Cycles never denoises: with `denoise`, the render stores the albedo and normal passes and the
+    engine runs OpenImageDenoise on them itself (`denoise.py`), because Cycles' own OIDN call is
+    not byte-reproducible between processes in this Blender build (docs/rendering.md)."""
 
     samples: int
     denoise: bool
@@ -88,11 +84,7 @@ class PathTracing:
     def apply(self, scene: bpy.types.Scene, seed: int) -> None:
         c = scene.cycles
         c.samples = self.samples
-        c.use_denoising = self.denoise
-        c.denoiser = "OPENIMAGEDENOISE"
-        c.denoising_input_passes = "RGB_ALBEDO_NORMAL"
-        c.denoising_prefilter = "ACCURATE"
-        c.denoising_use_gpu = c.device == "GPU"
+        c.use_denoising = False
         c.sample_clamp_indirect = self.clamp_indirect
         c.seed = seed % 2**31  # Cycles takes a 32-bit signed seed
         self.bounces.apply(scene)

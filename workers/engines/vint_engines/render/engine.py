@@ -27,6 +27,7 @@ from typing import Any
 import bpy
 import cv2
 import numpy as np
+import pyoidn
 
 from vint_engines import __version__, contract
 from vint_engines.assets import StagedAsset, asset_file, staged_assets
@@ -38,10 +39,11 @@ from vint_engines.protocol import BadInput, Json, TaskRequest, TaskResult
 from vint_engines.render import lighting
 from vint_engines.render.camera import CameraPose, Intrinsics, framed, look_at, sample_on_hemisphere
 from vint_engines.render.cycles import Bounces, PathTracing
+from vint_engines.render.denoise import Denoiser
 from vint_engines.render.dressing import SceneDressing
 from vint_engines.render.fireflies import despeckle
-from vint_engines.render.scene import OBJECT_PASS_INDEX, BlenderScene, Geometry, Hdri, environments
-from vint_engines.render.sensor import SensorModel, capture
+from vint_engines.render.scene import OBJECT_PASS_INDEX, BlenderScene, Geometry, Hdri, Radiance, environments
+from vint_engines.render.sensor import SensorModel, capture, encode_srgb8
 
 GRASPS_INPUT = "grasps.json"
 INTRINSICS_STREAM = 0x1C  # appended to the view's seed: the intrinsics jitter's own random stream
@@ -232,6 +234,7 @@ class RenderEngine:
     def __init__(self) -> None:
         self.scratch = Path(tempfile.mkdtemp(prefix="vint-render-"))
         self.scene = BlenderScene(self.scratch)
+        self.denoiser = Denoiser(self.scene.threads)
         self._warm_up()
 
     def hello(self) -> Json:
@@ -243,10 +246,12 @@ class RenderEngine:
                 "bpy": bpy.app.version_string,
                 "numpy": np.__version__,
                 "opencv": cv2.__version__,
+                "oidn": pyoidn.version.oidn_version,
             },
         }
 
     def close(self) -> None:
+        self.denoiser.close()
         shutil.rmtree(self.scratch, ignore_errors=True)
 
     def _warm_up(self) -> None:
@@ -310,14 +315,14 @@ class RenderEngine:
                 )
                 lights[view.index] = light
                 self.scene.set_environment(hdris[environment], light.rotation_deg, light.strength, light.tint)
+                light_in = self.light_in(self.scene.render_rgb(tracing, view.seed))
                 # The sensor first, then the filter: the sensor's gains could lift a pixel just under
                 # the threshold over it (a camera's defect-pixel correction also runs last).
-                captured, sensors[view.index] = capture(
-                    self.scene.render_rgb(tracing, view.seed), settings.sensor, view.seed
-                )
-                image, fireflies = despeckle(captured, settings.despeckle)
+                captured, sensors[view.index] = capture(light_in, settings.sensor, view.seed)
+                image, fireflies = despeckle(encode_srgb8(captured), settings.despeckle)
                 fireflies_removed += fireflies
-                result.add(write_png(task.out_dir / f"v{view.index:02d}_rgb.png", image), "image/png")
+                path = task.out_dir / f"v{view.index:02d}_rgb.png"
+                result.add(write_png(path, image[:, :, ::-1]), "image/png")  # OpenCV writes BGR
                 rgb_s += time.perf_counter() - started
             occluded[view.index] = self._write_view(
                 task.out_dir,
@@ -348,6 +353,13 @@ class RenderEngine:
             fireflies_removed=fireflies_removed,
         )
         return result
+
+    def light_in(self, radiance: Radiance) -> np.ndarray:
+        """The light a view's camera receives: the path-traced image, denoised when the render
+        stored the denoiser's guides."""
+        if radiance.albedo is None or radiance.normal is None:
+            return radiance.image
+        return self.denoiser(radiance.image, radiance.albedo, radiance.normal)
 
     def _render_order(self, views: list[RenderView]) -> list[RenderView]:
         """Views grouped by environment (first appearance order), the loaded one first: each switch

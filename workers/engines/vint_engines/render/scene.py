@@ -47,14 +47,22 @@ from vint_engines.protocol import BadInput
 from vint_engines.render import cycles, dressing, materials, meshes
 from vint_engines.render.camera import CameraPose, Intrinsics
 from vint_engines.render.cycles import PathTracing
-from vint_engines.render.passes import add_pass_outputs, read_depth, read_index, read_rgb
+from vint_engines.render.passes import (
+    add_pass_outputs,
+    read_colour,
+    read_depth,
+    read_index,
+    use_pass_tree,
+)
 
 OBJECT_PASS_INDEX = 1
 FIRST_LINK_PASS_INDEX = 2  # link k of the hand (in grasps.json order) has pass index 2 + k;
 # after the n links: the arm's flange (2 + n) and last link (3 + n), then the table (4 + n)
 # (`dressing.py`), each labelled only while the task shows it.
 HAND_MATERIAL_TAG = dressing.HAND_MATERIAL_TAG
-RGB_FILE = "rgb.png"
+RGB_PREFIX = "rgb_"
+RGB_PASSES = ("image",)  # the path-traced image, linear
+DENOISED_PASSES = ("image", "albedo", "normal")  # and the denoiser's guides
 GEOMETRY_PREFIX = "geometry_"
 OBJECT_PREFIX = "object_"
 ENVIRONMENT_MAP_RESOLUTION = 256  # importance map for the HDRI: 0.3 s to build instead of ~2 s
@@ -70,6 +78,15 @@ class Geometry:
     depth: npt.NDArray[np.float32]  # metres along the optical axis, 0 where nothing is hit
     index: npt.NDArray[np.int32]  # pass index of the visible surface, 0 for background
     object_full: npt.NDArray[np.bool_]  # where the object would be seen without the hand
+
+
+@dataclass(frozen=True)
+class Radiance:
+    """What the RGB render of one view saw: H×W×3 float, R, G, B, rows top to bottom."""
+
+    image: npt.NDArray[np.float32]  # linear light as Cycles path-traced it (noisy)
+    albedo: npt.NDArray[np.float32] | None = None  # the denoiser's guides, when asked for
+    normal: npt.NDArray[np.float32] | None = None
 
 
 def environment_dir() -> Path:
@@ -161,13 +178,15 @@ class BlenderScene:
             add_pass_outputs(scene, self.scratch, prefix, passes)
 
     def _configure_rgb(self) -> None:
+        """The RGB scene writes the image as linear float (and, for a denoised view, the albedo
+        and normal guides): one compositor tree per set of passes, switched per render, so a raw
+        view makes Cycles store no guides."""
         scene = self.rgb_scene
-        scene.view_settings.view_transform = "Standard"  # plain sRGB output
-        settings = scene.render.image_settings
-        settings.media_type = "IMAGE"
-        settings.file_format = "PNG"
-        settings.color_mode = "RGB"
-        settings.color_depth = "8"
+        scene.view_settings.view_transform = "Standard"  # no tone curve on the linear output
+        self._rgb_trees = {
+            passes: add_pass_outputs(scene, self.scratch, RGB_PREFIX, passes)
+            for passes in (DENOISED_PASSES, RGB_PASSES)
+        }
 
     def _add_camera(self) -> bpy.types.Object:
         data = bpy.data.cameras.new("vint_camera")
@@ -492,14 +511,20 @@ class BlenderScene:
         full = read_index(self.scratch, OBJECT_PREFIX) == OBJECT_PASS_INDEX
         return Geometry(depth=depth, index=index, object_full=full)
 
-    def render_rgb(self, tracing: PathTracing, seed: int) -> npt.NDArray[np.uint8]:
-        """The placed camera's path-traced 8-bit sRGB image (BGR order) under the environment."""
+    def render_rgb(self, tracing: PathTracing, seed: int) -> Radiance:
+        """The placed camera's path-traced image under the environment, in linear light, with
+        the denoiser's guides when `tracing.denoise` asks for them."""
         scene = self.rgb_scene
         self._dress_object()
         tracing.apply(scene, seed)
-        scene.render.filepath = str(self.scratch / RGB_FILE)
-        bpy.ops.render.render(write_still=True, scene=scene.name)
-        return read_rgb(self.scratch / RGB_FILE)
+        passes = DENOISED_PASSES if tracing.denoise else RGB_PASSES
+        use_pass_tree(scene, self._rgb_trees[passes], passes)
+        bpy.ops.render.render(scene=scene.name)
+        image = read_colour(self.scratch, RGB_PREFIX, "image")
+        if not tracing.denoise:
+            return Radiance(image)
+        albedo = read_colour(self.scratch, RGB_PREFIX, "albedo")
+        return Radiance(image, albedo, read_colour(self.scratch, RGB_PREFIX, "normal"))
 
     # -- helpers ---------------------------------------------------------------------------------
 

@@ -3,16 +3,18 @@ error and the sensor's noise. Plain numpy, seeded by the view.
 
 A rendered image is what a perfect camera would record; a robot's colour camera misjudges exposure
 and white balance a little from frame to frame, and its pixels carry photon shot noise and read
-noise. The model works in linear light: the 8-bit sRGB render is decoded to linear values x in
-[0, 1], scaled by an exposure gain 2^e (e ~ N(0, exposure_ev_sigma)) and per-channel white-balance
-gains (red and blue exp(w), w ~ N(0, white_balance_sigma), green 1: a camera's balance is set
-against green), then given heteroscedastic Gaussian noise of variance `shot_noise` · x +
-`read_noise` — the Poissonian–Gaussian model of Foi et al. ("Practical Poissonian-Gaussian noise
-modeling and fitting for single-image raw-data", IEEE TIP 2008), applied per channel after
-demosaicking (the demosaic's spatial correlation is left out). The defaults are the middle of the
-ranges Brooks et al. fitted to real cameras ("Unprocessing Images for Learned Raw Denoising", CVPR
-2019: shot noise log-uniform over [1e-4, 1.2e-2], log read = 2.18 · log shot + 1.2): shot 0.002
-and read 4.3e-6, a well-lit indoor scene. Clipped to [0, 1], re-encoded to 8-bit sRGB.
+noise. The model works in linear light, on the rendered (or denoised) float image x: an exposure
+gain 2^e (e ~ N(0, exposure_ev_sigma)) and per-channel white-balance gains (red and blue exp(w),
+w ~ N(0, white_balance_sigma), green 1: a camera's balance is set against green), then
+heteroscedastic Gaussian noise of variance `shot_noise` · x + `read_noise` — the
+Poissonian–Gaussian model of Foi et al. ("Practical Poissonian-Gaussian noise modeling and fitting
+for single-image raw-data", IEEE TIP 2008), per channel after demosaicking (the demosaic's spatial
+correlation is left out) — then a clip to [0, 1]: the sensor saturates after the exposure, so a
+highlight that a short exposure brings under full scale keeps its gradation. The defaults are the
+middle of the ranges Brooks et al. fitted to real cameras ("Unprocessing Images for Learned Raw
+Denoising", CVPR 2019: shot noise log-uniform over [1e-4, 1.2e-2], log read = 2.18 · log shot +
+1.2): shot 0.002 and read 4.3e-6, a well-lit indoor scene. `encode_srgb8` then makes the 8-bit
+image, with or without the sensor: the sRGB transfer curve (IEC 61966-2-1), rounded, no dither.
 
 Its random stream is the view's seed with `SENSOR_STREAM` appended, so it never shifts the
 camera's draws, and the same view gets the same noise whatever renders it.
@@ -52,28 +54,30 @@ class SensorModel:
         )
 
 
-def srgb_to_linear(v: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
-
-
 def linear_to_srgb(x: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(np.maximum(x, 0.0031308), 1 / 2.4) - 0.055)
 
 
+def encode_srgb8(linear: npt.NDArray[np.floating]) -> npt.NDArray[np.uint8]:
+    """Linear light (clipped to [0, 1]) as 8-bit sRGB, rounded to the nearest level."""
+    clipped = np.clip(linear.astype(np.float64), 0.0, 1.0)
+    return np.rint(linear_to_srgb(clipped) * 255.0).astype(np.uint8)
+
+
 def capture(
-    image_bgr: npt.NDArray[np.uint8], model: SensorModel, seed: int
-) -> tuple[npt.NDArray[np.uint8], dict[str, Any]]:
-    """The image as the sensor records it (BGR, 8-bit) and what it drew (for the camera record)."""
+    linear_rgb: npt.NDArray[np.floating], model: SensorModel, seed: int
+) -> tuple[npt.NDArray[np.floating], dict[str, Any]]:
+    """The image (H×W×3 linear light, R, G, B) as the sensor records it, still linear, and what
+    it drew (for the camera record)."""
     if not model.enabled:
-        return image_bgr, {"enabled": False}
+        return linear_rgb, {"enabled": False}
     rng = np.random.default_rng([seed, SENSOR_STREAM])
     exposure = float(2.0 ** rng.normal(0.0, model.exposure_ev_sigma))
     red, blue = np.exp(rng.normal(0.0, model.white_balance_sigma, size=2))
-    gains = np.array([blue, 1.0, red]) * exposure  # BGR order
-    linear = srgb_to_linear(image_bgr.astype(np.float64) / 255.0) * gains
-    sigma = np.sqrt(model.shot_noise * np.clip(linear, 0.0, None) + model.read_noise)
-    noisy = np.clip(linear + sigma * rng.standard_normal(linear.shape), 0.0, 1.0)
-    out = np.rint(linear_to_srgb(noisy) * 255.0).astype(np.uint8)
+    gains = np.array([red, 1.0, blue]) * exposure
+    linear = np.maximum(linear_rgb.astype(np.float64), 0.0) * gains  # a denoiser's undershoot is no light
+    sigma = np.sqrt(model.shot_noise * linear + model.read_noise)
+    out = np.clip(linear + sigma * rng.standard_normal(linear.shape), 0.0, 1.0)
     record = {
         "enabled": True,
         "exposure_gain": round(exposure, 6),

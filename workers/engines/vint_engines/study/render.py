@@ -13,8 +13,9 @@ not depend on sample count or denoising).
 
 The ceiling: for the first view of each scene, each configuration's RGB scene is saved as a
 .blend and rendered again by a fresh Blender process that only opens it and calls
-`bpy.ops.render.render` (a warm-up render, then a timed one): what bare bpy needs for the same
-image, with none of the engine's work around it (geometry passes, files, records).
+`bpy.ops.render.render` (a warm-up render, then a timed one), with Cycles' own denoiser where the
+configuration denoises: what bare bpy needs for the same image, with none of the engine's work
+around it (geometry passes, pass files, its own denoiser call, sensor, files, records).
 
 Writes `render_study.csv` (one row per configuration × scene × view), `render_study_summary.csv`
 (medians per configuration), a log–log plot of foreground error against time (`render_study.png`)
@@ -249,6 +250,13 @@ import addon_utils
 addon_utils.enable("cycles")
 bpy.ops.wm.open_mainfile(filepath=sys.argv[-1])
 scene = bpy.data.scenes["vint_rgb"]
+# Path tracing alone, no pass files; a denoised configuration (its render stores the guides) is
+# denoised by Cycles' own OpenImageDenoise call, guided the same way.
+scene.compositing_node_group = None
+cycles = scene.cycles
+cycles.use_denoising = scene.view_layers[0].cycles.denoising_store_passes
+cycles.denoiser = "OPENIMAGEDENOISE"
+cycles.denoising_input_passes = "RGB_ALBEDO_NORMAL"
 bpy.ops.render.render(scene=scene.name)  # warm: kernels, BVH, the HDRI's importance map
 started = time.perf_counter()
 bpy.ops.render.render(scene=scene.name)
