@@ -1,5 +1,5 @@
 """Touch read-out: its response curve, its cost per capture against the proximity model it replaced,
-and how its output moves with its resolution knobs (footprint radius, averaged contact steps).
+and how its output moves with its resolution knob (averaged contact steps).
 
 Run: PYTHONPATH=workers/engines .venv/bin/python benches/touch_study.py --out docs [--seeds N] [--reps R]
 
@@ -12,9 +12,9 @@ grasp's captured state the read-outs run side by side, R times each (medians): t
 of commit `--baseline` (loaded from git, as it was: its distances and response on the links in
 contact or within 3 mm) and the contact model with 1, 4 and 16 averaged steps (its contact sampling
 included). Times are the thread's CPU time (`time.thread_time`): wall time on a shared machine
-swings several-fold. The resolution study reads the same states with every footprint radius and
-number of steps, against a 64-step average with the same footprint: the readings' error relative to
-the reference's mean reading, and the active set's IoU.
+swings several-fold. The resolution study reads the same states with every number of steps, against
+a 64-step average: the readings' error relative to the reference's mean reading, and the active
+set's IoU.
 """
 
 from __future__ import annotations
@@ -49,7 +49,6 @@ from vint_engines.objects import load_catalog
 
 HANDS = ("trx3", "allegro")
 OBJECTS = ("tomato_soup_can", "mustard_bottle", "mug")
-FOOTPRINTS_M = (0.003, 0.0045, 0.006, 0.009, 0.012)
 STEPS = (1, 2, 4, 8, 16)
 REFERENCE_STEPS = 64
 TIMED_STEPS = (1, 4, 16)
@@ -160,9 +159,6 @@ def study(seeds: int, reps: int, baseline: str) -> tuple[list[dict[str, Any]], l
             scene = build_scene(hand, catalog[obj])
             data = mujoco.MjData(scene.model)
             default = Skin(scene, layout, TouchParams.parse({}))
-            skins = {
-                a: Skin(scene, layout, TouchParams.parse({"footprint_radius_m": a})) for a in FOOTPRINTS_M
-            }
             proximity = old.Skin(scene, layout, old.TouchParams(**OLD_PARAMS))
             for k in range(seeds):
                 seed = 1234567890123 + 7919 * k
@@ -177,26 +173,24 @@ def study(seeds: int, reps: int, baseline: str) -> tuple[list[dict[str, Any]], l
                 }
                 cost_rows.append(row)
                 samples = held_contacts(scene, data, REFERENCE_STEPS, finger_contacts)
-                for a, skin in skins.items():
-                    reference = skin.read(data, samples)
-                    for steps in STEPS:
-                        touch = skin.read(data, samples[:steps])
-                        error, iou = compare(touch, reference)
-                        resolution_rows.append(
-                            {
-                                "hand": hand_name,
-                                "object": obj,
-                                "seed": seed,
-                                "footprint_mm": 1e3 * a,
-                                "steps": steps,
-                                "active": touch["active_count"],
-                                "unsensed_share": touch["unsensed_force_n"]
-                                / max(touch["contact_force_n"], 1e-12),
-                                "rel_error": error,
-                                "iou": iou,
-                                "pairs": json.dumps(link_pairs(trial, touch)),
-                            }
-                        )
+                reference = default.read(data, samples)
+                for steps in STEPS:
+                    touch = default.read(data, samples[:steps])
+                    error, iou = compare(touch, reference)
+                    resolution_rows.append(
+                        {
+                            "hand": hand_name,
+                            "object": obj,
+                            "seed": seed,
+                            "steps": steps,
+                            "active": touch["active_count"],
+                            "unsensed_share": touch["unsensed_force_n"]
+                            / max(touch["contact_force_n"], 1e-12),
+                            "rel_error": error,
+                            "iou": iou,
+                            "pairs": json.dumps(link_pairs(trial, touch)),
+                        }
+                    )
     return cost_rows, resolution_rows
 
 
@@ -247,22 +241,20 @@ def summarise(cost: list[dict[str, Any]], resolution: list[dict[str, Any]]) -> d
             }
             for key in keys
         }
-    for a in FOOTPRINTS_M:
-        for steps in STEPS:
-            rows = [r for r in resolution if r["footprint_mm"] == 1e3 * a and r["steps"] == steps]
-            pairs = [p for r in rows for p in json.loads(r["pairs"])]
-            summary["resolution"].append(
-                {
-                    "footprint_mm": 1e3 * a,
-                    "steps": steps,
-                    "median_active": statistics.median(r["active"] for r in rows),
-                    "median_unsensed_share": statistics.median(r["unsensed_share"] for r in rows),
-                    "median_rel_error": statistics.median(r["rel_error"] for r in rows),
-                    "p90_rel_error": float(np.percentile([r["rel_error"] for r in rows], 90)),
-                    "median_iou": statistics.median(r["iou"] for r in rows),
-                    "link_spearman": spearman([p[0] for p in pairs], [p[1] for p in pairs]),
-                }
-            )
+    for steps in STEPS:
+        rows = [r for r in resolution if r["steps"] == steps]
+        pairs = [p for r in rows for p in json.loads(r["pairs"])]
+        summary["resolution"].append(
+            {
+                "steps": steps,
+                "median_active": statistics.median(r["active"] for r in rows),
+                "median_unsensed_share": statistics.median(r["unsensed_share"] for r in rows),
+                "median_rel_error": statistics.median(r["rel_error"] for r in rows),
+                "p90_rel_error": float(np.percentile([r["rel_error"] for r in rows], 90)),
+                "median_iou": statistics.median(r["iou"] for r in rows),
+                "link_spearman": spearman([p[0] for p in pairs], [p[1] for p in pairs]),
+            }
+        )
     return summary
 
 
@@ -274,13 +266,11 @@ def print_tables(summary: dict[str, Any]) -> None:
         for key, value in cost.items():
             print(f"| {hand} | {key} | {value['median_ms']:.2f} | {value['median_active']:g} |")
     print()
-    print(
-        "| footprint mm | steps | active | unsensed share | rel. error median / p90 | IoU | link rank corr. |"
-    )
-    print("|---:|---:|---:|---:|---:|---:|---:|")
+    print("| steps | active | unsensed share | rel. error median / p90 | IoU | link rank corr. |")
+    print("|---:|---:|---:|---:|---:|---:|")
     for r in summary["resolution"]:
         print(
-            f"| {r['footprint_mm']:g} | {r['steps']} | {r['median_active']:g} "
+            f"| {r['steps']} | {r['median_active']:g} "
             f"| {r['median_unsensed_share']:.2f} "
             f"| {r['median_rel_error']:.3f} / {r['p90_rel_error']:.3f} | {r['median_iou']:.2f} "
             f"| {r['link_spearman']:.2f} |"

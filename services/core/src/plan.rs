@@ -410,7 +410,6 @@ fn grasp_params(
         },
         touch: grasp::Touch {
             contact_margin_m: spec.touch.contact_margin_m,
-            footprint_radius_m: spec.touch.footprint_radius_m,
             contact_window_s: spec.touch.contact_window_s,
             activation_force_n: spec.touch.activation_force_n,
             half_force_n: spec.touch.half_force_n,

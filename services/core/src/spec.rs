@@ -137,10 +137,9 @@ pub struct GraspSettings {
 /// The tactile sensor model (see `vint_engines/grasp/touch.py`).
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct TouchSettings {
-    /// A taxel shares its link's contact force only within this distance of the object.
+    /// A taxel of a link in contact touches the object, and shares the link's contact force,
+    /// within this distance of its surface.
     pub contact_margin_m: f64,
-    /// Radius of the pressure patch around each MuJoCo contact point.
-    pub footprint_radius_m: f64,
     /// Time over which contact forces are averaged (s).
     pub contact_window_s: f64,
     /// Local force below which a taxel reads nothing (N).
@@ -311,7 +310,6 @@ pub fn number_fields() -> Vec<NumberField> {
         count("grasp.shake_directions", grasp::SHAKE_DIRECTIONS),
         float("grasp.shake_duration_s", grasp::SHAKE_DURATION_S),
         float("touch.contact_margin_m", grasp::CONTACT_MARGIN_M),
-        float("touch.footprint_radius_m", grasp::FOOTPRINT_RADIUS_M),
         float("touch.contact_window_s", grasp::CONTACT_WINDOW_S),
         float("touch.activation_force_n", grasp::ACTIVATION_FORCE_N),
         float("touch.half_force_n", grasp::HALF_FORCE_N),
@@ -552,7 +550,6 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
     let mut t = r.section(root, "touch");
     let touch = TouchSettings {
         contact_margin_m: r.number(&mut t, "touch", "contact_margin_m", grasp::CONTACT_MARGIN_M),
-        footprint_radius_m: r.number(&mut t, "touch", "footprint_radius_m", grasp::FOOTPRINT_RADIUS_M),
         contact_window_s: r.number(&mut t, "touch", "contact_window_s", grasp::CONTACT_WINDOW_S),
         activation_force_n: r.number(&mut t, "touch", "activation_force_n", grasp::ACTIVATION_FORCE_N),
         half_force_n: r.number(&mut t, "touch", "half_force_n", grasp::HALF_FORCE_N),
@@ -561,12 +558,19 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
         aging: r.number(&mut t, "touch", "aging", grasp::AGING),
         min_active_taxels: r.count(&mut t, "touch", "min_active_taxels", grasp::MIN_ACTIVE_TAXELS),
     };
+    if let Some(v) = t.remove("footprint_radius_m") {
+        r.error(
+            "touch.footprint_radius_m",
+            v,
+            "was removed: every taxel within touch.contact_margin_m of the object is its own contact \
+             element, with no footprint around MuJoCo's contact points, see docs/touch.md",
+        );
+    }
     r.finish(
         t,
         "touch",
         &[
             "contact_margin_m",
-            "footprint_radius_m",
             "contact_window_s",
             "activation_force_n",
             "half_force_n",

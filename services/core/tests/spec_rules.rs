@@ -285,6 +285,11 @@ fn touch_settings_have_defaults_and_ranges() {
             "touch.min_active_taxels: must be 0..=10000, got -1",
         ]
     );
+    // The footprint around MuJoCo's contact points is gone: each taxel is its own contact element.
+    let old = tiny_with("contact_margin_m = 0.0005", "contact_margin_m = 0.0005\nfootprint_radius_m = 0.006");
+    let errs = errors(&old);
+    assert_eq!(errs.len(), 1, "{errs:#?}");
+    assert!(errs[0].starts_with("touch.footprint_radius_m: was removed: every taxel within"), "{errs:#?}");
 }
 
 #[test]

@@ -43,13 +43,10 @@ pub const SHAKE_DIRECTIONS: Bound<u32> = Bound::new(1, 32, 4);
 pub const SHAKE_DURATION_S: Bound<f64> = Bound::new(0.01, 30.0, 1.0);
 
 // The touch model and the sources of its defaults: docs/touch.md.
-/// How close (m) to the object's surface a taxel on a link in contact must lie to share the
-/// link's contact force: the skin's compliance; MuJoCo's soft contacts let surfaces interpenetrate
-/// by tenths of a millimetre under grasp forces.
+/// How close (m) to the object's surface a taxel on a link in contact must lie to touch it (each
+/// taxel is a contact element) and share the link's contact force: the skin's compliance; MuJoCo's
+/// soft contacts let surfaces interpenetrate by tenths of a millimetre under grasp forces.
 pub const CONTACT_MARGIN_M: Bound<f64> = Bound::new(0.0, 0.002, 0.0005);
-/// Radius (m) of the pressure patch one MuJoCo contact point spreads over: the Hertz contact radius
-/// of a fingertip on an elastomer cover at grasp forces (a few millimetres, about one taxel pitch).
-pub const FOOTPRINT_RADIUS_M: Bound<f64> = Bound::new(0.001, 0.03, 0.006);
 /// Time (s) over which contact forces are averaged: the capture and the simulation steps within
 /// this window after it, `max(1, round(window / timestep))` samples in all, so the read-out means
 /// the same at any timestep. 4 ms: one sample period of the paper's skin (it samples above 250 Hz,
@@ -225,12 +222,10 @@ impl Default for Shake {
 #[serde(deny_unknown_fields, default)]
 #[schemars(rename = "GraspTouch")]
 pub struct Touch {
-    /// A taxel shares its link's contact force only within this distance of the object (m).
+    /// A taxel of a link in contact touches the object, and shares the link's contact force, within
+    /// this distance of its surface (m).
     #[schemars(range(min = CONTACT_MARGIN_M.min, max = CONTACT_MARGIN_M.max))]
     pub contact_margin_m: f64,
-    /// Radius of the pressure patch around each MuJoCo contact point (m).
-    #[schemars(range(min = FOOTPRINT_RADIUS_M.min, max = FOOTPRINT_RADIUS_M.max))]
-    pub footprint_radius_m: f64,
     /// Time over which contact forces are averaged, from the capture on (s).
     #[schemars(range(min = CONTACT_WINDOW_S.min, max = CONTACT_WINDOW_S.max))]
     pub contact_window_s: f64,
@@ -261,7 +256,6 @@ impl Default for Touch {
     fn default() -> Touch {
         Touch {
             contact_margin_m: CONTACT_MARGIN_M.default,
-            footprint_radius_m: FOOTPRINT_RADIUS_M.default,
             contact_window_s: CONTACT_WINDOW_S.default,
             activation_force_n: ACTIVATION_FORCE_N.default,
             half_force_n: HALF_FORCE_N.default,

@@ -12,15 +12,17 @@ docs/touch.md gives the equations, the sources of the constants and the measured
    forces jitter from step to step, and a single contact point per geom pair wanders over the
    contact patch), each as (link, point in the link's frame, normal force F_c); the record keeps
    them as `contact_samples` and their number as `contact_steps`.
-2. Eligible taxels: on a link in contact at the capture, and within `contact_margin_m` (m) of the
-   object's surface (signed distance d_i, negative inside): the skin's compliance.
-3. Local force. Each contact's force is shared by the eligible taxels of its link within the
-   footprint radius a (`footprint_radius_m`) of the contact point, in proportion to
-       w_ic = (m - d_i) · sqrt(1 - (r_ic / a)^2),
-   the interference with the object (an elastic foundation: pressure grows with compression) times
-   a Hertz-like pressure profile around the contact point; f_i = Σ_c F_c w_ic / Σ_j w_jc, averaged
-   over the steps. A contact with no eligible taxel in its footprint is not felt (its force is
-   recorded as `unsensed_force_n`).
+2. Touching taxels: every taxel of a link in contact at the capture that lies within
+   `contact_margin_m` (m) of the object's surface (signed distance d_i < m, negative inside): each
+   taxel is its own contact element (VinT-6D: "upon contact the simulation generates a touch
+   signal"), so a palm or a phalanx lying along the object touches with every taxel it covers,
+   not only where MuJoCo put its one or few contact points.
+3. Local force. A link's normal force (the sum of its contacts' forces, averaged over the samples)
+   is shared by its touching taxels in proportion to their interference with the object,
+       f_i = F_link · (m - d_i) / Σ_j (m - d_j),
+   an elastic foundation (pressure grows with the skin's compression). Force is conserved per
+   link; the force of a link in contact with no touching taxel (a finger's side or back, where no
+   taxel is) is recorded as `unsensed_force_n`.
 4. Reading (a force-sensing resistor in a voltage divider, Interlink's FSR 400 integration):
        r_i = g_i · x^n / (1 + x^n),   x = aging · f_i / f_half,   n = `response_exponent`,
    when aging · f_i >= f_on (`activation_force_n`), else 0: monotone, saturating at g_i, and an
@@ -55,14 +57,13 @@ from vint_engines.protocol import BadInput
 
 Array = npt.NDArray[np.float64]
 
-# Distances are measured exactly up to the margin plus this much (a taxel further is not eligible).
+# Distances are measured exactly up to the margin plus this much (a taxel further does not touch).
 DISTANCE_SLACK_M = 1e-3
 
 
 @dataclass(frozen=True)
 class TouchParams:
     contact_margin_m: float
-    footprint_radius_m: float
     contact_window_s: float
     activation_force_n: float
     half_force_n: float
@@ -109,25 +110,10 @@ def response(force: Array, gains: Array, params: TouchParams) -> Array:
     return np.where(fires, gains * share, 0.0)
 
 
-def footprint_weights(offsets: Array, interference: Array, radius: float) -> Array:
-    """Unnormalised shares of a contact's force among taxels at `offsets` (m, last axis xyz) from
-    the contact point with `interference` (m, >= 0) with the object: a Hertz-like profile
-    sqrt(1 - (r/a)^2) inside the footprint radius a, times the interference."""
-    r2 = (offsets**2).sum(axis=-1) / radius**2
-    return interference * np.sqrt(np.maximum(1.0 - r2, 0.0))
-
-
-def link_forces(
-    positions: Array, interference: Array, points: Array, forces: Array, radius: float
-) -> tuple[Array, float]:
-    """One link's contact forces shared among its eligible taxels (`positions` and contact
-    `points` in the link's frame): each contact's force split by `footprint_weights`. Returns
-    each taxel's force and the force of the contacts no taxel's footprint weight reached (N)."""
-    weights = footprint_weights(positions[:, None, :] - points[None, :, :], interference[:, None], radius)
-    shared = weights.sum(axis=0)
-    felt = shared > 0.0
-    force = weights[:, felt] @ (forces[felt] / shared[felt])
-    return force, float(forces[~felt].sum())
+def shared_force(interference: Array, force: float) -> Array:
+    """A link's normal force `force` (N) shared among its touching taxels in proportion to their
+    `interference` with the object (m, > 0): an elastic foundation, pressure ∝ compression."""
+    return force * interference / interference.sum()
 
 
 def link_frame_contacts(
@@ -199,8 +185,8 @@ class Skin:
         world = self._to_world(data, indices, self.layout.positions, points=True)
         cap = params.contact_margin_m + DISTANCE_SLACK_M
         distance = object_distances(self.scene.model, data, self.probe, self.object_geoms, world, cap)
-        eligible = distance < params.contact_margin_m
-        indices, distance = indices[eligible], distance[eligible]
+        touching = distance < params.contact_margin_m
+        indices, distance = indices[touching], distance[touching]
         force, contact_force, unsensed = self._local_forces(
             indices, params.contact_margin_m - distance, samples
         )
@@ -227,26 +213,21 @@ class Skin:
     def _local_forces(
         self, indices: npt.NDArray[np.intp], interference: Array, samples: list[list[LinkContact]]
     ) -> tuple[Array, float, float]:
-        """Each eligible taxel's force averaged over the samples, and the mean total contact force
-        on the skin's links and the part of it no eligible taxel felt (N)."""
+        """Each touching taxel's force, the mean total contact force on the skin's links, and the
+        part of it on links with no touching taxel (N); forces are averaged over the samples."""
         force = np.zeros(len(indices))
         total = unsensed = 0.0
-        pooled = [c for contacts in samples for c in contacts]
-        for link in sorted({c.link for c in pooled} & set(self.by_link)):  # a fixed order of sums
-            on_link = [c for c in pooled if c.link == link]
+        link_force: dict[str, float] = {}
+        for contact in (c for contacts in samples for c in contacts if c.link in self.by_link):
+            link_force[contact.link] = link_force.get(contact.link, 0.0) + contact.force_n / len(samples)
+        for link in sorted(link_force):  # a fixed order of sums
             row = np.flatnonzero(np.isin(indices, self.by_link[link]))
-            shares, missed = link_forces(
-                self.layout.positions[indices[row]],
-                interference[row],
-                np.array([c.point for c in on_link]),
-                np.array([c.force_n for c in on_link]),
-                self.params.footprint_radius_m,
-            )
-            force[row] += shares
-            total += sum(c.force_n for c in on_link)
-            unsensed += missed
-        count = len(samples)
-        return force / count, total / count, unsensed / count
+            total += link_force[link]
+            if len(row):
+                force[row] = shared_force(interference[row], link_force[link])
+            else:
+                unsensed += link_force[link]
+        return force, total, unsensed
 
     def _to_world(
         self, data: mujoco.MjData, indices: npt.NDArray[np.intp], vectors: Array, *, points: bool
