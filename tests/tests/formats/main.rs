@@ -8,6 +8,7 @@ mod eval;
 mod images;
 mod preview;
 mod stats;
+mod touch;
 mod webdataset;
 
 use std::path::{Path, PathBuf};

@@ -1,0 +1,54 @@
+//! The tiny run's touch against geometry (`tests/python/check_touch_recall.py`, which reads only
+//! the dataset's grasp records, the layout they cite and the exported models, and measures each
+//! taxel's distance to the model with its own code): the taxels that touch the object fire, and
+//! the taxels that fire touch it; a grasp record whose object is moved off its pose fails the check.
+
+use std::path::Path;
+use std::process::Output;
+
+use serde_json::Value;
+
+use super::{path_str, tiny};
+use vint_tests::{python, repo_root, stdout};
+
+fn check_touch_recall(dir: &Path) -> (Output, Value) {
+    let script = repo_root().join("tests/python/check_touch_recall.py");
+    let out =
+        std::process::Command::new(python()).arg(script).arg(path_str(dir)).output().expect("check_touch_recall.py");
+    let report = serde_json::from_str(stdout(&out).trim())
+        .unwrap_or_else(|e| panic!("{e}: {}\n{}", stdout(&out), String::from_utf8_lossy(&out.stderr)));
+    (out, report)
+}
+
+#[test]
+fn taxels_touching_the_object_fire_and_active_taxels_touch_it() {
+    let (out, report) = check_touch_recall(tiny());
+    assert!(report["grasps"].as_u64().unwrap_or(0) >= 6, "the tiny run's grasps: {report}");
+    assert!(report["near"].as_u64().unwrap_or(0) >= 30, "taxels against the object: {report}");
+    assert!(out.status.success(), "recall ≥ 0.90 and precision ≥ 0.95: {report}");
+}
+
+/// The check can fail: the same records with the object 3 mm off its recorded pose put the active
+/// taxels off the surface and other taxels into it.
+#[test]
+fn touch_check_fails_when_the_object_is_off_its_pose() {
+    let moved = tiny().with_file_name("out-touch-moved");
+    std::fs::create_dir_all(moved.join("models")).expect("models dir");
+    for entry in std::fs::read_dir(tiny().join("models")).expect("models") {
+        let path = entry.expect("entry").path();
+        std::fs::copy(&path, moved.join("models").join(path.file_name().expect("name"))).expect("copy model");
+    }
+    for entry in std::fs::read_dir(tiny()).expect("dataset dir") {
+        let grasp = entry.expect("entry").path().join("grasp.json");
+        let Ok(bytes) = std::fs::read(&grasp) else { continue };
+        let mut record: Value = serde_json::from_slice(&bytes).expect("grasp.json");
+        let x = &mut record["trial"]["object_pose"]["p"][0];
+        *x = Value::from(x.as_f64().expect("object_pose.p") + 0.003);
+        let dir = moved.join(grasp.parent().and_then(Path::file_name).expect("grasp dir"));
+        std::fs::create_dir_all(&dir).expect("grasp dir");
+        std::fs::write(dir.join("grasp.json"), record.to_string()).expect("write grasp.json");
+    }
+    let (out, report) = check_touch_recall(&moved);
+    assert_eq!(out.status.code(), Some(1), "{report}");
+    assert!(report["recall"].as_f64().unwrap_or(1.0) < 0.9 || report["precision"].as_f64().unwrap_or(1.0) < 0.95);
+}
