@@ -193,6 +193,8 @@ impl JobPlan {
                 roll_deg: r.roll_deg,
                 offcentre: r.offcentre,
                 intrinsics_jitter: r.intrinsics_jitter,
+                occlusion: r.occlusion,
+                palm_side: r.palm_side,
                 scene: r.scene.clone(),
                 sensor: r.sensor.clone(),
                 light: r.light.clone(),

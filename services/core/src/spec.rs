@@ -189,6 +189,10 @@ pub struct RenderSettings {
     pub offcentre: f64,
     /// Per-view spread of the focal length and principal point (σ; 0 keeps the nominal pinhole).
     pub intrinsics_jitter: f64,
+    /// The range a sampled view's occlusion must fall in; its camera is redrawn until it does.
+    pub occlusion: [f64; 2],
+    /// Which side of the palm a sampled camera may stand on.
+    pub palm_side: render_contract::PalmSide,
     /// The table and the arm's flange around the grasp (`[render.scene]`).
     pub scene: render_contract::Scene,
     /// The colour camera's sensor model (`[render.sensor]`).
@@ -333,6 +337,7 @@ pub fn number_fields() -> Vec<NumberField> {
         pair(float("render.roll_deg", render_contract::ROLL_DEG)),
         float("render.offcentre", render_contract::OFFCENTRE),
         float("render.intrinsics_jitter", render_contract::INTRINSICS_JITTER),
+        pair(float("render.occlusion", render_contract::OCCLUSION)),
         float("render.clamp_indirect", render_contract::CLAMP_INDIRECT),
         float("render.despeckle", render_contract::DESPECKLE),
         float("render.scene.table_gap_m", render_contract::TABLE_GAP_M),
@@ -624,6 +629,20 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
         ),
         offcentre: r.number(&mut rd, "render", "offcentre", render_contract::OFFCENTRE),
         intrinsics_jitter: r.number(&mut rd, "render", "intrinsics_jitter", render_contract::INTRINSICS_JITTER),
+        occlusion: r.float_range(
+            &mut rd,
+            "render",
+            "occlusion",
+            render_contract::OCCLUSION,
+            render_contract::OCCLUSION_DEFAULT,
+        ),
+        palm_side: r.tag(
+            &mut rd,
+            "render",
+            "palm_side",
+            &render_contract::PalmSide::ALL,
+            Some(render_contract::PalmSide::default()),
+        ),
         scene: read_scene(r, &mut rd),
         sensor: read_sensor(r, &mut rd),
         light: read_light(r, &mut rd),
@@ -657,6 +676,8 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
             "roll_deg",
             "offcentre",
             "intrinsics_jitter",
+            "occlusion",
+            "palm_side",
             "scene",
             "sensor",
             "light",

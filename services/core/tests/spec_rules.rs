@@ -1,6 +1,7 @@
 //! Every spec rule, as a user meets it: one bad value in, one precise message out.
 
 use vint_core::DatasetSpec;
+use vint_core::contract::render::PalmSide;
 
 const TINY: &str = include_str!("../../../examples/tiny.toml");
 
@@ -628,5 +629,36 @@ fn a_bop_model_keeps_its_obj_id_and_explicit_symmetries() {
     assert_single_error(
         &twice,
         "object.vase.obj_id: must differ from object.cup.obj_id (each obj_id names one model), got 5",
+    );
+}
+
+#[test]
+fn occlusion_range_defaults_to_the_papers_and_is_ordered_within_zero_and_one() {
+    let spec = DatasetSpec::parse(TINY).unwrap();
+    assert_eq!(spec.render.occlusion, [0.1, 0.9], "VinT-6D §3.3.7: occlusion by the fingers 10-90 %");
+    assert_eq!(spec.render.palm_side, PalmSide::Any);
+    let spec =
+        DatasetSpec::parse(&tiny_with("samples = 16", "samples = 16\nocclusion = [0.0, 0.5]\npalm_side = \"front\""))
+            .unwrap();
+    assert_eq!((spec.render.occlusion, spec.render.palm_side), ([0.0, 0.5], PalmSide::Front));
+    assert_single_error(
+        &tiny_with("samples = 16", "samples = 16\nocclusion = [0.9, 0.1]"),
+        "render.occlusion: must be [low, high] with low <= high, got [0.9, 0.1]",
+    );
+    assert_single_error(
+        &tiny_with("samples = 16", "samples = 16\nocclusion = [0.1, 1.5]"),
+        "render.occlusion[1]: must be in [0, 1], got 1.5",
+    );
+    assert_single_error(
+        &tiny_with("samples = 16", "samples = 16\nocclusion = [-0.1, 0.9]"),
+        "render.occlusion[0]: must be in [0, 1], got -0.1",
+    );
+    assert_single_error(
+        &tiny_with("samples = 16", "samples = 16\nocclusion = 0.5"),
+        "render.occlusion: must be an array of two numbers, got 0.5",
+    );
+    assert_single_error(
+        &tiny_with("samples = 16", "samples = 16\npalm_side = \"back\""),
+        "render.palm_side: must be one of any, front, got \"back\"",
     );
 }

@@ -38,6 +38,12 @@ pub const OFFCENTRE: Bound<f64> = Bound::new(0.0, 0.9, 0.6);
 /// 1 + N(0, σ), the principal point moved by N(0, σ) of the image's width and height, per view.
 /// 0 (the default) keeps the nominal pinhole: principal point at the centre, `fov_deg`.
 pub const INTRINSICS_JITTER: Bound<f64> = Bound::new(0.0, 0.1, 0.0);
+/// Each end of the range a sampled view's occlusion must fall in (the share of the object's full
+/// mask the hand and arm hide). Default the paper's: "occlusion by the fingers 10–90 %"
+/// (VinT-6D, §3.3.7). The renderer redraws a view's camera until it lands in range, at most
+/// `MAX_CAMERA_ATTEMPTS` times (`vint_engines/render/viewpoint.py`); [0, 1] accepts every camera.
+pub const OCCLUSION: Bound<f64> = Bound::new(0.0, 1.0, 0.1);
+pub const OCCLUSION_DEFAULT: [f64; 2] = [0.1, 0.9];
 /// The firefly filter's threshold: a pixel brighter than all 8 neighbours by more than this share
 /// of full scale takes their median (`vint_engines/render/fireflies.py`); 0 is off.
 pub const DESPECKLE: Bound<f64> = Bound::new(0.0, 1.0, 0.3);
@@ -137,12 +143,35 @@ pub struct Settings {
     /// Per-view spread of the focal length and principal point (σ, fraction; 0: nominal).
     #[schemars(range(min = INTRINSICS_JITTER.min, max = INTRINSICS_JITTER.max))]
     pub intrinsics_jitter: f64,
+    /// The range a sampled view's occlusion must fall in, [min, max] (min ≤ max): its camera is
+    /// redrawn (seeded, bounded) until it does. A view with an explicit camera is not redrawn.
+    #[schemars(inner(range(min = OCCLUSION.min, max = OCCLUSION.max)))]
+    pub occlusion: [f64; 2],
+    /// Which side of the palm a sampled camera may stand on.
+    pub palm_side: PalmSide,
     /// What stands around the grasp.
     pub scene: Scene,
     /// The colour camera's sensor: exposure and white-balance errors, shot and read noise.
     pub sensor: Sensor,
     /// Per-view randomisation of the environment's strength, turn and colour temperature.
     pub light: Light,
+}
+
+/// Which side of the palm a sampled camera may stand on, judged by the palm normal (the palm
+/// frame's +z, towards the object: docs/hands.md) at the palm link's origin.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum PalmSide {
+    /// Anywhere the radius and elevation ranges allow.
+    #[default]
+    Any,
+    /// In front of the palm's plane (never looking at the back of the hand): redrawn like an
+    /// occlusion out of range.
+    Front,
+}
+
+impl PalmSide {
+    pub const ALL: [PalmSide; 2] = [PalmSide::Any, PalmSide::Front];
 }
 
 /// Per-view light randomisation (`vint_engines/render/lighting.py`), drawn from the view's seed:
@@ -239,6 +268,8 @@ impl Default for Settings {
             roll_deg: ROLL_DEG_DEFAULT,
             offcentre: OFFCENTRE.default,
             intrinsics_jitter: INTRINSICS_JITTER.default,
+            occlusion: OCCLUSION_DEFAULT,
+            palm_side: PalmSide::default(),
             scene: Scene::default(),
             sensor: Sensor::default(),
             light: Light::default(),
