@@ -408,6 +408,7 @@ fn grasp_params(
                 directions: g.shake_directions,
                 duration_s: g.shake_duration_s,
             },
+            grasp_type: g.r#type,
             ..grasp::Physics::default()
         },
         touch: grasp::Touch {

@@ -132,6 +132,8 @@ pub struct GraspSettings {
     pub shake_accel_mps2: f64,
     pub shake_directions: u32,
     pub shake_duration_s: f64,
+    /// Which grasps are kept (`power`, the paper's, `precision` or `any`).
+    pub r#type: grasp::GraspType,
 }
 
 /// The tactile sensor model (see `vint_engines/grasp/touch.py`).
@@ -520,6 +522,7 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
         shake_duration_s: r.number(&mut g, "grasp", "shake_duration_s", grasp::SHAKE_DURATION_S),
     };
     r.finish(
+        r#type: r.tag(&mut g, "grasp", "type", &grasp::GraspType::ALL, Some(grasp::GraspType::default())),
         g,
         "grasp",
         &[
@@ -536,6 +539,7 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
             "shake_duration_s",
         ],
     );
+            "type",
     let budget = grasp.budget();
     if budget.max_task_trials() > grasp::TRIALS_PER_TASK.max {
         r.error(

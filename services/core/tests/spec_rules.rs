@@ -32,6 +32,22 @@ fn tiny_example_is_valid() {
 }
 
 #[test]
+fn grasp_type_defaults_to_the_papers_power_grasp_and_names_its_choices() {
+    use vint_core::contract::grasp::GraspType;
+    assert_eq!(DatasetSpec::parse(TINY).unwrap().grasp.r#type, GraspType::Power, "VinT-6D App. A.1.3");
+    let spec = DatasetSpec::parse(&tiny_with("max_drop_m = 0.02", "max_drop_m = 0.02\ntype = \"precision\"")).unwrap();
+    assert_eq!(spec.grasp.r#type, GraspType::Precision);
+    assert_single_error(
+        &tiny_with("max_drop_m = 0.02", "max_drop_m = 0.02\ntype = \"pinch\""),
+        "grasp.type: must be one of power, precision, any, got \"pinch\"",
+    );
+    assert_single_error(
+        &tiny_with("max_drop_m = 0.02", "max_drop_m = 0.02\ntype = 1"),
+        "grasp.type: must be one of power, precision, any, got 1",
+    );
+}
+
+#[test]
 fn resolution_out_of_range_names_field_value_and_rule() {
     assert_single_error(
         &tiny_with("resolution = [128, 128]", "resolution = [0, 128]"),

@@ -29,7 +29,8 @@ CAN = {
     "description": "",
     "shape": {"type": "cylinder", "radius_m": 0.0338, "height_m": 0.1019},
 }
-PHYSICS = {"timestep": 0.002, "lift_height": 0.10, "hold_s": 1.0, "max_drop_m": 0.02}
+# The procedure under test keeps any grasp type (test_grasp_types.py checks the types).
+PHYSICS = {"timestep": 0.002, "lift_height": 0.10, "hold_s": 1.0, "max_drop_m": 0.02, "grasp_type": "any"}
 SEEDS = [1234567890123 + 7919 * i for i in range(8)]
 
 

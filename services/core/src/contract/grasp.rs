@@ -159,6 +159,27 @@ pub struct Physics {
     /// Fastest object speed accepted (m/s); bounds the scene's kinetic energy too.
     #[schemars(range(min = MAX_OBJECT_SPEED_MPS.min, max = MAX_OBJECT_SPEED_MPS.max))]
     pub max_object_speed_mps: f64,
+    /// Which grasps are kept (the spec's `grasp.type`): every type rejects a grasp that presses
+    /// the object with a link's unsensorised (dorsal) side or lets it move in the hand.
+    pub grasp_type: GraspType,
+}
+
+/// The kind of grasp a trial must end in (`vint_engines/grasp/trial.py`, `judge_type`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum GraspType {
+    /// The paper's (VinT-6D App. A.1.3): the palm touches the object (palm taxels active) and the
+    /// object's centre lies near the palm (`POWER_CENTRE_RATIO` of its bounding radius).
+    #[default]
+    Power,
+    /// Fingertips only: every active taxel on a fingertip, on at least two fingers.
+    Precision,
+    /// Any hold that passes the checks every type makes.
+    Any,
+}
+
+impl GraspType {
+    pub const ALL: [GraspType; 3] = [GraspType::Power, GraspType::Precision, GraspType::Any];
 }
 
 impl Default for Physics {
@@ -179,6 +200,7 @@ impl Default for Physics {
             min_timestep: MIN_TIMESTEP_S.default,
             max_penetration_m: MAX_PENETRATION_M.default,
             max_object_speed_mps: MAX_OBJECT_SPEED_MPS.default,
+            grasp_type: GraspType::default(),
         }
     }
 }
@@ -275,7 +297,8 @@ impl Default for Touch {
 pub struct GraspResult {
     /// Grasp indices of the accepted trials.
     pub accepted: Vec<u32>,
-    /// Rejected trials by reason class (`no_contact`, `dropped`, `diverged`, …).
+    /// Rejected trials by reason class (`no_contact`, `dropped`, `moved_in_hand`, `dorsal_contact`,
+    /// `no_palm_contact`, `far_from_palm`, `not_fingertips`, `diverged`, …; PROTOCOL.md lists them).
     #[serde(default)]
     pub rejected: BTreeMap<String, u32>,
     /// Each accepted trial's active taxels per region of the hand's layout (`tip`, `pulp`,

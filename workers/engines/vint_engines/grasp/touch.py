@@ -23,6 +23,12 @@ docs/touch.md gives the equations, the sources of the constants and the measured
    an elastic foundation (pressure grows with the skin's compression). Force is conserved per
    link; the force of a link in contact with no touching taxel (a finger's side or back, where no
    taxel is) is recorded as `unsensed_force_n`.
+   Dorsal contact: a contact no taxel of its link faces — none within the link's taxel reach
+   (`DORSAL_REACH` times the layout's widest taxel spacing on that link) has its outward normal
+   within `DORSAL_CONE_DEG` of the contact normal — presses the link's unsensorised side (the back
+   or the far side of a finger, the back or an edge of the palm); its force, averaged over the
+   samples per link, is recorded as `dorsal_force_n` (the grasp trial rejects a grasp above the
+   activation force: `trial.py`).
 4. Reading (a force-sensing resistor in a voltage divider, Interlink's FSR 400 integration):
        r_i = g_i · x^n / (1 + x^n),   x = aging · f_i / f_half,   n = `response_exponent`,
    when aging · f_i >= f_on (`activation_force_n`), else 0: monotone, saturating at g_i, and an
@@ -59,6 +65,14 @@ Array = npt.NDArray[np.float64]
 
 # Distances are measured exactly up to the margin plus this much (a taxel further does not touch).
 DISTANCE_SLACK_M = 1e-3
+# A contact is on the sensorised skin when a taxel of its link within DORSAL_REACH × the link's
+# widest taxel spacing (the largest nearest-neighbour distance among its taxels: 6-11 mm on the
+# built-in hands) faces it, its outward normal within DORSAL_CONE_DEG of the contact normal. The
+# built-in layouts cover each finger link's palmar half up to ~10° short of its sides; 30° more
+# lets a contact on a link's side count as sensed and flags one past ~110° from the palmar
+# direction (docs/touch.md, "Dorsal contact").
+DORSAL_REACH = 1.5
+DORSAL_CONE_DEG = 30.0
 
 
 @dataclass(frozen=True)
@@ -85,12 +99,13 @@ class TouchParams:
 
 @dataclass(frozen=True)
 class LinkContact:
-    """One hand–object contact as the skin needs it: the link, the point in the link's frame (m)
-    and the normal force (N)."""
+    """One hand–object contact as the skin needs it: the link, the point and the contact normal
+    (from the link into the object, unit) in the link's frame (m), and the normal force (N)."""
 
     link: str
     point: Array
     force_n: float
+    normal: Array
 
 
 def taxel_gains(count: int, sigma: float, seed: int) -> Array:
@@ -123,9 +138,20 @@ def link_frame_contacts(
     moved = []
     for contact in contacts:
         body = scene.link_bodies[contact["link"]]
-        local = data.xmat[body].reshape(3, 3).T @ (np.asarray(contact["p"]) - data.xpos[body])
-        moved.append(LinkContact(contact["link"], local, float(contact["force"])))
+        rotation = data.xmat[body].reshape(3, 3)
+        local = rotation.T @ (np.asarray(contact["p"]) - data.xpos[body])
+        normal = rotation.T @ np.asarray(contact["normal"])
+        moved.append(LinkContact(contact["link"], local, float(contact["force"]), normal))
     return moved
+
+
+def widest_spacing(points: Array) -> float:
+    """The largest distance from a taxel to its nearest neighbour among `points` (m); 0 for one."""
+    if len(points) < 2:
+        return 0.0
+    apart = np.linalg.norm(points[:, None] - points[None], axis=2)
+    np.fill_diagonal(apart, np.inf)
+    return float(apart.min(axis=1).max())
 
 
 def window_steps(window_s: float, timestep: float) -> int:
@@ -171,7 +197,27 @@ class Skin:
         self.taxel_body = np.array([scene.link_bodies[link] for link in layout.links], dtype=np.intp)
         self.object_geoms = list(scene.object_geoms)
         self.probe = model.geom(TOUCH_PROBE).id
+        self.reach = {
+            link: DORSAL_REACH * widest_spacing(layout.positions[rows]) for link, rows in self.by_link.items()
+        }
         self.elapsed_s = 0.0
+
+    def faces_skin(self, contact: LinkContact) -> bool:
+        """Whether a taxel of the contact's link faces it (see DORSAL_REACH): a link with no
+        taxels has no sensorised side."""
+        rows = self.by_link.get(contact.link)
+        if rows is None:
+            return False
+        near = np.linalg.norm(self.layout.positions[rows] - contact.point, axis=1) <= self.reach[contact.link]
+        facing = self.layout.normals[rows] @ contact.normal >= np.cos(np.radians(DORSAL_CONE_DEG))
+        return bool((near & facing).any())
+
+    def dorsal_forces(self, samples: list[list[LinkContact]]) -> dict[str, float]:
+        """Per link, the mean normal force (N) over `samples` of its contacts no taxel faces."""
+        forces: dict[str, float] = {}
+        for contact in (c for contacts in samples for c in contacts if not self.faces_skin(c)):
+            forces[contact.link] = forces.get(contact.link, 0.0) + contact.force_n / len(samples)
+        return dict(sorted(forces.items()))
 
     def read(self, data: mujoco.MjData, samples: list[list[LinkContact]]) -> dict[str, Any]:
         """The `touch` record of the captured state `data`; `samples` are the contacts of the
@@ -199,8 +245,17 @@ class Skin:
             "contact_steps": len(samples),
             "contact_force_n": contact_force,
             "unsensed_force_n": unsensed,
+            "dorsal_force_n": self.dorsal_forces(samples),
             "contact_samples": [
-                [{"link": c.link, "p_link": c.point.tolist(), "force_n": c.force_n} for c in contacts]
+                [
+                    {
+                        "link": c.link,
+                        "p_link": c.point.tolist(),
+                        "n_link": c.normal.tolist(),
+                        "force_n": c.force_n,
+                    }
+                    for c in contacts
+                ]
                 for contacts in samples
             ],
             "active": self._active_json(data, indices, distance, force, readings),

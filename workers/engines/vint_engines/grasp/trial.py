@@ -6,9 +6,18 @@ hand, lift, hold, optionally shake, judge, read out (`docs/physics.md`, "The gra
 A trial depends only on the scene, the physics parameters, the hand's skin and its seed; `data` is
 reset fully at the start and the model's per-trial settings (`configure`) are rewritten from the
 compiled values every time, so trials can run in any order on one `MjData`. A grasp is kept when the
-hand lifted and held the object (it slid less than `max_drop_m` relative to the palm, through the
-hold and the shake) with tactile contact: at least `touch.min_active_taxels` taxels active on the
-captured state.
+hand lifted and held the object with tactile contact and is ready for manipulation:
+
+- held: it fell less than `max_drop_m` relative to the palm over the lift and hold (`dropped`);
+- steady (readiness, VinT-6D §3.1.2): over the hold, and over the shake, the object moved less
+  than MAX_SLIP_M and turned less than MAX_TURN_DEG in the palm's frame (`moved_in_hand`);
+- felt: at least `touch.min_active_taxels` taxels active on the captured state (`no_touch`);
+- no dorsal contact: no link presses the object with its unsensorised side (the back of a finger;
+  `touch.Skin.dorsal_forces`) harder than the activation force (`dorsal_contact`);
+- of its type (`judge_type`): a power grasp (whose palm is brought to the object before the
+  fingers close, `Rollout.approach_palm`) touches with the palm (`no_palm_contact`) and holds the
+  object's centre within POWER_CENTRE_RATIO of its bounding radius of the palm (`far_from_palm`);
+  a precision grasp touches with fingertips only, of two fingers at least (`not_fingertips`).
 
 Numerical trouble is never accepted silently: the rollout watches MuJoCo's warning counters (the
 default autoreset hides a divergence), NaN/Inf, the deepest contact penetration and the object's
@@ -67,6 +76,19 @@ MIN_GRIP = 0.01
 # The stability monitor looks at the state every CHECK_EVERY steps.
 CHECK_EVERY = 5
 
+# Readiness: how far the object may move and turn in the palm's frame over the hold (and over the
+# shake) of a kept grasp; docs/physics.md, "Grasp types and readiness", has the measurement.
+MAX_SLIP_M = 0.005
+MAX_TURN_DEG = 5.0
+# A power grasp brings the palm to the object before the fingers close: the hand moves along its
+# normal by the palm's gap plus PALM_PRESS_M over PALM_APPROACH_S (the fingers, open, give way).
+PALM_PRESS_M = 0.002
+PALM_APPROACH_S = 0.2
+# A power grasp holds the object's centre (its bounding box's) at most this fraction of its
+# bounding radius from the palm's palmar face. See docs/physics.md, "Grasp types and readiness".
+POWER_CENTRE_RATIO = 0.8
+GRASP_TYPES = ("power", "precision", "any")
+
 CONES = {"elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC, "pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL}
 
 
@@ -118,6 +140,7 @@ class Physics:
     min_timestep: float
     max_penetration_m: float
     max_object_speed_mps: float
+    grasp_type: str
 
     @staticmethod
     def parse(obj: Any, where: str = "params.physics") -> Physics:
@@ -368,16 +391,20 @@ def attempt(rollout: Rollout, approach: Approach, skin: Skin) -> dict[str, Any]:
     scene, data, physics = rollout.scene, rollout.data, rollout.physics
     rollout.check_timestep()
     rollout.place(approach)
+    if physics.grasp_type == "power":
+        rollout.approach_palm()
     rollout.close_fingers()
     if not finger_contacts(scene, data):
         raise TrialRejected("no_contact")
     hold = rollout.lift_and_hold()
     if hold["drop_m"] >= physics.max_drop_m:
         raise TrialRejected("dropped")
+    check_steady(hold["slip_m"], hold["turn_deg"], "")
     if physics.shake.enabled:
-        hold["shake_slip_m"] = rollout.shake()
+        hold["shake_slip_m"], hold["shake_turn_deg"] = rollout.shake()
         if hold["shake_slip_m"] >= physics.max_drop_m:
             raise TrialRejected("dropped: shake")
+        check_steady(hold["shake_slip_m"], hold["shake_turn_deg"], "shake, ")
     contacts = finger_contacts(scene, data)
     if not contacts:
         raise TrialRejected("no_contact")
@@ -385,7 +412,74 @@ def attempt(rollout: Rollout, approach: Approach, skin: Skin) -> dict[str, Any]:
     touch = skin.read(data, held_contacts(scene, data, steps, finger_contacts))
     if touch["active_count"] < skin.params.min_active_taxels:
         raise TrialRejected("no_touch")
-    return {**readout(scene, data), "contacts": contacts, "hold": hold, "touch": touch}
+    check_dorsal(touch["dorsal_force_n"], skin.params.activation_force_n)
+    grasp = judge_type(physics.grasp_type, scene, data, touch["active"])
+    return {**readout(scene, data), "contacts": contacts, "hold": hold, "touch": touch, "grasp": grasp}
+
+
+def check_steady(slip_m: float, turn_deg: float, during: str) -> None:
+    """Readiness: reject an object that moved `slip_m` or turned `turn_deg` in the hand."""
+    if slip_m >= MAX_SLIP_M:
+        raise TrialRejected(f"moved_in_hand: {during}slipped {1e3 * slip_m:.3g} mm")
+    if turn_deg >= MAX_TURN_DEG:
+        raise TrialRejected(f"moved_in_hand: {during}turned {turn_deg:.3g}°")
+
+
+def check_dorsal(forces: dict[str, float], activation_n: float) -> None:
+    """Reject a grasp that presses the object with a link's unsensorised side (`forces`: per
+    link, N) harder than a taxel's activation force."""
+    if forces:
+        link = max(forces, key=lambda name: forces[name])
+        if forces[link] > activation_n:
+            raise TrialRejected(f"dorsal_contact: {link} {forces[link]:.3g} N")
+
+
+def object_centre(scene: GraspScene) -> tuple[np.ndarray, float]:
+    """The object's centre (its model's bounding-box centre, object frame) and its bounding
+    radius about that centre (m)."""
+    vertices = scene.obj.surface.vertices
+    centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
+    return centre, float(np.linalg.norm(vertices - centre, axis=1).max())
+
+
+def centre_above_palm(scene: GraspScene, data: mujoco.MjData, centre: np.ndarray) -> float:
+    """Height (m) of the object-frame point `centre` above the palm's palmar face (palm +z)."""
+    body, palm = scene.object_body, scene.palm_body
+    world = data.xmat[body].reshape(3, 3) @ centre + data.xpos[body]
+    local = data.xmat[palm].reshape(3, 3).T @ (world - data.xpos[palm])
+    return float(local[2]) - scene.hand.palm_half[2]
+
+
+def judge_type(
+    grasp_type: str, scene: GraspScene, data: mujoco.MjData, active: list[dict[str, Any]]
+) -> dict[str, Any]:
+    """The record's `grasp`: the type and what it was judged by; rejects a grasp not of
+    `grasp_type` (see the module's doc)."""
+    centre, radius = object_centre(scene)
+    height = centre_above_palm(scene, data, centre)
+    palm = sum(1 for taxel in active if taxel["region"] == "palm")
+    tips = {taxel["link"] for taxel in active if taxel["region"] == "tip"}
+    off_tips = sum(1 for taxel in active if taxel["region"] != "tip")
+    limit = POWER_CENTRE_RATIO * radius
+    if grasp_type == "power":
+        if palm == 0:
+            raise TrialRejected("no_palm_contact")
+        if height > limit:
+            raise TrialRejected(
+                f"far_from_palm: centre {1e3 * height:.3g} mm from the palm, limit {1e3 * limit:.3g} mm"
+            )
+    elif grasp_type == "precision":
+        if off_tips:
+            raise TrialRejected(f"not_fingertips: {off_tips} active taxels off the fingertips")
+        if len(tips) < 2:
+            raise TrialRejected(f"not_fingertips: {len(tips)} fingertip touching")
+    return {
+        "type": grasp_type,
+        "palm_active": palm,
+        "fingertips_touching": len(tips),
+        "centre_to_palm_m": height,
+        "centre_limit_m": limit,
+    }
 
 
 class Rollout:
@@ -505,6 +599,22 @@ class Rollout:
             best = min(best, geom_distance(model, data, int(hand[i]), int(obj[j]), cap))
         return best
 
+    def approach_palm(self) -> None:
+        """Move the open hand along its normal until its palm presses the (fixed) object by
+        PALM_PRESS_M: a power grasp closes the fingers around an object lying on the palm."""
+        scene, data, model = self.scene, self.data, self.scene.model
+        palm = [g for g in scene.hand_geoms if model.geom_bodyid[g] == scene.palm_body]
+        cap = self.dims.reach() + GAP_SEARCH_M
+        gap = min(geom_distance(model, data, g, o, cap) for g in palm for o in scene.object_geoms)
+        start = data.mocap_pos[scene.mocap].copy()
+        normal = data.xmat[scene.palm_body].reshape(3, 3)[:, 2].copy()
+        travel = max(0.0, gap) + PALM_PRESS_M
+
+        def advance(s: float) -> None:
+            data.mocap_pos[scene.mocap] = start + (0.5 - 0.5 * math.cos(math.pi * s)) * travel * normal
+
+        self.ramp(PALM_APPROACH_S, advance)
+
     def close_fingers(self) -> None:
         """Follow the closing path from the open to the closed pose, then squeeze: position servos
         whose targets lie beyond contact, so each finger stops where it touches the (fixed)
@@ -535,19 +645,24 @@ class Rollout:
             data.mocap_pos[scene.mocap] = start + np.array([0.0, 0.0, smooth * self.physics.lift_height])
 
         self.ramp(LIFT_S, raise_hand)
+        lifted = self.object_pose_in_palm()
         hold_steps = self.run(self.physics.hold_s)
+        slip, turn = self.moved_since(lifted)
         return {
             "drop_m": offset_before - self.object_minus_palm_z(),
             "object_rise_m": float(data.xpos[scene.object_body][2]) - object_z0,
             "settle_m": settle,
+            "slip_m": slip,
+            "turn_deg": turn,
             "steps": hold_steps,
         }
 
-    def shake(self) -> float:
-        """Shake the hand (see `Shake`); returns how far the object moved relative to the palm."""
+    def shake(self) -> tuple[float, float]:
+        """Shake the hand (see `Shake`); returns how far the object moved (m) and turned (°)
+        relative to the palm."""
         scene, data, shake = self.scene, self.data, self.physics.shake
         centre = data.mocap_pos[scene.mocap].copy()
-        before = self.object_in_palm()
+        before = self.object_pose_in_palm()
         self.drop_reason = "dropped: shake"
         period = shake.duration_s / shake.directions
         omega = 2.0 * math.pi / period
@@ -559,7 +674,20 @@ class Rollout:
 
             self.ramp(period, move)
         data.mocap_pos[scene.mocap] = centre
-        return float(np.linalg.norm(self.object_in_palm() - before))
+        return self.moved_since(before)
+
+    def object_pose_in_palm(self) -> tuple[np.ndarray, np.ndarray]:
+        """The object's position and rotation in the palm's frame."""
+        palm = self.scene.palm_body
+        rotation = self.data.xmat[palm].reshape(3, 3).T @ self.data.xmat[self.scene.object_body].reshape(3, 3)
+        return self.object_in_palm(), rotation
+
+    def moved_since(self, before: tuple[np.ndarray, np.ndarray]) -> tuple[float, float]:
+        """How far (m) and by what angle (°) the object moved in the palm's frame since `before`."""
+        position, rotation = self.object_pose_in_palm()
+        turn = rotation @ before[1].T
+        cos = np.clip((np.trace(turn) - 1.0) / 2.0, -1.0, 1.0)
+        return float(np.linalg.norm(position - before[0])), float(np.degrees(np.arccos(cos)))
 
     def object_minus_palm_z(self) -> float:
         xpos = self.data.xpos
