@@ -32,6 +32,9 @@ RENDER = {
     "environment": "studio",
     "radius_m": [0.2, 0.25],
     "elevation_deg": [15.0, 75.0],
+    # These tests hold pixels to geometry at the cameras the seeds draw first; the redraws that keep
+    # occlusion in a range have their own tests (test_viewpoint.py).
+    "occlusion": [0.0, 1.0],
 }
 ALL = ["rgb", "depth", "mask", "segmentation"]
 GEOMETRY_FILES = ("depth.npy", "mask.png", "mask_full.png", "segmentation.png")

@@ -5,8 +5,10 @@ Builds the Blender scenes once (and renders a tiny warm-up frame so the first ta
 for kernel loading); per task it reads `grasps.json` (and the object's model mesh `object.ply`
 when the worker staged it), poses the hand and the object, then renders each view from a camera
 sampled with the view's seed (or given by the view): always the geometry passes (depth, pass
-indices, the object's full mask; no path tracing), and the path-traced RGB image under the view's
-environment only when `rgb` is requested, with bounce caps pruned to what the materials can use.
+indices, the object's full mask; no path tracing) — for a sampled camera once per attempt, redrawn
+until the hand's occlusion of the object is within `render.occlusion` (`viewpoint.py`) —, and the
+path-traced RGB image under the view's environment only when `rgb` is requested (once per view,
+for the chosen camera), with bounce caps pruned to what the materials can use.
 Views are rendered grouped by environment, starting with the one already loaded (every view's
 output depends on its own parameters only, so the order changes no pixel). An environment is a
 bundled HDRI or a user's file staged with the task (`params.assets`), known by its SHA-256.
@@ -36,7 +38,7 @@ from vint_engines.objects.spec import MeshFile
 from vint_engines.objects.textured import MeshSource
 from vint_engines.poses import quat_to_matrix, read_pose
 from vint_engines.protocol import BadInput, Json, TaskRequest, TaskResult
-from vint_engines.render import lighting
+from vint_engines.render import lighting, viewpoint
 from vint_engines.render.camera import CameraPose, Intrinsics, framed, look_at, sample_on_hemisphere
 from vint_engines.render.cycles import Bounces, PathTracing
 from vint_engines.render.denoise import Denoiser
@@ -44,6 +46,7 @@ from vint_engines.render.dressing import SceneDressing
 from vint_engines.render.fireflies import despeckle
 from vint_engines.render.scene import OBJECT_PASS_INDEX, BlenderScene, Geometry, Hdri, Radiance, environments
 from vint_engines.render.sensor import SensorModel, capture, encode_srgb8
+from vint_engines.render.viewpoint import Palm, Viewpoint, ViewpointRule, attempt_rng, occlusion_share
 
 GRASPS_INPUT = "grasps.json"
 INTRINSICS_STREAM = 0x1C  # appended to the view's seed: the intrinsics jitter's own random stream
@@ -68,11 +71,12 @@ class RenderSettings:
     scene: SceneDressing
     sensor: SensorModel
     light: lighting.LightJitter
+    viewpoint: ViewpointRule
 
     @staticmethod
     def parse(obj: Any, where: str = "params.render") -> RenderSettings:
         fields = contract.validated_part("RenderSettings", obj, where)
-        for key in ("radius_m", "elevation_deg", "roll_deg"):
+        for key in ("radius_m", "elevation_deg", "roll_deg", "occlusion"):
             low, high = fields[key]
             if low > high:
                 raise BadInput(f"{where}.{key}: min {low} exceeds max {high}")
@@ -102,6 +106,10 @@ class RenderSettings:
             ),
             sensor=SensorModel.from_fields(fields["sensor"]),
             light=lighting.LightJitter.from_fields(fields["light"]),
+            viewpoint=ViewpointRule(
+                occlusion=(float(fields["occlusion"][0]), float(fields["occlusion"][1])),
+                palm_side=fields["palm_side"],
+            ),
         )
 
 
@@ -287,6 +295,12 @@ class RenderEngine:
         object_radius = self.scene.object_radius()
         links = {name: read_pose(pose, f"link_poses.{name}") for name, pose in trial["link_poses"].items()}
         self.scene.pose(object_pose, links)
+        palm = palm_of(links)
+        if settings.viewpoint.palm_side == "front" and palm is None:
+            raise BadInput(
+                f"params.render.palm_side: 'front' needs the palm's pose; "
+                f"grasp {grasp_index} has no 'palm' link"
+            )
 
         tracing = settings.tracing
         if settings.prune_bounces:
@@ -295,17 +309,18 @@ class RenderEngine:
         result = TaskResult()
         geometry_s = rgb_s = 0.0
         occluded: dict[int, float] = {}
+        attempts = renders = out_of_range = 0
         sensors: dict[int, dict[str, Any]] = {}  # what each view's colour sensor drew
         lights: dict[int, lighting.LightDraw] = {}  # what each view's light drew
         fireflies_removed = 0
         for view in self._render_order(views):
             started = time.perf_counter()
             intrinsics = view_intrinsics(view.seed, settings)
-            camera = view.camera or sampled_camera(
-                view.seed, object_pose[0], object_radius, settings, intrinsics
-            )
-            self.scene.place_camera(camera, intrinsics)
-            geometry = self.scene.render_geometry()
+            chosen = self._viewpoint(view, intrinsics, settings, object_pose[0], object_radius, palm)
+            camera, geometry = chosen.camera, chosen.geometry
+            attempts += chosen.attempts
+            renders += chosen.renders
+            out_of_range += not chosen.occlusion_in_range
             geometry_s += time.perf_counter() - started
             if "rgb" in outputs:
                 started = time.perf_counter()
@@ -327,6 +342,7 @@ class RenderEngine:
             occluded[view.index] = self._write_view(
                 task.out_dir,
                 view,
+                chosen.record(settings.viewpoint),
                 camera,
                 intrinsics,
                 outputs,
@@ -351,8 +367,38 @@ class RenderEngine:
             threads=self.scene.threads,
             bounces=vars(tracing.bounces) if "rgb" in outputs else None,
             fireflies_removed=fireflies_removed,
+            camera_attempts_per_view=round(attempts / n, 3),
+            geometry_renders_per_view=round(renders / n, 3),
+            views_out_of_occlusion_range=out_of_range,
         )
         return result
+
+    def _viewpoint(
+        self,
+        view: RenderView,
+        intrinsics: Intrinsics,
+        settings: RenderSettings,
+        target: np.ndarray,
+        object_radius: float,
+        palm: Palm | None,
+    ) -> Viewpoint[Geometry]:
+        """The view's camera (given, or drawn until it meets the spec's viewpoint rules) with its
+        geometry passes rendered and placed, ready for the RGB render."""
+
+        def measure(camera: CameraPose) -> tuple[Geometry, float]:
+            self.scene.place_camera(camera, intrinsics)
+            geometry = self.scene.render_geometry()
+            return geometry, geometry_occlusion(geometry)
+
+        def draw(attempt: int) -> CameraPose:
+            rng = attempt_rng(view.seed, attempt)
+            return sampled_camera(rng, target, object_radius, settings, intrinsics)
+
+        if view.camera is not None:
+            return viewpoint.given(view.camera, measure, settings.viewpoint, palm)
+        chosen = viewpoint.search(draw, measure, settings.viewpoint, palm)
+        self.scene.place_camera(chosen.camera, intrinsics)  # the RGB render uses the chosen one
+        return chosen
 
     def light_in(self, radiance: Radiance) -> np.ndarray:
         """The light a view's camera receives: the path-traced image, denoised when the render
@@ -381,6 +427,7 @@ class RenderEngine:
         self,
         out_dir: Path,
         view: RenderView,
+        viewpoint_record: dict[str, Any],
         camera: CameraPose,
         intrinsics: Intrinsics,
         outputs: frozenset[str],
@@ -421,6 +468,7 @@ class RenderEngine:
             "visible_px": visible_px,
             "full_px": full_px,
             "occlusion": occlusion(visible_px, full_px),
+            "viewpoint": viewpoint_record,
             "segmentation": {"0": "background", **{str(k): name for k, name in labels.items()}},
             "materials": {str(k): tag for k, tag in self.scene.segment_materials().items()},
             "environment": view.environment.to_json(),
@@ -448,11 +496,15 @@ def view_intrinsics(seed: int, settings: RenderSettings) -> Intrinsics:
 
 
 def sampled_camera(
-    seed: int, target: np.ndarray, object_radius: float, settings: RenderSettings, intrinsics: Intrinsics
+    rng: np.random.Generator,
+    target: np.ndarray,
+    object_radius: float,
+    settings: RenderSettings,
+    intrinsics: Intrinsics,
 ) -> CameraPose:
-    """The camera of a view without an explicit one: on the hemisphere around the object, then
-    turned so the object lands off the image centre (`framed`), all from the view's seed."""
-    rng = np.random.default_rng(seed)
+    """One camera attempt of a view without an explicit one: on the hemisphere around the object,
+    then turned so the object lands off the image centre (`framed`), all from `rng` (the attempt's
+    stream, `viewpoint.attempt_rng`)."""
     camera = sample_on_hemisphere(rng, target, settings.radius_m, settings.elevation_deg, settings.roll_deg)
     return framed(rng, camera, target, object_radius, intrinsics, settings.offcentre)
 
@@ -481,8 +533,24 @@ def hdri(environment: Environment, assets: dict[str, StagedAsset]) -> Hdri:
 
 
 def occlusion(visible_px: int, full_px: int) -> float:
-    """1 - visible/full: the share of the object the hand hides; 1 when none of it is in view."""
-    return 1.0 if full_px == 0 else round(1.0 - visible_px / full_px, 6)
+    """`occlusion_share` as camera.json records it (6 decimals)."""
+    return round(occlusion_share(visible_px, full_px), 6)
+
+
+def geometry_occlusion(geometry: Geometry) -> float:
+    """The exact occlusion the geometry passes saw (every visible pixel counts in the full mask)."""
+    visible = geometry.index == OBJECT_PASS_INDEX
+    return occlusion_share(
+        int(np.count_nonzero(visible)), int(np.count_nonzero(geometry.object_full | visible))
+    )
+
+
+def palm_of(links: Mapping[str, tuple[np.ndarray, np.ndarray]]) -> Palm | None:
+    """The palm's origin and normal (its frame's +z: docs/hands.md) from the trial's link poses."""
+    if "palm" not in links:
+        return None
+    p, q = links["palm"]
+    return Palm(point=np.asarray(p, dtype=np.float64), normal=quat_to_matrix(q)[:, 2])
 
 
 def as_mask(pixels: np.ndarray) -> np.ndarray:
