@@ -17,6 +17,7 @@ import math
 import platform
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -29,7 +30,7 @@ from vint_engines.noise.geometry import Intrinsics
 from vint_engines.noise.model import NoiseModel, Surfaces
 
 RESOLUTIONS = [(128, 128), (512, 512), (1024, 1024)]
-PIECES = ("lateral", "flying_pixels", "multipath", "materials")
+PIECES = ("lateral", "flying_pixels", "multipath", "materials", "registration")
 
 
 def previous_model(depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -89,7 +90,8 @@ def variants() -> dict[str, NoiseModel | None]:
     out: dict[str, NoiseModel | None] = {"previous model": None, "new, all pieces": full}
     for piece in PIECES:
         out[f"new, without {piece}"] = full.without(piece)
-    out["new, axial only"] = full.without(*PIECES)
+    out["new, white axial noise (spatial_sigma_px 0)"] = replace(full, spatial_sigma_px=0.0)
+    out["new, axial only (white)"] = replace(full.without(*PIECES), spatial_sigma_px=0.0)
     return out
 
 

@@ -359,6 +359,8 @@ pub fn number_fields() -> Vec<NumberField> {
         float("noise.flying_invalid_share", noise::FLYING_INVALID_SHARE),
         float("noise.multipath_gain", noise::MULTIPATH_GAIN),
         float("noise.specular_cone_deg", noise::SPECULAR_CONE_DEG),
+        float("noise.tof_baseline_m", noise::TOF_BASELINE_M),
+        float("noise.spatial_sigma_px", noise::SPATIAL_SIGMA_PX),
         float("object.*.mass_kg", object::MASS_KG),
     ]
 }
@@ -520,9 +522,9 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
         shake_accel_mps2: r.number(&mut g, "grasp", "shake_accel_mps2", SHAKE_ACCEL_MPS2),
         shake_directions: r.count(&mut g, "grasp", "shake_directions", grasp::SHAKE_DIRECTIONS),
         shake_duration_s: r.number(&mut g, "grasp", "shake_duration_s", grasp::SHAKE_DURATION_S),
+        r#type: r.tag(&mut g, "grasp", "type", &grasp::GraspType::ALL, Some(grasp::GraspType::default())),
     };
     r.finish(
-        r#type: r.tag(&mut g, "grasp", "type", &grasp::GraspType::ALL, Some(grasp::GraspType::default())),
         g,
         "grasp",
         &[
@@ -537,9 +539,9 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
             "shake_accel_mps2",
             "shake_directions",
             "shake_duration_s",
+            "type",
         ],
     );
-            "type",
     let budget = grasp.budget();
     if budget.max_task_trials() > grasp::TRIALS_PER_TASK.max {
         r.error(
@@ -702,6 +704,9 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
         multipath_gain: r.number(&mut n, "noise", "multipath_gain", noise::MULTIPATH_GAIN),
         materials: r.boolean(&mut n, "noise.materials", "materials", on.materials),
         specular_cone_deg: r.number(&mut n, "noise", "specular_cone_deg", noise::SPECULAR_CONE_DEG),
+        registration: r.boolean(&mut n, "noise.registration", "registration", on.registration),
+        tof_baseline_m: r.number(&mut n, "noise", "tof_baseline_m", noise::TOF_BASELINE_M),
+        spatial_sigma_px: r.number(&mut n, "noise", "spatial_sigma_px", noise::SPATIAL_SIGMA_PX),
     };
     let noise = NoiseSettings {
         model,
@@ -732,6 +737,9 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
             "multipath_gain",
             "materials",
             "specular_cone_deg",
+            "registration",
+            "tof_baseline_m",
+            "spatial_sigma_px",
             "ignore_min_range",
         ],
     );

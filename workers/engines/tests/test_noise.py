@@ -15,8 +15,15 @@ from vint_engines.noise.model import NoiseModel, Surfaces
 from vint_engines.protocol import BadInput
 
 MODES = ("nfov_unbinned", "nfov_2x2binned", "wfov_2x2binned", "wfov_unbinned")
-# Every piece but the axial noise and the range off: what the σ fits measure.
-AXIAL_ONLY = {"lateral": False, "flying_pixels": False, "multipath": False, "materials": False}
+# Every piece but the axial noise and the range off, the noise white: what the σ fits measure.
+AXIAL_ONLY = {
+    "lateral": False,
+    "flying_pixels": False,
+    "multipath": False,
+    "materials": False,
+    "registration": False,
+    "spatial_sigma_px": 0.0,
+}
 # Nothing random: σ scaled to 0 and the random pieces off, so geometry effects show alone.
 NO_NOISE = {**AXIAL_ONLY, "sigma_scale": 0.0}
 

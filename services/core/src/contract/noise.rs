@@ -22,6 +22,13 @@ pub const FLYING_INVALID_SHARE: Bound<f64> = Bound::new(0.0, 1.0, 0.5);
 pub const MULTIPATH_GAIN: Bound<f64> = Bound::new(0.0, 2.0, 0.3);
 /// Half-angle of the cone around the mirror direction in which a metal surface saturates (deg).
 pub const SPECULAR_CONE_DEG: Bound<f64> = Bound::new(0.0, 45.0, 10.0);
+/// The ToF camera's distance from the colour camera, along the colour camera's x axis (m). Our
+/// assumption for the Azure Kinect: factory calibrations put the depth camera about 32 mm from
+/// the colour camera (docs/depth_noise.md).
+pub const TOF_BASELINE_M: Bound<f64> = Bound::new(0.0, 0.2, 0.032);
+/// σ of the depth engine's spatial smoothing of the noise, in native pixels (0: white noise). Our
+/// assumption (docs/depth_noise.md): 1 native pixel, neighbours correlate at 0.78.
+pub const SPATIAL_SIGMA_PX: Bound<f64> = Bound::new(0.0, 5.0, 1.0);
 
 /// An Azure Kinect depth mode: its native resolution, field of view and operating range
 /// (Microsoft, Azure Kinect DK hardware specification, "Depth camera supported operating modes").
@@ -142,6 +149,15 @@ pub struct NoiseModel {
     /// Half-angle of the saturating cone around a metal surface's mirror direction (deg).
     #[schemars(range(min = SPECULAR_CONE_DEG.min, max = SPECULAR_CONE_DEG.max))]
     pub specular_cone_deg: f64,
+    /// Depth seen from the ToF camera beside the colour camera and registered onto it: no reading
+    /// where the ToF camera cannot see the surface (occlusion shadows, resampling holes).
+    pub registration: bool,
+    /// The ToF camera's offset from the colour camera along its x axis (m).
+    #[schemars(range(min = TOF_BASELINE_M.min, max = TOF_BASELINE_M.max))]
+    pub tof_baseline_m: f64,
+    /// σ of the depth engine's spatial smoothing of the axial noise, in native pixels (0: white).
+    #[schemars(range(min = SPATIAL_SIGMA_PX.min, max = SPATIAL_SIGMA_PX.max))]
+    pub spatial_sigma_px: f64,
 }
 
 impl Default for NoiseModel {
@@ -158,6 +174,9 @@ impl Default for NoiseModel {
             multipath_gain: MULTIPATH_GAIN.default,
             materials: true,
             specular_cone_deg: SPECULAR_CONE_DEG.default,
+            registration: true,
+            tof_baseline_m: TOF_BASELINE_M.default,
+            spatial_sigma_px: SPATIAL_SIGMA_PX.default,
         }
     }
 }

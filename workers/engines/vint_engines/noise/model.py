@@ -5,12 +5,18 @@ In order, on one view:
 1. invalid input (0, NaN, ±Inf, negative) stays invalid;
 2. materials (switch `materials`): glass shows the surface behind it, or nothing; every surface
    gets its tag's IR reflectivity rho (dark → noisier);
+   registration (switch `registration`): what the ToF camera beside the colour camera
+   (`tof_baseline_m` away, tilted 6°) cannot see reads nothing: occlusion shadows beside the
+   fingers and resampling holes along edges (`registration.py`);
 3. lateral noise (`lateral`): each pixel samples the scene at a jittered position (σ in the mode's
    native pixels, converted to output pixels with the camera's focal length);
 4. incidence angle θ from normals estimated on the depth map with the camera's intrinsics;
 5. flying pixels (`flying_pixels`): a pixel whose native footprint straddles a depth step reads
    a signal-weighted mix of both depths, or is invalidated (the sensor's mixed-pixel filter);
-6. axial noise, always: σ² = σ_floor² + k² d² / (rho cos θ), k calibrated per mode (`sensor.py`);
+6. axial noise, always: σ² = σ_floor² + k² d² / (rho cos θ), k calibrated per mode (`sensor.py`),
+   spatially correlated by the depth engine's smoothing (`spatial_sigma_px`: the white field
+   blurred by a Gaussian of that σ in native pixels and rescaled to unit variance, so σ per pixel
+   stays as stated and neighbours correlate as exp(-r² / 4σ²); 0 leaves it white);
 7. multipath (`multipath`): a positive bias in concave corners;
 8. specular metal (`materials`): dropouts near the mirror direction;
 9. readings outside the mode's range, or beyond 85° incidence, are invalid.
@@ -31,7 +37,7 @@ import numpy as np
 import numpy.typing as npt
 
 from vint_engines import contract
-from vint_engines.noise import geometry, sensor
+from vint_engines.noise import geometry, registration, sensor
 from vint_engines.noise.geometry import Intrinsics
 from vint_engines.protocol import BadInput
 
@@ -97,6 +103,9 @@ class NoiseModel:
     multipath_gain: float
     materials: bool
     specular_cone_deg: float
+    registration: bool
+    tof_baseline_m: float
+    spatial_sigma_px: float
 
     @staticmethod
     def parse(obj: Any, where: str = "params.noise") -> NoiseModel:
@@ -136,6 +145,9 @@ class NoiseModel:
         rho, kind = surfaces.reflectivity, surfaces.kind
         if self.materials:
             clean, valid, rho = _see_through_glass(clean, valid, rho, kind)
+        if self.registration:
+            valid &= registration.seen_by_tof(clean, valid, k, self.mode, self.tof_baseline_m)
+            clean = np.where(valid, clean, np.float32(0))
         # Output pixels per native pixel of the mode, at the image centre.
         scale = self.mode.pixel_angle_rad * float(k.fx)
         if self.lateral and self.lateral_sigma_px > 0:
@@ -149,7 +161,8 @@ class NoiseModel:
         if self.flying_pixels:
             noisy, keep = self._fly(flying_rng, clean, valid, rho, scale, noisy, keep)
         sigma = self.sigma(np.where(valid, noisy, 1.0).astype(np.float32), cos, rho)
-        noisy = noisy + sigma * axial_rng.standard_normal(depth.shape, dtype=np.float32)
+        white = axial_rng.standard_normal(depth.shape, dtype=np.float32)
+        noisy = noisy + sigma * correlated(white, self.spatial_sigma_px * scale)
         if self.multipath and self.multipath_gain > 0:
             noisy = noisy + self._multipath_bias(clean, valid, k)
         if self.materials:
@@ -215,6 +228,19 @@ class NoiseModel:
         corner &= inside
         bias = self.multipath_gain * geometry.concavity(clean, valid, sigma_px)
         return np.where(corner, np.clip(bias, 0.0, MULTIPATH_MAX_M), 0.0).astype(np.float32)
+
+
+def correlated(white: Depth, sigma_px: float) -> Depth:
+    """A unit-variance white field blurred by a Gaussian of `sigma_px` (output pixels) and scaled
+    back to unit variance: neighbours at distance r correlate as exp(-r² / 4σ²). Below a tenth of a
+    pixel the field is returned as it is."""
+    if sigma_px < 0.1:
+        return white
+    size = 2 * math.ceil(4 * sigma_px) + 1
+    kernel = cv2.getGaussianKernel(size, sigma_px, cv2.CV_64F)[:, 0]
+    gain = float((kernel**2).sum())  # variance of one blurred axis; the 2-D blur's is gain²
+    blurred = cv2.sepFilter2D(white, cv2.CV_32F, kernel, kernel, borderType=cv2.BORDER_REFLECT)
+    return (blurred / np.float32(gain)).astype(np.float32)
 
 
 def _see_through_glass(
