@@ -54,6 +54,7 @@ def grasp(workdir: Path) -> dict[str, Any]:
         "object": load_catalog()["tomato_soup_can"].to_json(),
         "hand": {"name": "trx3"},
         "trials": [{"grasp_index": i, "seed": 42 + i} for i in range(3)],
+        "physics": {"grasp_type": "any"},  # the pixels' geometry, not the grasp type, is under test
     }
     GraspEngine().run(TaskRequest("grasp", params, (), out))
     doc = json.loads((out / "grasps.json").read_text())
