@@ -11,7 +11,16 @@ use vint_tests::{free_port, start_coordinator_with_store, stderr, stdout, vintct
 
 use super::{bop, path_str, tiny};
 
-const FIGURES: [&str; 5] = ["occlusion.png", "orientation.png", "distance.png", "taxels.png", "acceptance.png"];
+const FIGURES: [&str; 8] = [
+    "occlusion.png",
+    "orientation.png",
+    "distance.png",
+    "taxels.png",
+    "acceptance.png",
+    "in_hand.png",
+    "camera_palm.png",
+    "counts.png",
+];
 
 /// `vintctl stats SUBJECT --out OUT --json` (plus `extra` global flags): what it printed, which is
 /// also what it wrote to OUT/stats.json.
@@ -46,12 +55,17 @@ struct View {
     occlusion: f64,
     r_m2c: [[f64; 3]; 3],
     t_m2c: [f64; 3],
+    /// The HDRI's name (meta.json `camera.environment.name`).
+    environment: String,
+    /// The renderer's own record of the palm side the camera sees (`camera.viewpoint.palm_side`).
+    palm_side: String,
 }
 
-/// One grasp: its hand and the region of each active taxel.
+/// One grasp: its hand, the region of each active taxel and its grasp type.
 struct Grasp {
     hand: String,
     regions: Vec<String>,
+    grasp_type: String,
 }
 
 fn native_views_and_grasps(dir: &Path) -> (Vec<View>, BTreeMap<String, Grasp>) {
@@ -70,6 +84,8 @@ fn native_views_and_grasps(dir: &Path) -> (Vec<View>, BTreeMap<String, Grasp>) {
                 occlusion: meta["visibility"]["occlusion"].as_f64().expect("occlusion"),
                 r_m2c: [row(0), row(1), row(2)],
                 t_m2c: f64s(&camera["t_m2c"]).try_into().expect("3 numbers"),
+                environment: camera["environment"]["name"].as_str().expect("environment").into(),
+                palm_side: camera["viewpoint"]["palm_side"].as_str().expect("palm_side").into(),
             });
         } else if path.join("grasp.json").is_file() {
             let record = read_json(&path.join("grasp.json"));
@@ -79,6 +95,7 @@ fn native_views_and_grasps(dir: &Path) -> (Vec<View>, BTreeMap<String, Grasp>) {
                 Grasp {
                     hand: record["hand"]["name"].as_str().expect("hand").into(),
                     regions: regions.iter().map(|t| t["region"].as_str().expect("region").to_string()).collect(),
+                    grasp_type: record["trial"]["grasp"]["type"].as_str().expect("grasp type").into(),
                 },
             );
         }
@@ -269,6 +286,36 @@ fn native_stats_equal_a_recount_of_the_dataset_files() {
     let accepted: u64 = expected.iter().filter_map(|p| p["accepted"].as_u64()).sum();
     assert_eq!(stats["pairs"]["total"]["accepted"].as_u64(), Some(accepted));
     assert_eq!(accepted, grasps.len() as u64, "every accepted trial is a grasp of the dataset");
+
+    // Grasp types, samples per object and environment, and the palm side each camera sees: the
+    // last computed by stats from the palm's pose, recounted here from the renderer's own record.
+    let mut types: BTreeMap<&str, u64> = BTreeMap::new();
+    for g in grasps.values() {
+        *types.entry(&g.grasp_type).or_default() += 1;
+    }
+    for (grasp_type, n) in &types {
+        assert_eq!(stats["grasp_types"]["counts"][*grasp_type].as_u64(), Some(*n), "{grasp_type}");
+    }
+    let mut per_object: BTreeMap<&str, u64> = BTreeMap::new();
+    let mut per_environment: BTreeMap<&str, u64> = BTreeMap::new();
+    let mut sides: BTreeMap<&str, u64> = BTreeMap::new();
+    for v in &views {
+        *per_object.entry(&v.object).or_default() += 1;
+        *per_environment.entry(&v.environment).or_default() += 1;
+        *sides.entry(&v.palm_side).or_default() += 1;
+    }
+    for (object, n) in per_object {
+        assert_eq!(stats["per_object"][object]["samples"].as_u64(), Some(n), "{object}");
+    }
+    assert_eq!(stats["per_environment"].as_object().expect("environments").len(), per_environment.len());
+    for (environment, n) in per_environment {
+        assert_eq!(stats["per_environment"][environment]["samples"].as_u64(), Some(n), "{environment}");
+    }
+    for side in ["front", "back"] {
+        let recorded = sides.get(side).copied().unwrap_or(0);
+        assert_eq!(stats["camera_palm"]["all"][side].as_u64(), Some(recorded), "{side}");
+    }
+    assert_eq!(stats["in_hand"]["all"]["grasps"].as_u64(), Some(grasps.len() as u64));
 }
 
 /// `a` and `b` equal, numbers within `tolerance` (BOP stores millimetres, native metres).
@@ -306,6 +353,9 @@ fn bop_layout_gives_the_same_stats_as_the_native_one() {
     assert_eq!(from_bop["layout"], "bop");
     native["layout"] = Value::Null;
     from_bop["layout"] = Value::Null;
+    // BOP's files carry no grasp type: unavailable there rather than invented.
+    assert!(from_bop["grasp_types"].is_null() && !native["grasp_types"].is_null());
+    native["grasp_types"] = Value::Null;
     // Counts exactly; poses went through millimetres, so their statistics agree to a micrometre.
     assert_close(&native, &from_bop, 1e-5, "stats");
 

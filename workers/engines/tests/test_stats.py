@@ -17,9 +17,19 @@ import pytest
 from conftest import ENGINES_DIR
 
 from vint_engines.stats import dataset, numbers
+from vint_engines.stats import hand as palm_frame
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-FIGURES = ("occlusion.png", "orientation.png", "distance.png", "taxels.png", "acceptance.png")
+FIGURES = (
+    "occlusion.png",
+    "orientation.png",
+    "distance.png",
+    "taxels.png",
+    "acceptance.png",
+    "in_hand.png",
+    "camera_palm.png",
+    "counts.png",
+)
 
 
 def rotation(axis: str, degrees: float) -> np.ndarray:
@@ -74,6 +84,95 @@ OBJECTS = [
 ]
 
 
+# Per grasp (by index): the object's pose in the palm frame as built — origin in mm, rotation as an
+# axis and angle — the grasp type (None: a record from before types) and the palm's world pose
+# (axis, angle, position m), all chosen by hand. With the views above, the camera centre's palm-z
+# is (R c)_z + t_z, c the camera centre in the object frame: grasp 0 (R = Rz 30°) sees the front
+# twice; grasp 3 (Rx -90°: (R c)_z = -c_y) the front from (-170°, -80°) (+0.0134 + 0.060 m) and the
+# back from (10°, 5°) (-0.0842 + 0.060 m); grasp 1 (R = I) the front; grasp 2 (Ry 180°: -c_z) the
+# back twice.
+IN_PALM: dict[int, tuple[tuple[float, float, float], tuple[float, float, float], float]] = {
+    0: ((10.0, -5.0, 45.0), (0.0, 0.0, 1.0), 30.0),
+    3: ((-20.0, 15.0, 60.0), (1.0, 0.0, 0.0), -90.0),
+    1: ((0.0, 0.0, 50.0), (0.0, 0.0, 1.0), 0.0),
+    2: ((5.0, -10.0, 40.0), (0.0, 1.0, 0.0), 180.0),
+}
+GRASP_TYPES = {0: "power", 3: "precision", 1: None, 2: "power"}
+PALM_IN_WORLD = {i: ((1.0, 2.0, 3.0), 0.7 + i, (0.1 * i, -0.05, 0.2 + 0.01 * i)) for i in range(4)}
+ENVIRONMENTS = ("studio", "forest")  # view v of grasp index i: ENVIRONMENTS[(i + v) % 2]
+
+
+def axis_angle_quat(axis: tuple[float, float, float], degrees: float) -> np.ndarray:
+    """The test's own unit quaternion (w, x, y, z) of a turn about `axis`."""
+    half = math.radians(degrees) / 2.0
+    u = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    return np.array([math.cos(half), *(math.sin(half) * u)])
+
+
+def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product a ⊗ b."""
+    w1, x1, y1, z1 = a
+    w2, x2, y2, z2 = b
+    return np.array(
+        [
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        ]
+    )
+
+
+def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """v turned by q, as q ⊗ (0, v) ⊗ q* — no rotation matrix involved."""
+    conjugate = q * np.array([1.0, -1.0, -1.0, -1.0])
+    return quat_multiply(quat_multiply(q, np.array([0.0, *v])), conjugate)[1:]
+
+
+def rodrigues(axis: tuple[float, float, float], degrees: float) -> np.ndarray:
+    """Rotation matrix of a turn about `axis` (Rodrigues' formula)."""
+    u = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    k = np.array([[0, -u[2], u[1]], [u[2], 0, -u[0]], [-u[1], u[0], 0]])
+    a = math.radians(degrees)
+    return np.eye(3) + math.sin(a) * k + (1 - math.cos(a)) * k @ k
+
+
+def world_poses(index: int) -> dict[str, Any]:
+    """The palm's and the object's world poses (p, q) and rotations for grasp `index`: the palm
+    where PALM_IN_WORLD puts it, the object at IN_PALM's pose in the palm frame."""
+    t_op, axis_op, angle_op = IN_PALM[index]
+    axis_p, angle_p, p_palm = PALM_IN_WORLD[index]
+    q_palm = axis_angle_quat(axis_p, math.degrees(angle_p))
+    q_object = quat_multiply(q_palm, axis_angle_quat(axis_op, angle_op))
+    p_object = np.asarray(p_palm) + quat_rotate(q_palm, 1e-3 * np.asarray(t_op))
+    return {
+        "palm": {"p": list(p_palm), "q": q_palm.tolist()},
+        "object": {"p": p_object.tolist(), "q": q_object.tolist()},
+        "R_palm": rodrigues(axis_p, math.degrees(angle_p)),
+        "R_object": rodrigues(axis_p, math.degrees(angle_p)) @ rodrigues(axis_op, angle_op),
+        "p_palm": np.asarray(p_palm),
+        "p_object": p_object,
+    }
+
+
+def camera_of(index: int, R_m2c: np.ndarray, t_m2c: np.ndarray) -> dict[str, np.ndarray]:
+    """The world-to-camera transform implied by the object's pose in the camera and in the world,
+    and the palm's pose in the camera."""
+    poses = world_poses(index)
+    R_w2c = R_m2c @ poses["R_object"].T
+    t_w2c = t_m2c - R_w2c @ poses["p_object"]
+    return {
+        "R_w2c": R_w2c,
+        "t_w2c": t_w2c,
+        "R_palm_c": R_w2c @ poses["R_palm"],
+        "t_palm_c": R_w2c @ poses["p_palm"] + t_w2c,
+    }
+
+
+def environment(index: int, view: int) -> dict[str, Any]:
+    return {"name": ENVIRONMENTS[(index + view) % 2], "rotation_deg": 0.0, "strength": 1.0}
+
+
 def grasp_id(obj: str, hand: str, index: int) -> str:
     return f"{obj}.{hand}.g{index:06d}"
 
@@ -104,21 +203,34 @@ def write_native(root: Path) -> Path:
     )
     for obj, hand, index, regions, views in GRASPS:
         gid = grasp_id(obj, hand, index)
+        poses = world_poses(index)
+        trial: dict[str, Any] = {"hand_pose": poses["palm"], "object_pose": poses["object"]}
+        if GRASP_TYPES[index] is not None:
+            trial["grasp"] = {"type": GRASP_TYPES[index]}
         record = {
             "grasp_id": gid,
             "object": {"name": obj},
             "hand": {"name": hand},
             "touch": {"active": touch_entries(regions)},
+            "trial": trial,
         }
         write_json(root / gid / "grasp.json", record)
         for v, (occ, az, el, dist) in enumerate(views):
             R, t = pose(az, el, dist, roll_deg=37.0 * v)
+            camera = camera_of(index, R, t)
             meta = {
                 "sample_id": f"{gid}.v{v:02d}",
                 "grasp_id": gid,
                 "object": {"name": obj},
                 "hand": hand,
-                "camera": {"R_m2c": R.tolist(), "t_m2c": t.tolist()},
+                "camera": {
+                    "R_m2c": R.tolist(),
+                    "t_m2c": t.tolist(),
+                    "R_w2c": camera["R_w2c"].tolist(),
+                    "t_w2c": camera["t_w2c"].tolist(),
+                    "environment": environment(index, v),
+                },
+                "poses": {"hand": poses["palm"], "object": poses["object"]},
                 "visibility": {"occlusion": occ},
             }
             write_json(root / f"{gid}.v{v:02d}" / "meta.json", meta)
@@ -143,11 +255,18 @@ def write_bop(root: Path) -> Path:
             gt[str(v)] = [
                 {"cam_R_m2c": R.reshape(9).tolist(), "cam_t_m2c": (1000 * t).tolist(), "obj_id": obj_ids[obj]}
             ]
-            meta[str(v)] = {"sample_id": f"{gid}.v{v:02d}", "grasp_id": gid, "occlusion": occ}
+            meta[str(v)] = {
+                "sample_id": f"{gid}.v{v:02d}",
+                "grasp_id": gid,
+                "occlusion": occ,
+                "environment": environment(index, v),
+            }
             if scene_id % 2 == 0:  # the hand in scene_meta, or only in scene_hand
                 meta[str(v)]["hand"] = hand
             touch[str(v)] = {"active": touch_entries(regions), "readings": []}
-            hands[str(v)] = {"hand": hand, "joints": {}, "link_poses_cam": {}}
+            camera = camera_of(index, R, t)
+            palm = {"R": camera["R_palm_c"].reshape(9).tolist(), "t_mm": (1000 * camera["t_palm_c"]).tolist()}
+            hands[str(v)] = {"hand": hand, "joints": {}, "link_poses_cam": {"palm": palm}}
         for name, doc in (("gt", gt), ("meta", meta), ("touch", touch), ("hand", hands)):
             write_json(scene / f"scene_{name}.json", doc)
     return root
@@ -264,6 +383,129 @@ def test_the_camera_roll_does_not_move_the_viewing_direction() -> None:
         assert (azimuth, elevation) == pytest.approx((33.0, -21.0), abs=1e-9)
 
 
+def assert_close(a: Any, b: Any, tolerance: float, at: str) -> None:
+    """Equal structures, numbers within `tolerance`."""
+    if isinstance(a, dict):
+        assert isinstance(b, dict) and list(a) == list(b), at
+        for key in a:
+            assert_close(a[key], b[key], tolerance, f"{at}.{key}")
+    elif isinstance(a, list):
+        assert isinstance(b, list) and len(a) == len(b), at
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            assert_close(x, y, tolerance, f"{at}[{i}]")
+    elif isinstance(a, float) and not isinstance(b, str):
+        assert b == pytest.approx(a, abs=tolerance), at
+    else:
+        assert a == b, at
+
+
+def test_the_in_hand_position_is_the_palm_frame_position_recomputed_from_the_record(native: Path) -> None:
+    """One grasp's object origin in the palm frame, recomputed from its grasp.json poses with the
+    test's own quaternion code (q* ⊗ (p_object - p_palm) ⊗ q), equals the one built in and the
+    module's; its z-axis cosine is R[2, 2] of the turn built in."""
+    gid = grasp_id("mug", "trx3", 3)
+    record = json.loads((native / gid / "grasp.json").read_text(encoding="utf-8"))
+    palm, obj = record["trial"]["hand_pose"], record["trial"]["object_pose"]
+    q_palm = np.asarray(palm["q"])
+    conjugate = q_palm * np.array([1.0, -1.0, -1.0, -1.0])
+    in_palm_mm = 1000 * quat_rotate(conjugate, np.asarray(obj["p"]) - np.asarray(palm["p"]))
+    assert in_palm_mm == pytest.approx([-20.0, 15.0, 60.0], abs=1e-9)
+
+    (grasp,) = [g for g in dataset.read(native).grasps if g.grasp_id == gid]
+    assert palm_frame.object_position_mm(grasp) == pytest.approx(in_palm_mm, abs=1e-9)
+    # Rx(-90°) takes the object's z to the palm's +y: at right angles to the palm normal.
+    assert palm_frame.object_z_cos(grasp) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_in_hand_and_camera_statistics_equal_the_dataset_as_constructed(native: Path) -> None:
+    stats = numbers.compute(dataset.read(native))
+    pose = stats["in_hand"]
+    assert pose["grasps_without_pose"] == 0 and pose["all"]["grasps"] == 4
+    # z of the object origins: trx3 45 and 60 mm, allegro 50 and 40 mm.
+    assert pose["by_hand"]["trx3"]["z_mm"]["mean"] == pytest.approx(52.5, abs=1e-6)
+    assert pose["by_hand"]["allegro"]["z_mm"]["mean"] == pytest.approx(45.0, abs=1e-6)
+    assert pose["by_object"]["mug"]["x_mm"]["min"] == pytest.approx(-20.0, abs=1e-6)
+    assert pose["all"]["distance_mm"]["max"] == pytest.approx(math.sqrt(20**2 + 15**2 + 60**2), abs=1e-6)
+    # cos(object z, palm normal): Rz 30° → 1, Rx -90° → 0, I → 1, Ry 180° → -1.
+    cosines = pose["all"]["object_z_cos"]
+    assert (cosines["min"], cosines["max"], cosines["mean"]) == pytest.approx((-1.0, 1.0, 0.25), abs=1e-9)
+    can = next(p for p in pose["by_pair"] if (p["object"], p["hand"]) == ("can", "allegro"))
+    assert can["grasps"] == 1 and can["y_mm"]["p50"] == pytest.approx(-10.0, abs=1e-6)
+
+    cam = stats["camera_palm"]
+    assert (cam["all"]["front"], cam["all"]["back"]) == (4, 3)
+    assert (cam["by_hand"]["trx3"]["front"], cam["by_hand"]["trx3"]["back"]) == (3, 1)
+    assert (cam["by_hand"]["allegro"]["front"], cam["by_hand"]["allegro"]["back"]) == (1, 2)
+    assert sum(cam["all"]["counts"]) == 7 and sum(cam["all"]["counts"][:5]) == 3
+
+
+def test_palm_facing_is_the_cosine_of_the_palm_normal_and_the_camera_direction(native: Path) -> None:
+    """Every view's palm_facing, recomputed from meta.json's palm pose and camera with quaternion
+    rotation: the camera centre in the world, then in the palm frame."""
+    for view in dataset.read(native).views:
+        meta = json.loads((native / view.sample_id / "meta.json").read_text(encoding="utf-8"))
+        R_w2c, t_w2c = np.asarray(meta["camera"]["R_w2c"]), np.asarray(meta["camera"]["t_w2c"])
+        centre_world = -R_w2c.T @ t_w2c
+        palm = meta["poses"]["hand"]
+        conjugate = np.asarray(palm["q"]) * np.array([1.0, -1.0, -1.0, -1.0])
+        centre_palm = quat_rotate(conjugate, centre_world - np.asarray(palm["p"]))
+        expected = centre_palm[2] / np.linalg.norm(centre_palm)
+        assert palm_frame.palm_facing(view) == pytest.approx(expected, abs=1e-9), view.sample_id
+
+
+def test_grasp_types_and_counts_per_object_and_environment(native: Path) -> None:
+    stats = numbers.compute(dataset.read(native))
+    assert stats["grasp_types"] == {
+        "types": ["power", "precision", "unknown"],
+        "counts": {"power": 2, "precision": 1, "unknown": 1},
+        "by_hand": {
+            "allegro": {"power": 1, "precision": 0, "unknown": 1},
+            "trx3": {"power": 1, "precision": 1, "unknown": 0},
+        },
+    }
+    assert stats["per_object"] == {
+        "can": {
+            "grasps": 1,
+            "samples": 2,
+            "by_hand": {"allegro": {"grasps": 1, "samples": 2}, "trx3": {"grasps": 0, "samples": 0}},
+        },
+        "mug": {
+            "grasps": 3,
+            "samples": 5,
+            "by_hand": {"allegro": {"grasps": 1, "samples": 1}, "trx3": {"grasps": 2, "samples": 4}},
+        },
+    }
+    # (grasp index + view) even → studio: mug/trx3 0 (v0), mug/trx3 3 (v1), can/allegro 2 (v0).
+    assert stats["per_environment"] == {
+        "forest": {"samples": 4, "by_hand": {"allegro": 2, "trx3": 2}},
+        "studio": {"samples": 3, "by_hand": {"allegro": 1, "trx3": 2}},
+    }
+
+
+def test_a_record_without_poses_or_types_marks_them_unavailable_or_unknown(tmp_path: Path) -> None:
+    """An export from before palm poses and grasp types: the pose statistics are None, the type
+    "unknown", the environment "unknown" — nothing invented."""
+    gid = "mug.trx3.g000000"
+    write_json(
+        tmp_path / gid / "grasp.json",
+        {"grasp_id": gid, "object": {"name": "mug"}, "hand": {"name": "trx3"}, "touch": {"active": []}},
+    )
+    R, t = pose(10.0, 5.0, 0.4, 0.0)
+    meta = {
+        "sample_id": f"{gid}.v00",
+        "grasp_id": gid,
+        "object": {"name": "mug"},
+        "hand": "trx3",
+        "camera": {"R_m2c": R.tolist(), "t_m2c": t.tolist()},
+        "visibility": {"occlusion": 0.2},
+    }
+    write_json(tmp_path / f"{gid}.v00" / "meta.json", meta)
+    stats = numbers.compute(dataset.read(tmp_path))
+    assert stats["in_hand"] is None and stats["camera_palm"] is None
+    assert stats["grasp_types"]["counts"] == {"unknown": 1}
+    assert stats["per_environment"] == {"unknown": {"samples": 1, "by_hand": {"trx3": 1}}}
+
+
 def test_native_and_bop_layouts_give_the_same_stats(native: Path, bop: Path) -> None:
     from_native = numbers.compute(dataset.read(native))
     from_bop = numbers.compute(dataset.read(bop))
@@ -272,6 +514,11 @@ def test_native_and_bop_layouts_give_the_same_stats(native: Path, bop: Path) -> 
     dist_native, dist_bop = from_native.pop("distance_m"), from_bop.pop("distance_m")
     assert dist_native["counts"] == dist_bop["counts"]
     assert dist_native["summary"]["mean"] == pytest.approx(dist_bop["summary"]["mean"], abs=1e-9)
+    # The palm's pose comes from grasp.json and meta.json in one, scene_hand.json in the other.
+    for key in ("in_hand", "camera_palm"):
+        assert_close(from_native.pop(key), from_bop.pop(key), 1e-6, key)
+    # BOP's files carry no grasp type: unavailable there, not invented.
+    assert from_bop.pop("grasp_types") is None and from_native.pop("grasp_types") is not None
     assert from_native == from_bop
 
 

@@ -1,10 +1,13 @@
 """`python -m vint_engines stats --dataset DIR --out OUT [--json]` (or `vintctl stats DIR|JOB`): a
 dataset's statistics — occlusion, camera distance, viewing direction in the object frame, active
-taxels per grasp by hand and region, grasp acceptance per (object, hand) pair — as PNG figures,
-`stats.md` (markdown tables) and `stats.json` (the numbers), for a native or a BOP dataset.
+taxels per grasp by hand and region, grasp acceptance per (object, hand) pair, the object's pose in
+the palm frame, the camera's side of the palm, grasp types, samples per object and environment —
+as PNG figures, `stats.md` (markdown tables) and `stats.json` (the numbers), for a native or a BOP
+dataset.
 
-`dataset` reads either layout into the same records, `numbers` computes, `plots` and `table` only
-present. Writes nothing outside OUT and never modifies the dataset.
+`dataset` reads either layout into the same records, `numbers` computes (`hand` the palm-frame
+statistics, `summaries` the summaries and bins all share), `plots` and `table` only present.
+Writes nothing outside OUT and never modifies the dataset.
 """
 
 from __future__ import annotations

@@ -16,7 +16,9 @@ from typing import Any
 
 import numpy as np
 
+from vint_engines.stats import hand
 from vint_engines.stats.dataset import Array, Dataset, Grasp, Pair, View
+from vint_engines.stats.summaries import DECIMALS, histogram, summary
 
 OCCLUSION_BINS = 10  # 10 % each, as the paper reports occlusion (10–90 %)
 # The viewing direction's sphere in equal-area cells: 12 azimuth sectors of 30° × 6 bands of equal
@@ -29,8 +31,6 @@ DISTANCE_WIDTHS = (0.01, 0.02, 0.025, 0.05, 0.1, 0.2, 0.25, 0.5, 1.0, 2.0, 5.0)
 DISTANCE_MAX_BINS = 20
 EDGE_SLACK = 1e-9
 REGION_ORDER = ("tip", "pulp", "palm")  # the taxel layout's regions (grasp/taxels.py), finger first
-QUANTILES = {"p10": 0.10, "p25": 0.25, "p50": 0.50, "p75": 0.75, "p90": 0.90}
-DECIMALS = 6  # stats.json's floats: far below any bin width, and stable across machines
 
 
 def compute(dataset: Dataset) -> dict[str, Any]:
@@ -52,6 +52,11 @@ def compute(dataset: Dataset) -> dict[str, Any]:
         "orientation": orientation_stats(views, objects),
         "taxels": taxel_stats(grasps, hands),
         "pairs": None if dataset.pairs is None else pair_stats(dataset.pairs),
+        "in_hand": hand.in_hand_stats(grasps, hands, objects),
+        "camera_palm": hand.camera_stats(views, hands),
+        "grasp_types": grasp_type_stats(grasps, hands),
+        "per_object": object_counts(views, grasps, hands, objects),
+        "per_environment": environment_counts(views, hands),
     }
 
 
@@ -98,14 +103,6 @@ def distance_edges(values: Sequence[float]) -> list[float]:
             return [round((start + k) * width, DECIMALS) for k in range(bins + 1)]
     width = DISTANCE_WIDTHS[-1]
     return [round(k * width, DECIMALS) for k in range(math.ceil(high / width) + 1)]
-
-
-def histogram(values: Sequence[float], edges: Sequence[float]) -> list[int]:
-    counts = [0] * (len(edges) - 1)
-    for x in values:
-        k = int(np.searchsorted(edges, x, side="right")) - 1
-        counts[min(max(k, 0), len(counts) - 1)] += 1
-    return counts
 
 
 def distance_stats(views: Sequence[View], hands: Sequence[str]) -> dict[str, Any]:
@@ -236,16 +233,47 @@ def pair_stats(pairs: Sequence[Pair]) -> dict[str, Any]:
     }
 
 
-def summary(values: Sequence[float]) -> dict[str, Any]:
-    """Count, mean, extremes and quantiles (numpy's linear interpolation); None when empty."""
-    if not values:
-        return {"count": 0, "mean": None, "min": None, **dict.fromkeys(QUANTILES), "max": None}
-    data = np.asarray(values, dtype=np.float64)
-    quantiles = np.quantile(data, list(QUANTILES.values()))
+def grasp_type_stats(grasps: Sequence[Grasp], hands: Sequence[str]) -> dict[str, Any] | None:
+    """Accepted grasps per grasp type (grasp.json `trial.grasp.type`; "unknown" for a record from
+    before types), in all and per hand. None when the layout does not carry types (BOP)."""
+    typed = [g for g in grasps if g.grasp_type is not None]
+    if not typed:
+        return None
+    types = sorted({str(g.grasp_type) for g in typed})
+
+    def tally(selected: Iterable[Grasp]) -> dict[str, int]:
+        counted = Counter(g.grasp_type for g in selected)
+        return {t: counted[t] for t in types}
+
     return {
-        "count": len(values),
-        "mean": round(float(data.mean()), DECIMALS),
-        "min": round(float(data.min()), DECIMALS),
-        **{name: round(float(q), DECIMALS) for name, q in zip(QUANTILES, quantiles, strict=True)},
-        "max": round(float(data.max()), DECIMALS),
+        "types": types,
+        "counts": tally(typed),
+        "by_hand": {h: tally(g for g in typed if g.hand == h) for h in hands},
+    }
+
+
+def object_counts(
+    views: Sequence[View], grasps: Sequence[Grasp], hands: Sequence[str], objects: Sequence[str]
+) -> dict[str, Any]:
+    """Accepted grasps and samples per object, and per hand within it."""
+
+    def counts(obj: str, hand_name: str | None) -> dict[str, int]:
+        def mine(item: View | Grasp) -> bool:
+            return item.object == obj and (hand_name is None or item.hand == hand_name)
+
+        return {"grasps": sum(1 for g in grasps if mine(g)), "samples": sum(1 for v in views if mine(v))}
+
+    return {o: {**counts(o, None), "by_hand": {h: counts(o, h) for h in hands}} for o in objects}
+
+
+def environment_counts(views: Sequence[View], hands: Sequence[str]) -> dict[str, Any]:
+    """Samples per environment (the HDRI's name, "unknown" where a record names none), and per hand
+    within it."""
+    environments = sorted({v.environment for v in views})
+    return {
+        e: {
+            "samples": sum(1 for v in views if v.environment == e),
+            "by_hand": {h: sum(1 for v in views if (v.environment, v.hand) == (e, h)) for h in hands},
+        }
+        for e in environments
     }

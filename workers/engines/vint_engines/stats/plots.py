@@ -22,6 +22,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from vint_engines.stats.dataset import Dataset
+from vint_engines.stats.hand import object_position_mm
 from vint_engines.stats.numbers import viewing_direction
 
 OCCLUSION_PNG = "occlusion.png"
@@ -29,7 +30,20 @@ ORIENTATION_PNG = "orientation.png"
 DISTANCE_PNG = "distance.png"
 TAXELS_PNG = "taxels.png"
 ACCEPTANCE_PNG = "acceptance.png"
-PNGS = (OCCLUSION_PNG, ORIENTATION_PNG, DISTANCE_PNG, TAXELS_PNG, ACCEPTANCE_PNG)
+IN_HAND_PNG = "in_hand.png"
+CAMERA_PALM_PNG = "camera_palm.png"
+COUNTS_PNG = "counts.png"
+PNGS = (
+    OCCLUSION_PNG,
+    ORIENTATION_PNG,
+    DISTANCE_PNG,
+    TAXELS_PNG,
+    ACCEPTANCE_PNG,
+    IN_HAND_PNG,
+    CAMERA_PALM_PNG,
+    COUNTS_PNG,
+)
+HAND_MARKERS = ("o", "s", "^", "D", "v", "P")
 
 DPI = 100
 STYLE = {
@@ -56,6 +70,9 @@ def write_all(out: Path, stats: dict[str, Any], dataset: Dataset) -> list[Path]:
             DISTANCE_PNG: distance(stats),
             TAXELS_PNG: taxels(stats),
             ACCEPTANCE_PNG: acceptance(stats),
+            IN_HAND_PNG: in_hand(stats, dataset),
+            CAMERA_PALM_PNG: camera_palm(stats),
+            COUNTS_PNG: counts(stats),
         }
         for name, figure in figures.items():
             path = out / name
@@ -239,4 +256,132 @@ def acceptance(stats: dict[str, Any]) -> Figure:
     figure.legend(loc="outside lower center", ncols=min(len(segments), 4), fontsize=8)
     total = pairs["total"]
     ax.set_title(f"Grasp acceptance per pair — {total['accepted']} of {total['trials']} trials accepted")
+    return figure
+
+
+def unavailable(message: str) -> Figure:
+    figure = new_figure(6.4, 2.0)
+    ax = figure.subplots()
+    ax.axis("off")
+    ax.text(0.5, 0.5, message, ha="center")
+    return figure
+
+
+def in_hand(stats: dict[str, Any], dataset: Dataset) -> Figure:
+    """Where the object sits in the palm: each accepted grasp's object origin in the palm frame,
+    seen from the side (x–z) and from the fingers' end (y–z), coloured by object, marked by hand;
+    the palm plane is z = 0."""
+    if stats["in_hand"] is None:
+        return unavailable("the dataset's records carry no palm pose: no in-hand pose")
+    objects, hands = stats["objects"], stats["hands"]
+    figure = new_figure(9.6, 4.4)
+    axes = figure.subplots(1, 2, sharey=True)
+    for axis, label in ((0, "x"), (1, "y")):
+        panel = axes[axis]
+        for i, obj in enumerate(objects):
+            for j, hand_name in enumerate(hands):
+                grasps = [
+                    g
+                    for g in dataset.grasps
+                    if g.object == obj and g.hand == hand_name and g.object_in_palm is not None
+                ]
+                if not grasps:
+                    continue
+                points = np.array([object_position_mm(g) for g in grasps])
+                panel.scatter(
+                    points[:, axis],
+                    points[:, 2],
+                    s=28,
+                    color=f"C{i % 10}",
+                    marker=HAND_MARKERS[j % len(HAND_MARKERS)],
+                    edgecolors="k",
+                    linewidths=0.3,
+                    label=f"{obj} / {hand_name}" if axis == 0 else None,
+                )
+        panel.axhline(0.0, color="0.3", linewidth=1.0)
+        panel.axvline(0.0, color="0.6", linewidth=0.6)
+        panel.set_xlabel(f"{label} in the palm frame (mm)")
+        panel.set_aspect("equal", adjustable="datalim")
+    axes[0].set_ylabel("z: height above the palm plane along its normal (mm)")
+    figure.legend(title="object / hand", loc="outside lower center", ncols=4, fontsize=8)
+    s = stats["in_hand"]["all"]
+    figure.suptitle(
+        f"Object origin in the palm frame — {s['grasps']} grasps, height {s['z_mm']['min']:.0f}–"
+        f"{s['z_mm']['max']:.0f} mm, median distance {s['distance_mm']['p50']:.0f} mm"
+    )
+    return figure
+
+
+def camera_palm(stats: dict[str, Any]) -> Figure:
+    """From which side of the palm the cameras look: views per tenth of palm_facing (the sine of
+    the camera's elevation above the palm plane), stacked by hand; < 0 is the back of the palm."""
+    cam = stats["camera_palm"]
+    if cam is None:
+        return unavailable("the dataset's records carry no palm pose: no camera-to-palm direction")
+    edges = cam["edges"]
+    figure = new_figure(6.4, 4.0)
+    ax = figure.subplots()
+    by_hand = {h: cam["by_hand"][h]["counts"] for h in stats["hands"]}
+    stacked_bars(ax, edges[:-1], np.diff(edges).tolist(), by_hand)
+    ax.axvline(0.0, color="k", linewidth=1.0)
+    ax.set_xticks(edges)
+    ax.set_xlim(-1, 1)
+    ax.set_xlabel("palm_facing: cos(palm normal, palm→camera) = sin(elevation above the palm plane)")
+    total = cam["all"]
+    ax.set_title(f"Camera relative to the palm — front {total['front']}, back {total['back']} views")
+    return figure
+
+
+def grouped_counts(ax: Axes, labels: Sequence[str], by_hand: dict[str, list[int]], ylabel: str) -> None:
+    """Stacked bars, one per label, a segment per hand."""
+    colors = hand_colors(list(by_hand))
+    bottom = np.zeros(len(labels))
+    x = np.arange(len(labels))
+    for hand_name, values in by_hand.items():
+        ax.bar(x, values, 0.7, bottom=bottom, color=colors[hand_name], label=hand_name, edgecolor="white")
+        bottom += np.asarray(values, dtype=np.float64)
+    for xi, total in zip(x, bottom, strict=True):
+        ax.annotate(f"{int(total)}", (xi, total), ha="center", va="bottom", fontsize=8)
+    ax.set_xticks(
+        x, labels, rotation=30 if len(labels) > 3 else 0, ha="right" if len(labels) > 3 else "center"
+    )
+    ax.set_ylim(0, max(float(bottom.max()) if len(labels) else 0.0, 1.0) * 1.15)
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.set_ylabel(ylabel)
+
+
+def counts(stats: dict[str, Any]) -> Figure:
+    """Samples per object and per environment, and accepted grasps per grasp type, by hand."""
+    hands = stats["hands"]
+    objects = stats["per_object"]
+    environments = stats["per_environment"]
+    types = stats["grasp_types"]
+    figure = new_figure(12.0, 4.2)
+    left, middle, right = figure.subplots(1, 3)
+    grouped_counts(
+        left,
+        list(objects),
+        {h: [objects[o]["by_hand"][h]["samples"] for o in objects] for h in hands},
+        "samples",
+    )
+    left.set_title("Samples per object")
+    grouped_counts(
+        middle,
+        list(environments),
+        {h: [environments[e]["by_hand"][h] for e in environments] for h in hands},
+        "samples",
+    )
+    middle.set_title("Samples per environment")
+    if types is None:
+        right.axis("off")
+        right.text(0.5, 0.5, "grasp types: not in this layout", ha="center")
+    else:
+        grouped_counts(
+            right,
+            types["types"],
+            {h: [types["by_hand"][h][t] for t in types["types"]] for h in hands},
+            "grasps",
+        )
+        right.set_title("Accepted grasps per grasp type")
+    left.legend(title="hand")
     return figure

@@ -19,6 +19,9 @@ def markdown(stats: dict[str, Any]) -> str:
         orientation(stats),
         taxels(stats),
         acceptance(stats),
+        in_hand(stats),
+        camera_palm(stats),
+        counts(stats),
     ]
     return "\n\n".join(sections) + "\n"
 
@@ -160,4 +163,129 @@ def acceptance(stats: dict[str, Any]) -> str:
         + table(
             ["object", "hand", "trials", "accepted", "acceptance", *(f"rejected: {r}" for r in reasons)], rows
         )
+    )
+
+
+def in_hand(stats: dict[str, Any]) -> str:
+    title = f"## Object pose in the palm frame (`{plots.IN_HAND_PNG}`)\n\n"
+    pose = stats["in_hand"]
+    if pose is None:
+        return title + "Unavailable: the dataset's records carry no palm pose."
+
+    def row(name: str, s: dict[str, Any]) -> list[Any]:
+        return [
+            name,
+            s["grasps"],
+            s["x_mm"]["mean"],
+            s["y_mm"]["mean"],
+            s["z_mm"]["mean"],
+            s["z_mm"]["min"],
+            s["z_mm"]["max"],
+            s["distance_mm"]["p50"],
+            s["object_z_cos"]["p50"],
+        ]
+
+    columns = [
+        "",
+        "grasps",
+        "mean x",
+        "mean y",
+        "mean z",
+        "min z",
+        "max z",
+        "median distance",
+        "median cos z",
+    ]
+    rows = [row(f"hand {h}", s) for h, s in pose["by_hand"].items()]
+    rows += [row(f"object {o}", s) for o, s in pose["by_object"].items()]
+    rows += [row(f"{p['object']} / {p['hand']}", p) for p in pose["by_pair"]]
+    rows.append(row("all", pose["all"]))
+    return (
+        title + "Per accepted grasp, the object frame's origin in the palm frame (mm; +z the palm normal, "
+        "+y up across the palm), its distance from the palm frame's origin (mm), and the cosine "
+        "between the object's +z axis and the palm normal.\n\n" + table(columns, rows)
+    )
+
+
+def camera_palm(stats: dict[str, Any]) -> str:
+    title = f"## Camera relative to the palm (`{plots.CAMERA_PALM_PNG}`)\n\n"
+    cam = stats["camera_palm"]
+    if cam is None:
+        return title + "Unavailable: the dataset's records carry no palm pose."
+    groups = [*((h, s) for h, s in cam["by_hand"].items()), ("all", cam["all"])]
+    rows = [
+        [
+            name,
+            s["samples"],
+            s["front"],
+            s["back"],
+            percent(s["back"], s["samples"]),
+            s["palm_facing"]["p50"],
+            s["elevation_deg"]["min"],
+            s["elevation_deg"]["p50"],
+            s["elevation_deg"]["max"],
+        ]
+        for name, s in groups
+    ]
+    edges = cam["edges"]
+    bins = [
+        [
+            f"[{edges[k]:.1f}, {edges[k + 1]:.1f}{']' if k == len(edges) - 2 else ')'}",
+            *(s["counts"][k] for _, s in groups),
+        ]
+        for k in range(len(edges) - 1)
+    ]
+    return (
+        title + "Per view, palm_facing: the cosine between the palm normal and the direction from the palm "
+        "frame's origin to the camera (= sin of the camera's elevation above the palm plane; < 0 "
+        "looks at the back of the palm).\n\n"
+        + table(
+            [
+                "hand",
+                "samples",
+                "front",
+                "back",
+                "back share",
+                "median palm_facing",
+                "min elev.",
+                "median elev.",
+                "max elev.",
+            ],
+            rows,
+        )
+        + "\n\n"
+        + table(["palm_facing", *(name for name, _ in groups)], bins)
+    )
+
+
+def counts(stats: dict[str, Any]) -> str:
+    hands = stats["hands"]
+    objects = [
+        [
+            o,
+            s["grasps"],
+            s["samples"],
+            *(f"{s['by_hand'][h]['grasps']} / {s['by_hand'][h]['samples']}" for h in hands),
+        ]
+        for o, s in stats["per_object"].items()
+    ]
+    environments = [
+        [e, s["samples"], *(s["by_hand"][h] for h in hands)] for e, s in stats["per_environment"].items()
+    ]
+    types = stats["grasp_types"]
+    if types is None:
+        type_table = "Unavailable: this layout does not carry the grasp type (only grasp.json does)."
+    else:
+        type_table = table(
+            ["grasp type", "accepted grasps", *hands],
+            [[t, types["counts"][t], *(types["by_hand"][h][t] for h in hands)] for t in types["types"]],
+        )
+    return (
+        f"## Counts (`{plots.COUNTS_PNG}`)\n\n"
+        "Accepted grasps and samples per object (per hand: grasps / samples):\n\n"
+        + table(["object", "grasps", "samples", *hands], objects)
+        + "\n\nSamples per environment (the HDRI of the view's render):\n\n"
+        + table(["environment", "samples", *hands], environments)
+        + "\n\nAccepted grasps per grasp type (grasp.json `trial.grasp.type`; `unknown`: a record "
+        "from before grasp types):\n\n" + type_table
     )
