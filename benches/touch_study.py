@@ -139,7 +139,7 @@ def time_reads(scene: Any, data: mujoco.MjData, skin: Skin, proximity: Any, reps
     for steps in TIMED_STEPS:
 
         def contact_read(steps: int = steps) -> dict[str, Any]:
-            return skin.read(data, held_contacts(scene, data, steps, finger_contacts))
+            return skin.read(data, held_contacts(scene, data, steps, finger_contacts), 1.0)
 
         row[f"contact_{steps}_ms"] = median_ms(contact_read, reps)
         row[f"contact_{steps}_active"] = contact_read()["active_count"]
@@ -173,9 +173,9 @@ def study(seeds: int, reps: int, baseline: str) -> tuple[list[dict[str, Any]], l
                 }
                 cost_rows.append(row)
                 samples = held_contacts(scene, data, REFERENCE_STEPS, finger_contacts)
-                reference = default.read(data, samples)
+                reference = default.read(data, samples, 1.0)
                 for steps in STEPS:
-                    touch = default.read(data, samples[:steps])
+                    touch = default.read(data, samples[:steps], 1.0)
                     error, iou = compare(touch, reference)
                     resolution_rows.append(
                         {
@@ -199,10 +199,9 @@ def plot_response(path: Path) -> None:
     force = np.geomspace(0.02, 500.0, 600)
     figure, (by_gain, by_age) = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
     for gain in (0.8, 1.0, 1.25):
-        by_gain.plot(force, response(force, np.full(len(force), gain), params), label=f"gain {gain}")
+        by_gain.plot(force, response(force, np.full(len(force), gain), params, 1.0), label=f"gain {gain}")
     for aging in (1.0, 0.5, 0.2, 0.05):
-        aged = TouchParams.parse({"aging": aging})
-        by_age.plot(force, response(force, np.ones(len(force)), aged), label=f"aging {aging}")
+        by_age.plot(force, response(force, np.ones(len(force)), params, aging), label=f"aging {aging}")
     for axis, title in ((by_gain, "taxel-to-taxel gains (aging 1)"), (by_age, "aging (gain 1)")):
         axis.set_xscale("log")
         axis.axvline(params.activation_force_n, color="grey", linestyle=":", linewidth=1)

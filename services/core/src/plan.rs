@@ -419,6 +419,7 @@ fn grasp_params(
             response_exponent: spec.touch.response_exponent,
             gain_sigma: spec.touch.gain_sigma,
             aging: spec.touch.aging,
+            position_sigma_m: spec.touch.position_sigma_m,
             gain_seed: seed::taxel_gains(plan.seed, &c.hand),
             min_active_taxels: spec.touch.min_active_taxels,
         },

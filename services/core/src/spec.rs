@@ -152,8 +152,11 @@ pub struct TouchSettings {
     pub response_exponent: f64,
     /// Log-normal spread of per-taxel gains (a property of the sensor, fixed per hand).
     pub gain_sigma: f64,
-    /// Sensitivity left after aging: 1 is a new sensor.
-    pub aging: f64,
+    /// The range each grasp's aging is drawn from, [min, max]: the sensitivity left, 1 a new
+    /// sensor. A single number `x` in the spec means `[x, x]` (every grasp the same).
+    pub aging: [f64; 2],
+    /// σ (m) of each taxel's placement deviation in its surface's tangent plane, per hand instance.
+    pub position_sigma_m: f64,
     /// A grasp needs at least this many active taxels to be accepted.
     pub min_active_taxels: u32,
 }
@@ -321,7 +324,8 @@ pub fn number_fields() -> Vec<NumberField> {
         float("touch.half_force_n", grasp::HALF_FORCE_N),
         float("touch.response_exponent", grasp::RESPONSE_EXPONENT),
         float("touch.gain_sigma", grasp::GAIN_SIGMA),
-        float("touch.aging", grasp::AGING),
+        pair(float("touch.aging", grasp::AGING)),
+        float("touch.position_sigma_m", grasp::POSITION_SIGMA_M),
         count("touch.min_active_taxels", grasp::MIN_ACTIVE_TAXELS),
         pair(count("render.resolution", render_contract::WIDTH_PX)),
         count("render.samples", render_contract::SAMPLES),
@@ -566,7 +570,8 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
         half_force_n: r.number(&mut t, "touch", "half_force_n", grasp::HALF_FORCE_N),
         response_exponent: r.number(&mut t, "touch", "response_exponent", grasp::RESPONSE_EXPONENT),
         gain_sigma: r.number(&mut t, "touch", "gain_sigma", grasp::GAIN_SIGMA),
-        aging: r.number(&mut t, "touch", "aging", grasp::AGING),
+        aging: r.float_range_or_number(&mut t, "touch", "aging", grasp::AGING, grasp::AGING_DEFAULT),
+        position_sigma_m: r.number(&mut t, "touch", "position_sigma_m", grasp::POSITION_SIGMA_M),
         min_active_taxels: r.count(&mut t, "touch", "min_active_taxels", grasp::MIN_ACTIVE_TAXELS),
     };
     if let Some(v) = t.remove("footprint_radius_m") {
@@ -588,6 +593,7 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
             "response_exponent",
             "gain_sigma",
             "aging",
+            "position_sigma_m",
             "min_active_taxels",
         ],
     );
@@ -1322,6 +1328,25 @@ impl Reader {
             );
         }
         out
+    }
+
+    /// `float_range`, or a single number `x` within `bound` meaning `[x, x]` (a range that was a
+    /// number before: specs that set one value keep their meaning).
+    fn float_range_or_number(
+        &mut self,
+        t: &mut Table,
+        parent: &str,
+        key: &str,
+        bound: Bound<f64>,
+        default: [f64; 2],
+    ) -> [f64; 2] {
+        match t.get(key) {
+            Some(Value::Float(_) | Value::Integer(_)) => {
+                let x = self.number(t, parent, key, bound);
+                [x, x]
+            }
+            _ => self.float_range(t, parent, key, bound, default),
+        }
     }
 
     /// A two-element array of counts, each within its own bound (e.g. width and height).

@@ -290,7 +290,7 @@ fn touch_settings_have_defaults_and_ranges() {
     assert_eq!(spec.touch.contact_window_s, 0.004, "default");
     let text = tiny_with("contact_margin_m = 0.0005", "contact_margin_m = 0.003")
         .replace("contact_window_s = 0.004", "contact_window_s = -0.001")
-        .replace("aging = 1.0", "aging = 1.5")
+        .replace("aging = [1.0, 1.0]", "aging = 1.5")
         .replace("min_active_taxels = 3", "min_active_taxels = -1");
     let errs = errors(&text);
     assert_eq!(
@@ -302,6 +302,45 @@ fn touch_settings_have_defaults_and_ranges() {
             "touch.min_active_taxels: must be 0..=10000, got -1",
         ]
     );
+    // Aging is a range drawn per grasp; a single number is the range [x, x].
+    assert_eq!(spec.touch.aging, [1.0, 1.0], "default: a new sensor");
+    assert_eq!(spec.touch.position_sigma_m, 0.0003, "default");
+    assert_eq!(DatasetSpec::parse(TINY).unwrap().touch.aging, [1.0, 1.0]);
+    let ranged = DatasetSpec::parse(&tiny_with("aging = [1.0, 1.0]", "aging = [0.6, 0.9]").replacen(
+        "position_sigma_m = 0.0003",
+        "position_sigma_m = 0.0",
+        1,
+    ))
+    .unwrap();
+    assert_eq!((ranged.touch.aging, ranged.touch.position_sigma_m), ([0.6, 0.9], 0.0));
+    let fixed = DatasetSpec::parse(&tiny_with("aging = [1.0, 1.0]", "aging = 0.7")).unwrap();
+    assert_eq!(fixed.touch.aging, [0.7, 0.7]);
+    let errs = errors(&tiny_with("aging = [1.0, 1.0]", "aging = [0.9, 0.6]").replacen(
+        "position_sigma_m = 0.0003",
+        "position_sigma_m = 0.003",
+        1,
+    ));
+    assert_eq!(
+        errs,
+        vec![
+            "touch.aging: must be [low, high] with low <= high, got [0.9, 0.6]",
+            "touch.position_sigma_m: must be in [0, 0.002], got 0.003",
+        ]
+    );
+    let errs = errors(&tiny_with("aging = [1.0, 1.0]", "aging = [0.5, 1.2]").replacen(
+        "position_sigma_m = 0.0003",
+        "position_sigma_m = -0.0001",
+        1,
+    ));
+    assert_eq!(
+        errs,
+        vec![
+            "touch.aging[1]: must be in [0.01, 1], got 1.2",
+            "touch.position_sigma_m: must be in [0, 0.002], got -0.0001"
+        ]
+    );
+    let errs = errors(&tiny_with("aging = [1.0, 1.0]", "aging = [0.5]"));
+    assert_eq!(errs, vec!["touch.aging: must be an array of two numbers, got [0.5]"]);
     // The footprint around MuJoCo's contact points is gone: each taxel is its own contact element.
     let old = tiny_with("contact_margin_m = 0.0005", "contact_margin_m = 0.0005\nfootprint_radius_m = 0.006");
     let errs = errors(&old);

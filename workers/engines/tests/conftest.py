@@ -142,7 +142,7 @@ def read_grasps_with_touch(out_dir: Path) -> dict[str, Any]:
     assert sorted(full) == sorted(trial["grasp_index"] for trial in accepted)
     for trial in accepted:
         record = full[trial["grasp_index"]]
-        assert set(trial["touch"]) == {"contact_margin_m", "active_count"}
+        assert set(trial["touch"]) == {"contact_margin_m", "aging", "active_count"}
         assert {key: record[key] for key in trial["touch"]} == trial["touch"]
         trial["touch"] = record
     return doc

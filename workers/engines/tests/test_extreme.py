@@ -114,10 +114,12 @@ def hand_layout(hand: str) -> TaxelLayout:
 
 
 def taxel_points(layout: TaxelLayout, trial: dict[str, Any], indices: list[int]) -> np.ndarray:
+    """The hand instance's taxels `indices` (layout position plus recorded offset) in the world."""
+    offsets = np.array(trial["touch"]["position_offsets_um"]) * 1e-6
     points = []
     for i in indices:
         pose = trial["link_poses"][layout.links[i]]
-        points.append(quat_to_matrix(pose["q"]) @ layout.positions[i] + pose["p"])
+        points.append(quat_to_matrix(pose["q"]) @ (layout.positions[i] + offsets[i]) + pose["p"])
     return np.array(points).reshape(-1, 3)
 
 
@@ -301,7 +303,7 @@ def test_a_sensor_at_its_most_aged_feels_only_hard_contacts(
         "tomato_soup_can",
         hand,
         SHORT,
-        touch={"aging": 0.01, "min_active_taxels": 0},
+        touch={"aging": [0.01, 0.01], "min_active_taxels": 0},
     )
     assert [t["accepted"] for t in new["trials"]] == [t["accepted"] for t in aged["trials"]] == [True, True]
     for fresh, old in zip(new["trials"], aged["trials"], strict=True):

@@ -27,6 +27,7 @@ from vint_engines.grasp.touch import (
     response,
     shared_force,
     taxel_gains,
+    trial_aging,
     window_steps,
 )
 from vint_engines.objects import ObjectSpec, build_model
@@ -104,11 +105,13 @@ def runs(engine: GraspEngine, tmp_path_factory: pytest.TempPathFactory) -> list[
 
 
 def taxels_in_world(layout: TaxelLayout, trial: dict[str, Any]) -> np.ndarray:
-    """Every taxel moved to the world with its link's recorded pose."""
-    world = np.empty_like(layout.positions)
+    """Every taxel of the hand instance (the layout's position plus the trial's recorded placement
+    deviation) moved to the world with its link's recorded pose."""
+    positions = layout.positions + np.array(trial["touch"]["position_offsets_um"]) * 1e-6
+    world = np.empty_like(positions)
     for link, indices in layout.indices_by_link().items():
         pose = trial["link_poses"][link]
-        world[indices] = layout.positions[indices] @ quat_to_matrix(pose["q"]).T + pose["p"]
+        world[indices] = positions[indices] @ quat_to_matrix(pose["q"]).T + pose["p"]
     return world
 
 
@@ -172,11 +175,19 @@ def test_every_hand_and_object_is_grasped_with_touch(runs: list[Run]) -> None:
         assert len(r.accepted) >= 3, (r.obj, r.hand, reasons)
         layout = layout_of(r.hand)
         info = read_hand_catalog()[r.hand]
+        deviation = r.doc["hand"]["taxels"].pop("deviation")
         assert r.doc["hand"]["taxels"] == {
             "layout": f"hands/{r.hand}/taxels.csv",
             "count": len(layout),
             "sha256": hashlib.sha256(info.taxels_path().read_bytes()).hexdigest(),
         }
+        # The hand instance: the layout file plus each trial's recorded offsets, written as a
+        # layout file, hashes to what the record names.
+        offsets = np.array(r.accepted[0]["touch"]["position_offsets_um"]) * 1e-6
+        moved = TaxelLayout(layout.links, layout.positions + offsets, layout.normals, layout.regions)
+        assert deviation["sha256"] == hashlib.sha256(moved.to_csv().encode()).hexdigest()
+        assert deviation["position_sigma_m"] == DEFAULTS.position_sigma_m
+        assert deviation["seed"] == TOUCH["gain_seed"]
         assert r.doc["touch"] == {**DEFAULTS.to_json(), **TOUCH}
 
 
@@ -263,6 +274,7 @@ def test_readings_follow_the_response_of_the_recorded_force_and_inactive_taxels_
             readings = np.array(trial["touch"]["readings"])
             active = [a["taxel"] for a in trial["touch"]["active"]]
             assert not np.delete(readings, active).any()
+            assert trial["touch"]["aging"] == 1.0  # the default range [1, 1]
             for taxel in trial["touch"]["active"]:
                 x = taxel["force_n"] / DEFAULTS.half_force_n
                 expected = gains[taxel["taxel"]] * x / (1.0 + x)  # exponent 1, aging 1
@@ -299,27 +311,27 @@ def test_with_one_step_the_taxels_share_exactly_the_recorded_contact_force(
 def test_the_response_is_monotone_saturating_and_weakens_with_age() -> None:
     force = np.geomspace(1e-3, 1e4, 400)
     gains = np.full(len(force), 1.3)
-    new = response(force, gains, DEFAULTS)
-    aged = response(force, gains, TouchParams.parse({"aging": 0.5}))
+    new = response(force, gains, DEFAULTS, 1.0)
+    aged = response(force, gains, DEFAULTS, 0.5)
     fires = force >= DEFAULTS.activation_force_n
     assert not new[~fires].any() and (new[fires] > 0).all()
     assert (np.diff(new[fires]) > 0).all() and (new < 1.3).all() and new[-1] > 0.99 * 1.3
     # The curve is a divider's output: half the gain at the half force, a quarter at a third of it.
     half = DEFAULTS.half_force_n
-    assert response(np.array([half, half / 3]), gains[:2], DEFAULTS) == pytest.approx([0.65, 0.325])
+    assert response(np.array([half, half / 3]), gains[:2], DEFAULTS, 1.0) == pytest.approx([0.65, 0.325])
     # An aged taxel needs more force for the same reading, and to fire at all.
     assert (aged <= new).all() and (aged[fires & (aged > 0)] < new[fires & (aged > 0)]).all()
     assert (
         aged[(force >= DEFAULTS.activation_force_n) & (force < 2 * DEFAULTS.activation_force_n)] == 0
     ).all()
-    steeper = response(force, gains, TouchParams.parse({"response_exponent": 2.0}))
+    steeper = response(force, gains, TouchParams.parse({"response_exponent": 2.0}), 1.0)
     assert steeper[force < half].max() < new[force < half].max()
 
 
 def test_no_force_no_reading() -> None:
     gains = np.ones(4)
     free = TouchParams.parse({"activation_force_n": 0.0})
-    assert not response(np.array([0.0, -1.0, 0.0, -1e9]), gains, free).any()
+    assert not response(np.array([0.0, -1.0, 0.0, -1e9]), gains, free, 1.0).any()
 
 
 def test_gains_are_fixed_by_the_seed() -> None:
@@ -332,10 +344,10 @@ def test_gains_are_fixed_by_the_seed() -> None:
 @pytest.mark.parametrize("aging", [0.01, 1.0])
 @pytest.mark.parametrize("exponent", [0.2, 1.0, 3.0])
 def test_extreme_forces_read_within_zero_and_the_gain(aging: float, exponent: float) -> None:
-    params = TouchParams.parse({"aging": aging, "response_exponent": exponent, "half_force_n": 0.01})
+    params = TouchParams.parse({"aging": [aging, aging], "response_exponent": exponent, "half_force_n": 0.01})
     force = np.array([0.0, 1e-300, 1e-12, 0.2, 1.0, 1e3, 1e9, 1e300, np.finfo(float).max])
     gains = np.array([0.5, 1.0, 2.0, 0.7, 1.1, 1.9, 0.9, 1.5, 3.0])
-    readings = response(force, gains, params)
+    readings = response(force, gains, params, trial_aging(params.aging, 7))
     assert np.isfinite(readings).all() and (readings >= 0).all() and (readings <= gains).all()
     assert readings[-1] == pytest.approx(gains[-1])
 
@@ -357,10 +369,13 @@ def test_a_links_force_is_shared_by_interference_and_conserved() -> None:
 
 
 def test_readings_depend_on_the_gain_seed_alone(engine: GraspEngine, tmp_path: Path) -> None:
-    first, _ = run(engine, grasp_params("tomato_soup_can", "trx3", SEEDS[:2]), tmp_path / "a")
-    again, _ = run(GraspEngine(), grasp_params("tomato_soup_can", "trx3", SEEDS[:2]), tmp_path / "b")
+    """The hand's seed fixes its sensor: with exact taxel positions (the deviations, drawn from the
+    same seed, are test_taxel_variation.py's) another seed changes the gains only."""
+    exact = {"position_sigma_m": 0.0}
+    first, _ = run(engine, grasp_params("tomato_soup_can", "trx3", SEEDS[:2], **exact), tmp_path / "a")
+    again, _ = run(GraspEngine(), grasp_params("tomato_soup_can", "trx3", SEEDS[:2], **exact), tmp_path / "b")
     reseeded, _ = run(
-        engine, grasp_params("tomato_soup_can", "trx3", SEEDS[:2], gain_seed=124), tmp_path / "c"
+        engine, grasp_params("tomato_soup_can", "trx3", SEEDS[:2], gain_seed=124, **exact), tmp_path / "c"
     )
     for t1, t2, t3 in zip(first["trials"], again["trials"], reseeded["trials"], strict=True):
         assert t1["accepted"] and t1["touch"] == t2["touch"]  # same seed: identical readings
@@ -419,7 +434,11 @@ def test_too_few_active_taxels_reject_the_grasp(engine: GraspEngine, tmp_path: P
         {"activation_force_n": -0.1},
         {"half_force_n": 0.0},
         {"response_exponent": 5.0},
-        {"aging": 1.5},
+        {"aging": [1.0, 1.5]},
+        {"aging": [0.9, 0.5]},
+        {"aging": 0.5},
+        {"position_sigma_m": -0.0001},
+        {"position_sigma_m": 0.003},
         {"gain_sigma": -0.1},
         {"min_active_taxels": -1},
         {"gain_seed": "x"},

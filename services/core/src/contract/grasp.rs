@@ -61,7 +61,16 @@ pub const HALF_FORCE_N: Bound<f64> = Bound::new(0.01, 100.0, 10.0);
 /// Power of the FSR's conductance in force (conductance roughly proportional to force).
 pub const RESPONSE_EXPONENT: Bound<f64> = Bound::new(0.2, 3.0, 1.0);
 pub const GAIN_SIGMA: Bound<f64> = Bound::new(0.0, 1.0, 0.1);
+/// Each end of the range a grasp's aging is drawn from (uniformly, per grasp): the sensitivity left,
+/// 1 a new sensor. Default [1, 1]: a new sensor in every grasp.
 pub const AGING: Bound<f64> = Bound::new(0.01, 1.0, 1.0);
+pub const AGING_DEFAULT: [f64; 2] = [1.0, 1.0];
+/// σ (m) of each taxel's displacement along each axis of its surface's tangent plane, drawn once
+/// per hand instance: the placement deviations of a real skin ("slight deviations exist in each
+/// sensor's tactile element distribution due to manufacturing precision constraints", VinT-6D
+/// App. A.1.2). 0.3 mm is an assumption (≈ 7 % of the trx3 layout's 4.5 mm pitch), not a
+/// measurement: docs/touch.md. 0: the layout's exact positions.
+pub const POSITION_SIGMA_M: Bound<f64> = Bound::new(0.0, 0.002, 0.0003);
 pub const MIN_ACTIVE_TAXELS: Bound<u32> = Bound::new(0, 10_000, 3);
 /// The gain seed of a task that names none (the studies'); planned tasks always carry the hand's.
 pub const GAIN_SEED_DEFAULT: u64 = 123;
@@ -263,10 +272,16 @@ pub struct Touch {
     /// Log-normal spread of the per-taxel gains.
     #[schemars(range(min = GAIN_SIGMA.min, max = GAIN_SIGMA.max))]
     pub gain_sigma: f64,
-    /// Sensitivity left after aging (a taxel feels `aging` times the force): 1 is a new sensor.
-    #[schemars(range(min = AGING.min, max = AGING.max))]
-    pub aging: f64,
-    /// Seed of the per-taxel gains: the hand's, not the trial's (a property of the sensor).
+    /// The range, [min, max] (min ≤ max), each grasp's aging is drawn from (uniformly, from the
+    /// trial's seed): the sensitivity left (a taxel feels `aging` times the force), 1 a new sensor.
+    #[schemars(inner(range(min = AGING.min, max = AGING.max)))]
+    pub aging: [f64; 2],
+    /// σ (m) of each taxel's displacement in its surface's tangent plane, per axis, drawn once per
+    /// hand instance from `gain_seed` on a stream of its own; 0: the layout's exact positions.
+    #[schemars(range(min = POSITION_SIGMA_M.min, max = POSITION_SIGMA_M.max))]
+    pub position_sigma_m: f64,
+    /// Seed of the per-taxel gains and position deviations: the hand's, not the trial's (a
+    /// property of the sensor).
     #[schemars(range(max = SEED_MAX))]
     pub gain_seed: u64,
     /// A grasp needs at least this many active taxels to be accepted.
@@ -283,7 +298,8 @@ impl Default for Touch {
             half_force_n: HALF_FORCE_N.default,
             response_exponent: RESPONSE_EXPONENT.default,
             gain_sigma: GAIN_SIGMA.default,
-            aging: AGING.default,
+            aging: AGING_DEFAULT,
+            position_sigma_m: POSITION_SIGMA_M.default,
             gain_seed: GAIN_SEED_DEFAULT,
             min_active_taxels: MIN_ACTIVE_TAXELS.default,
         }

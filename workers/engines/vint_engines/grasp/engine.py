@@ -87,7 +87,7 @@ class GraspEngine:
                 "links": hand_geometry(scene),
                 **({"meshes": meshes} if (meshes := hand_meshes(scene)) else {}),
                 "mount": mount_record(hand.mount),
-                "taxels": layout_info,
+                "taxels": {**layout_info, "deviation": skin.deviation()},
             },
             "trials": [without_readings(record) for record in records],
             "physics": physics.to_json(),
@@ -97,7 +97,10 @@ class GraspEngine:
         path.write_text(json.dumps(document, indent=1, allow_nan=False))
         touch_path = task.out_dir / TOUCH_NAME
         touch_path.write_text(
-            json.dumps(touch_document(hand.name, layout_info, touch, records), allow_nan=False)
+            json.dumps(
+                touch_document(hand.name, {**layout_info, "deviation": skin.deviation()}, touch, records),
+                allow_nan=False,
+            )
         )
         result = TaskResult()
         result.add(path, "application/json")
@@ -209,7 +212,7 @@ def without_readings(record: dict[str, Any]) -> dict[str, Any]:
     if "touch" not in record:
         return record
     touch = record["touch"]
-    summary = {"contact_margin_m": touch["contact_margin_m"], "active_count": touch["active_count"]}
+    summary = {key: touch[key] for key in ("contact_margin_m", "aging", "active_count")}
     return {**record, "touch": summary}
 
 

@@ -35,7 +35,18 @@ docs/touch.md gives the equations, the sources of the constants and the measured
    aged taxel (`aging` < 1) needs more force for the same reading and to fire at all.
    Gains g_i = exp(σ·z_i), z_i ~ N(0, 1) from `numpy.random.default_rng(gain_seed)`, one per taxel
    of the layout; a physical sensor's gains do not change between grasps, so the seed is the
-   hand's (the Rust side derives it from the job seed and the hand).
+   hand's (the Rust side derives it from the job seed and the hand). Aging is drawn per grasp,
+   uniformly from the range `aging` = [min, max], from the trial's seed on a stream of its own
+   (`trial_aging`): a dataset's grasps are taken over the sensor's life.
+5. Placement deviations (VinT-6D: "slight deviations exist in each sensor's tactile element
+   distribution due to manufacturing precision constraints"): each taxel of the layout is moved
+   once per hand instance in its surface's tangent plane, N(0, σ²) along each of two tangent axes,
+   σ = `position_sigma_m`, rounded to whole micrometres (the layout file's digit), from the hand's
+   `gain_seed` on a stream of its own (`taxel_offsets`), so the gains' draws do not shift. The skin
+   is a sheet laid on the link: a misplaced taxel still lies on the surface, so it is not moved
+   along the normal (on the built-in hands' ≥ 7 mm radii a 0.3 mm tangent step leaves the surface
+   by < 7 µm, and its normal tilts by < 3°, both ignored). Everything the skin does (which taxels
+   touch, the local forces, the dorsal test, the recorded positions) uses the moved positions.
 
 A taxel is active when its reading is positive. Distances come from MuJoCo (`scene.geom_distance`
 between a tiny probe sphere placed on the taxel and each of the object's geoms), so every geom type
@@ -46,6 +57,7 @@ capture: nothing runs during the rollout.
 from __future__ import annotations
 
 import copy
+import hashlib
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -58,7 +70,7 @@ import numpy.typing as npt
 from vint_engines import contract
 from vint_engines.grasp.hand import TOUCH_PROBE, TOUCH_PROBE_RADIUS
 from vint_engines.grasp.scene import GraspScene, geom_distance
-from vint_engines.grasp.taxels import TaxelLayout
+from vint_engines.grasp.taxels import DECIMALS, TaxelLayout
 from vint_engines.protocol import BadInput
 
 Array = npt.NDArray[np.float64]
@@ -73,6 +85,11 @@ DISTANCE_SLACK_M = 1e-3
 # direction (docs/touch.md, "Dorsal contact").
 DORSAL_REACH = 1.5
 DORSAL_CONE_DEG = 30.0
+# numpy `SeedSequence` spawn keys of the skin's streams beside a seed's own (the gains draw from
+# `default_rng(gain_seed)`, a trial's approach from `default_rng(seed)`; these never shift them).
+POSITION_STREAM = 1  # of the hand's gain_seed: the taxels' placement deviations
+AGING_STREAM = 1  # of a trial's seed: the grasp's aging
+MICROMETRES_PER_M = 10**DECIMALS  # offsets are whole units of the layout file's last digit
 
 
 @dataclass(frozen=True)
@@ -83,7 +100,8 @@ class TouchParams:
     half_force_n: float
     response_exponent: float
     gain_sigma: float
-    aging: float
+    aging: tuple[float, float]
+    position_sigma_m: float
     gain_seed: int
     min_active_taxels: int
 
@@ -91,10 +109,14 @@ class TouchParams:
     def parse(obj: Any, where: str = "params.touch") -> TouchParams:
         """A grasp task's `touch`: fields, bounds and defaults are `GraspTouch` in the stage
         contract; `parse({})` gives the defaults."""
-        return TouchParams(**contract.validated_part("GraspTouch", obj, where))
+        fields = contract.validated_part("GraspTouch", obj, where)
+        low, high = fields["aging"]
+        if low > high:
+            raise BadInput(f"{where}.aging: must be [min, max] with min <= max, got {[low, high]}")
+        return TouchParams(**{**fields, "aging": (float(low), float(high))})
 
-    def to_json(self) -> dict[str, float | int]:
-        return asdict(self)
+    def to_json(self) -> dict[str, Any]:
+        return {**asdict(self), "aging": list(self.aging)}
 
 
 @dataclass(frozen=True)
@@ -113,11 +135,42 @@ def taxel_gains(count: int, sigma: float, seed: int) -> Array:
     return np.random.default_rng(seed).lognormal(mean=0.0, sigma=sigma, size=count)
 
 
-def response(force: Array, gains: Array, params: TouchParams) -> Array:
+def taxel_offsets(normals: Array, sigma: float, seed: int) -> npt.NDArray[np.int64]:
+    """Each taxel's placement deviation (whole micrometres, link frame): N(0, sigma²) along each
+    of two orthonormal axes of the tangent plane of its unit normal, none along the normal; drawn
+    from `seed` (the hand's) on the POSITION_STREAM, two normals per taxel in layout order."""
+    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(POSITION_STREAM,)))
+    draws = rng.standard_normal((len(normals), 2))
+    # A helper axis per taxel: the coordinate axis least aligned with its normal.
+    helper = np.eye(3)[np.argmin(np.abs(normals), axis=1)]
+    first = np.cross(normals, helper)
+    first /= np.linalg.norm(first, axis=1, keepdims=True)
+    second = np.cross(normals, first)
+    offsets = sigma * (draws[:, :1] * first + draws[:, 1:] * second)
+    return np.rint(offsets * MICROMETRES_PER_M).astype(np.int64)
+
+
+def deviated_layout(layout: TaxelLayout, offsets_um: npt.NDArray[np.int64]) -> TaxelLayout:
+    """The hand instance's layout: `layout` with each taxel moved by its offset (µm)."""
+    positions = layout.positions + offsets_um / MICROMETRES_PER_M
+    return TaxelLayout(layout.links, positions, layout.normals, layout.regions)
+
+
+def trial_aging(aging: tuple[float, float], seed: int) -> float:
+    """A grasp's aging: uniform in `aging` = [min, max], from the trial's `seed` on the
+    AGING_STREAM; exactly `min` when the range is one value."""
+    low, high = aging
+    if low == high:
+        return low
+    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(AGING_STREAM,)))
+    return float(rng.uniform(low, high))
+
+
+def response(force: Array, gains: Array, params: TouchParams, aging: float) -> Array:
     """Taxel readings for local normal forces (N): `gain · x^n / (1 + x^n)` with
     `x = aging · force / half_force_n`, and 0 where `aging · force` is below the activation force
     or not positive. Finite for every finite force (written as a logistic in log-force)."""
-    felt = params.aging * np.asarray(force, dtype=np.float64)
+    felt = aging * np.asarray(force, dtype=np.float64)
     fires = (felt > 0.0) & (felt >= params.activation_force_n)
     log_ratio = np.log(np.where(fires, felt, 1.0)) - np.log(params.half_force_n)
     # x^n / (1 + x^n) = 1 / (1 + exp(-n ln x)); the clip keeps exp finite for forces near zero.
@@ -183,14 +236,17 @@ def held_contacts(
 
 
 class Skin:
-    """A hand's taxels bound to a compiled scene, with the sensor's gains. `elapsed_s` adds up the
-    time spent reading (a metric; it never enters an output)."""
+    """A hand instance's taxels bound to a compiled scene: the layout's taxels moved by their
+    placement deviations (`layout`; `offsets_um` from the nominal one), with the sensor's gains.
+    `elapsed_s` adds up the time spent reading (a metric; it never enters an output)."""
 
     def __init__(self, scene: GraspScene, layout: TaxelLayout, params: TouchParams) -> None:
         model = scene.model
         unknown = set(layout.links) - set(scene.link_bodies)
         if unknown:
             raise BadInput(f"taxel layout names links the hand lacks: {sorted(unknown)}")
+        self.offsets_um = taxel_offsets(layout.normals, params.position_sigma_m, params.gain_seed)
+        layout = deviated_layout(layout, self.offsets_um)
         self.scene, self.layout, self.params = scene, layout, params
         self.gains = taxel_gains(len(layout), params.gain_sigma, params.gain_seed)
         self.by_link = layout.indices_by_link()
@@ -201,6 +257,17 @@ class Skin:
             link: DORSAL_REACH * widest_spacing(layout.positions[rows]) for link, rows in self.by_link.items()
         }
         self.elapsed_s = 0.0
+
+    def deviation(self) -> dict[str, Any]:
+        """How this hand instance's taxels deviate from the layout, for `hand.taxels`: σ, the seed
+        and stream they were drawn from, and the SHA-256 of the moved layout written as a layout
+        file (`TaxelLayout.to_csv`: the nominal layout plus each trial's `position_offsets_um`)."""
+        return {
+            "position_sigma_m": self.params.position_sigma_m,
+            "seed": self.params.gain_seed,
+            "stream": f"numpy SeedSequence(seed, spawn_key=({POSITION_STREAM},))",
+            "sha256": hashlib.sha256(self.layout.to_csv().encode("utf-8")).hexdigest(),
+        }
 
     def faces_skin(self, contact: LinkContact) -> bool:
         """Whether a taxel of the contact's link faces it (see DORSAL_REACH): a link with no
@@ -219,9 +286,10 @@ class Skin:
             forces[contact.link] = forces.get(contact.link, 0.0) + contact.force_n / len(samples)
         return dict(sorted(forces.items()))
 
-    def read(self, data: mujoco.MjData, samples: list[list[LinkContact]]) -> dict[str, Any]:
+    def read(self, data: mujoco.MjData, samples: list[list[LinkContact]], aging: float) -> dict[str, Any]:
         """The `touch` record of the captured state `data`; `samples` are the contacts of the
-        capture (first) and of the steps averaged with it (`held_contacts`)."""
+        capture (first) and of the steps averaged with it (`held_contacts`); `aging` the grasp's
+        (`trial_aging`)."""
         started = time.perf_counter()
         params = self.params
         in_contact = {c.link for c in samples[0] if c.force_n > 0.0} & set(self.by_link)
@@ -237,11 +305,13 @@ class Skin:
             indices, params.contact_margin_m - distance, samples
         )
         readings = np.zeros(len(self.layout))
-        readings[indices] = response(force, self.gains[indices], params)
+        readings[indices] = response(force, self.gains[indices], params, aging)
         active = readings[indices] > 0.0
         indices, distance, force = indices[active], distance[active], force[active]
         record = {
             "contact_margin_m": params.contact_margin_m,
+            "aging": aging,
+            "position_offsets_um": self.offsets_um.tolist(),
             "contact_steps": len(samples),
             "contact_force_n": contact_force,
             "unsensed_force_n": unsensed,

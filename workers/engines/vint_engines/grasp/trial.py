@@ -40,7 +40,7 @@ import numpy.typing as npt
 from vint_engines import contract
 from vint_engines.grasp.scene import GraspScene, geom_distance
 from vint_engines.grasp.surface import palm_axes, random_rotation
-from vint_engines.grasp.touch import Skin, held_contacts, window_steps
+from vint_engines.grasp.touch import Skin, held_contacts, trial_aging, window_steps
 from vint_engines.poses import matrix_to_quat, pose_json, quat_to_matrix
 from vint_engines.protocol import BadInput
 
@@ -364,7 +364,7 @@ def run_trial(
     while True:
         rollout = Rollout(scene, data, physics, timestep=timestep)
         try:
-            outcome = attempt(rollout, approach, skin)
+            outcome = attempt(rollout, approach, skin, trial_aging(skin.params.aging, seed))
             reason = None
         except Unstable as trouble:
             smaller = timestep / 2
@@ -386,8 +386,9 @@ def run_trial(
     return record
 
 
-def attempt(rollout: Rollout, approach: Approach, skin: Skin) -> dict[str, Any]:
-    """One rollout of the procedure; raises `TrialRejected` (or `Unstable`) on failure."""
+def attempt(rollout: Rollout, approach: Approach, skin: Skin, aging: float) -> dict[str, Any]:
+    """One rollout of the procedure, its touch read with the grasp's `aging`; raises
+    `TrialRejected` (or `Unstable`) on failure."""
     scene, data, physics = rollout.scene, rollout.data, rollout.physics
     rollout.check_timestep()
     rollout.place(approach)
@@ -409,7 +410,7 @@ def attempt(rollout: Rollout, approach: Approach, skin: Skin) -> dict[str, Any]:
     if not contacts:
         raise TrialRejected("no_contact")
     steps = window_steps(skin.params.contact_window_s, rollout.timestep)
-    touch = skin.read(data, held_contacts(scene, data, steps, finger_contacts))
+    touch = skin.read(data, held_contacts(scene, data, steps, finger_contacts), aging)
     if touch["active_count"] < skin.params.min_active_taxels:
         raise TrialRejected("no_touch")
     check_dorsal(touch["dorsal_force_n"], skin.params.activation_force_n)
