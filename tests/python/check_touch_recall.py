@@ -6,7 +6,9 @@ Reads only the dataset's files: each `<grasp_id>/grasp.json` (the links' world p
 the layout it cites, `hand.taxels`: a path under the catalog and its SHA-256), the catalog's layout
 file of that hash, and the object's exported model the record names (`object.model.file`, e.g.
 `../models/mug.ply`, in the `units` and `frame` it states: millimetres, the object's frame).
-Every taxel of the layout is placed with its link's recorded pose and its signed distance to the
+Every taxel of the layout, moved by the hand instance's placement deviation the record states
+(`touch.position_offsets_um`, whole micrometres in the link's frame; none in records older than
+the deviations), is placed with its link's recorded pose and its signed distance to the
 model at the recorded object pose is measured here (closest point on the triangles; the sign from
 the winding number), with no code of the engine that wrote the dataset.
 
@@ -74,7 +76,14 @@ def layout_of(grasp: dict[str, Any], catalog: Path) -> tuple[list[str], Array]:
     links, positions = read_layout(path)
     if len(links) != info["count"] or len(grasp["touch"]["readings"]) != len(links):
         raise Unreadable(f"{info['layout']}: {len(links)} taxels, the record counts {info['count']}")
-    return links, positions
+    offsets = np.asarray(
+        grasp["touch"].get("position_offsets_um", np.zeros((len(links), 3))), dtype=np.float64
+    )
+    if offsets.shape != positions.shape:
+        raise Unreadable(
+            f"touch.position_offsets_um: shape {offsets.shape}, the layout has {len(links)} taxels"
+        )
+    return links, positions + offsets * 1e-6
 
 
 def taxels_in_object_frame(links: list[str], positions: Array, trial: dict[str, Any]) -> Array:
