@@ -53,7 +53,9 @@ def catalog_entry(name: str) -> dict[str, Any]:
 
 
 def grasp(hand: str, obj: str, directory: Path, seeds: list[int]) -> GraspedScene:
-    """Run one grasp task (one trial per seed) into `directory`; raises if none is accepted."""
+    """Run one grasp task (one trial per seed) into `directory`; raises if none is accepted. Any
+    grasp type: the render study measures pixels, and keeps the grasps its seeds were chosen for
+    (the committed study's, from before power grasps became the default)."""
     from vint_engines.grasp.engine import GraspEngine
 
     directory.mkdir(parents=True, exist_ok=True)
@@ -61,6 +63,7 @@ def grasp(hand: str, obj: str, directory: Path, seeds: list[int]) -> GraspedScen
         "object": catalog_entry(obj),
         "hand": {"name": hand},
         "trials": [{"grasp_index": i, "seed": seed} for i, seed in enumerate(seeds)],
+        "physics": {"grasp_type": "any"},
     }
     GraspEngine().run(TaskRequest(f"study-{hand}-{obj}", params, (), directory))
     trials = json.loads((directory / GRASPS_FILE).read_text())["trials"]
