@@ -124,6 +124,23 @@ def spawn_engine(tmp_path: Path) -> Iterator[Any]:
         engine.kill()
 
 
+def trx3_grasps(out: Path, obj: dict[str, Any], physics: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The real grasp engine's task of three trx3 trials (seeds 42–44) of `obj` (a catalog entry's
+    JSON), run into `out`: its grasps.json."""
+    from vint_engines.grasp.engine import GraspEngine
+    from vint_engines.protocol import TaskRequest
+
+    params: dict[str, Any] = {
+        "object": obj,
+        "hand": {"name": "trx3"},
+        "trials": [{"grasp_index": i, "seed": 42 + i} for i in range(3)],
+    }
+    if physics is not None:
+        params["physics"] = physics
+    GraspEngine().run(TaskRequest("grasp", params, (), out))
+    return json.loads((out / "grasps.json").read_text())
+
+
 def new_dir(root: Path, name: str) -> Path:
     path = root / name
     path.mkdir(parents=True)

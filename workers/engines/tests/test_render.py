@@ -12,7 +12,7 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-from conftest import EngineProcess, new_dir
+from conftest import EngineProcess, new_dir, trx3_grasps
 from geometry import distance_to_mesh
 
 from vint_engines.grasp.engine import GraspEngine
@@ -50,13 +50,7 @@ def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def grasps(workdir: Path) -> tuple[Path, int]:
     """grasps.json from the grasp engine and the index of an accepted trial in it."""
     out = new_dir(workdir, "grasp")
-    params = {
-        "object": CAN,
-        "hand": {"name": "trx3"},
-        "trials": [{"grasp_index": i, "seed": 42 + i} for i in range(3)],
-    }
-    GraspEngine().run(TaskRequest("grasp", params, (), out))
-    doc = json.loads((out / "grasps.json").read_text())
+    doc = trx3_grasps(out, CAN)
     return out / "grasps.json", next(t["grasp_index"] for t in doc["trials"] if t["accepted"])
 
 

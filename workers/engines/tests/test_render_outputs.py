@@ -13,10 +13,9 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-from conftest import EngineProcess, new_dir, started_engine
+from conftest import EngineProcess, new_dir, started_engine, trx3_grasps
 from geometry import rasterise_depth, signed_distance_to_primitive
 
-from vint_engines.grasp.engine import GraspEngine
 from vint_engines.noise.engine import NoiseEngine
 from vint_engines.objects import load_catalog
 from vint_engines.objects.meshio import read_ply_m
@@ -50,14 +49,8 @@ def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def grasp(workdir: Path) -> dict[str, Any]:
     """An accepted grasp of the tomato soup can by trx3, from the real grasp engine."""
     out = new_dir(workdir, "grasp")
-    params = {
-        "object": load_catalog()["tomato_soup_can"].to_json(),
-        "hand": {"name": "trx3"},
-        "trials": [{"grasp_index": i, "seed": 42 + i} for i in range(3)],
-        "physics": {"grasp_type": "any"},  # the pixels' geometry, not the grasp type, is under test
-    }
-    GraspEngine().run(TaskRequest("grasp", params, (), out))
-    doc = json.loads((out / "grasps.json").read_text())
+    # The pixels' geometry, not the grasp type, is under test.
+    doc = trx3_grasps(out, load_catalog()["tomato_soup_can"].to_json(), {"grasp_type": "any"})
     # Grasps come from every direction; the views' cameras look from above, so take the grasp
     # whose palm faces most upwards (the hand below the object, the object in sight).
     accepted = [t for t in doc["trials"] if t["accepted"]]

@@ -13,12 +13,10 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-from conftest import EngineProcess, new_dir, started_engine
+from conftest import EngineProcess, new_dir, started_engine, trx3_grasps
 
-from vint_engines.grasp.engine import GraspEngine
 from vint_engines.objects import load_catalog
 from vint_engines.poses import quat_to_matrix
-from vint_engines.protocol import TaskRequest
 from vint_engines.render.camera import CameraPose, look_at
 from vint_engines.render.viewpoint import MAX_CAMERA_ATTEMPTS, Palm, ViewpointRule, attempt_rng, search
 
@@ -117,13 +115,7 @@ def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def grasp(workdir: Path) -> dict[str, Any]:
     """An accepted grasp of the tomato soup can by trx3, from the real grasp engine."""
     out = new_dir(workdir, "grasp")
-    params = {
-        "object": load_catalog()["tomato_soup_can"].to_json(),
-        "hand": {"name": "trx3"},
-        "trials": [{"grasp_index": i, "seed": 42 + i} for i in range(3)],
-    }
-    GraspEngine().run(TaskRequest("grasp", params, (), out))
-    doc = json.loads((out / "grasps.json").read_text())
+    doc = trx3_grasps(out, load_catalog()["tomato_soup_can"].to_json())
     trial = next(t for t in doc["trials"] if t["accepted"])
     return {"dir": out, "trial": trial}
 
