@@ -251,9 +251,16 @@ fn write_models(native: &Path, objects: &Objects, sink: &mut Sink) -> anyhow::Re
     sink.put("models/models_info.json", &by_id(&info)?)
 }
 
+/// The model PLY's geometry against what `dataset.json` declares. An object none of whose grasps
+/// was accepted has no grasp record to take the facts from: its `diameter_mm` is null, and its
+/// model is written as measured.
 fn check_declared(name: &str, geometry: &ModelGeometry, o: &Value) -> anyhow::Result<()> {
-    let declared =
-        o["diameter_mm"].as_f64().ok_or_else(|| anyhow!("dataset.json: object {name} has no diameter_mm"))?;
+    let declared = match o.get("diameter_mm") {
+        Some(Value::Null) => return Ok(()),
+        Some(v) => v.as_f64(),
+        None => None,
+    };
+    let declared = declared.ok_or_else(|| anyhow!("dataset.json: object {name} has no diameter_mm"))?;
     if (declared - geometry.diameter).abs() > MODEL_TOLERANCE_MM {
         bail!(
             "object {name}: the model PLY's diameter is {:.4} mm, dataset.json declares {declared:.4} mm",
@@ -665,6 +672,17 @@ mod tests {
         assert_eq!(text, "{\n  \"0\": {\"z\":null},\n  \"2\": [],\n  \"10\": {\"a\":[1.5],\"b\":1}\n}\n");
         let parsed: Value = serde_json::from_str(&text).expect("valid JSON");
         assert_eq!(parsed["10"]["a"][0], 1.5);
+    }
+
+    #[test]
+    fn a_model_without_declared_facts_is_taken_as_measured_and_a_missing_key_is_an_error() {
+        let geometry = ModelGeometry { min: [0.0; 3], size: [10.0, 20.0, 30.0], diameter: 37.4 };
+        check_declared("never_grasped", &geometry, &json!({"diameter_mm": null})).expect("no facts to check");
+        check_declared("can", &geometry, &json!({"diameter_mm": 37.4})).expect("agrees");
+        let wrong = check_declared("can", &geometry, &json!({"diameter_mm": 40.0})).expect_err("disagrees");
+        assert!(wrong.to_string().contains("declares 40.0000 mm"), "{wrong}");
+        let missing = check_declared("can", &geometry, &json!({})).expect_err("malformed");
+        assert!(missing.to_string().contains("has no diameter_mm"), "{missing}");
     }
 
     #[test]
