@@ -86,7 +86,8 @@ fn tiny_spec_produces_verified_samples_identical_for_any_worker_count_and_engine
         for (joint, angles) in &abduction {
             let mean = angles.iter().sum::<f64>() / angles.len() as f64;
             let std = (angles.iter().map(|a| (a - mean).powi(2)).sum::<f64>() / angles.len() as f64).sqrt();
-            assert!(angles.len() >= 3 && std > 0.05, "allegro {joint} hardly moves: {angles:?}");
+            // Power grasps keep about a third of the Allegro's six tiny trials: two grasps here.
+            assert!(angles.len() >= 2 && std > 0.05, "allegro {joint} hardly moves: {angles:?}");
         }
         // Every accepted grasp is seen from 3 views in each of 2 environments.
         let mut views_per_grasp = std::collections::BTreeMap::<String, usize>::new();

@@ -74,7 +74,7 @@ fn tar_members(out: &Path) -> Vec<Value> {
 fn shards_hold_every_native_file_of_every_sample_under_its_key_with_fixed_ustar_metadata() {
     let (native, out) = (tiny(), webdataset());
     let (samples, grasps) = native_manifest(native);
-    assert_eq!(samples.len(), 60, "tiny has 60 samples");
+    assert!(samples.len() >= 24, "tiny has {} samples: too few to exercise the shards", samples.len());
     let members = tar_members(out);
 
     let mut found: BTreeMap<String, BTreeMap<String, String>> = BTreeMap::new();
@@ -126,7 +126,7 @@ fn shard_index_and_dataset_record_agree_with_the_native_split() {
     }
 
     let index = read_json(&out.join("shards.json"));
-    assert_eq!(index["samples"], 60);
+    assert_eq!(index["samples"].as_u64(), Some(samples.len() as u64), "the native dataset's samples");
     let members = tar_members(out);
     for (split, listed) in index["splits"].as_object().expect("splits") {
         assert_eq!(listed["samples"].as_u64(), Some(expected.get(split).copied().unwrap_or(0) as u64), "{split}");
@@ -217,7 +217,7 @@ fn loader_example_yields_every_sample_once_as_tensors_with_0_and_2_workers() {
     let (lines_2, summary_2) = run_loader(&small, 2);
     assert_eq!(lines, lines_2, "0 workers over one shard per split, 2 over shards of 7: the same samples");
     assert_eq!(summary["splits"], summary_2["splits"]);
-    assert_eq!(summary["samples"], 60);
+    assert_eq!(summary["samples"].as_u64(), Some(samples.len() as u64), "the native dataset's samples");
     let ids: Vec<&str> = lines.iter().map(|l| l["sample_id"].as_str().expect("id")).collect();
     assert_eq!(ids, samples.keys().map(String::as_str).collect::<Vec<_>>(), "every sample id once");
     let expected = native_split_counts(native, &samples);
