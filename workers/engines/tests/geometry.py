@@ -8,6 +8,20 @@ import numpy.typing as npt
 Array = npt.NDArray[np.float64]
 
 
+def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product a ⊗ b of (w, x, y, z) quaternions: the tests' own, not the engines'."""
+    w1, x1, y1, z1 = a
+    w2, x2, y2, z2 = b
+    return np.array(
+        [
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        ]
+    )
+
+
 def is_convex(vertices: np.ndarray, faces: np.ndarray, tolerance: float = 1e-9) -> bool:
     """A closed outward-wound mesh is convex when no vertex lies in front of any face's plane."""
     a, b, c = (vertices[faces[:, k]] for k in range(3))

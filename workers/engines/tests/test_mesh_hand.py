@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 import pytest
 from conftest import EngineProcess, new_dir, started_engine
-from geometry import rasterise_depth
+from geometry import quat_multiply, rasterise_depth
 
 from vint_engines import hand_meshes
 from vint_engines.grasp.engine import GraspEngine
@@ -405,19 +405,6 @@ def adapt_robosuite_hand(xml: str) -> str:
             if exclude.get(key) == "r_palm":
                 exclude.set(key, "palm")
     return ET.tostring(root, encoding="unicode")
-
-
-def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    w1, x1, y1, z1 = a
-    w2, x2, y2, z2 = b
-    return np.array(
-        [
-            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-        ]
-    )
 
 
 def surface_layout(hand: Any, per_link: int = 40) -> str:

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import pytest
 from conftest import ENGINES_DIR
+from geometry import quat_multiply
 
 from vint_engines.stats import dataset, numbers
 from vint_engines.stats import hand as palm_frame
@@ -107,20 +108,6 @@ def axis_angle_quat(axis: tuple[float, float, float], degrees: float) -> np.ndar
     half = math.radians(degrees) / 2.0
     u = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
     return np.array([math.cos(half), *(math.sin(half) * u)])
-
-
-def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product a ⊗ b."""
-    w1, x1, y1, z1 = a
-    w2, x2, y2, z2 = b
-    return np.array(
-        [
-            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-        ]
-    )
 
 
 def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
