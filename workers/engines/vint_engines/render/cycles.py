@@ -117,7 +117,8 @@ def render_threads() -> int:
     processes on all cores and in 0 of 24 on one thread. A dataset must be the same bytes for the
     same spec, so an engine renders on one thread and a machine runs one worker per core instead
     (views are independent, so that is also how the work parallelises best). More threads trade
-    the guarantee for per-view latency."""
+    the guarantee for per-view latency. Blender's own work around a render runs on as many
+    threads (`cpus.py`)."""
     text = os.environ.get(THREADS_ENV, "1").strip()
     if not text.isdigit() or int(text) > 1024:
         raise ValueError(f"{THREADS_ENV}: expected 0 (all cores) to 1024 threads, got {text!r}")

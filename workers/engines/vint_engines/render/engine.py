@@ -38,9 +38,9 @@ from vint_engines.objects.spec import MeshFile
 from vint_engines.objects.textured import MeshSource
 from vint_engines.poses import quat_to_matrix, read_pose
 from vint_engines.protocol import BadInput, Json, TaskRequest, TaskResult
-from vint_engines.render import lighting, viewpoint
+from vint_engines.render import cpus, lighting, viewpoint
 from vint_engines.render.camera import CameraPose, Intrinsics, framed, look_at, sample_on_hemisphere
-from vint_engines.render.cycles import Bounces, PathTracing
+from vint_engines.render.cycles import Bounces, PathTracing, render_threads
 from vint_engines.render.denoise import Denoiser
 from vint_engines.render.dressing import SceneDressing
 from vint_engines.render.fireflies import despeckle
@@ -241,9 +241,11 @@ def camera_param(obj: Any, where: str) -> CameraPose:
 class RenderEngine:
     def __init__(self) -> None:
         self.scratch = Path(tempfile.mkdtemp(prefix="vint-render-"))
-        self.scene = BlenderScene(self.scratch)
-        self.denoiser = Denoiser(self.scene.threads)
-        self._warm_up()
+        # Blender's own task pool is sized at its first use: to the render's threads (`cpus.py`).
+        with cpus.narrowed(render_threads()):
+            self.scene = BlenderScene(self.scratch)
+            self.denoiser = Denoiser(self.scene.threads)
+            self._warm_up()
 
     def hello(self) -> Json:
         return {

@@ -183,10 +183,6 @@ class BlenderScene:
         view makes Cycles store no guides."""
         scene = self.rgb_scene
         scene.view_settings.view_transform = "Standard"  # no tone curve on the linear output
-        # Every RGB render syncs the scene afresh: with Cycles' persistent data, the image of a view
-        # could differ in its last float bits with what the engine rendered before (a warm engine
-        # against a fresh one), which the denoiser can carry into an 8-bit level (docs/rendering.md).
-        scene.render.use_persistent_data = False
         self._rgb_trees = {
             passes: add_pass_outputs(scene, self.scratch, RGB_PREFIX, passes)
             for passes in (DENOISED_PASSES, RGB_PASSES)

@@ -1,0 +1,42 @@
+"""Blender's own thread pool, sized to the render's threads while Blender starts.
+
+A render is one Cycles session on `render_threads` threads, but Blender does work of its own around
+it — evaluating the scene's objects and meshes, loading images — on its task pool (oneTBB), which is
+sized once, at its first use, from the CPUs the process may run on: every core by default. That
+work is not always the same bits from one process to the next: replaying tiny.toml's render tasks in
+one engine (mug/trx3, mustard/trx3, then tomato_soup_can/allegro g000001) made 14 pixels of the
+can's six views differ in their float radiance from a fresh engine rendering the can alone (by up
+to 0.5 %: a path took another branch), and differ again between two such replays; the same
+histories on one CPU (`taskset -c 0`) gave the fresh engine's image every time. A dataset must be
+the same bytes for a spec whatever its workers rendered before.
+
+So while the engine starts Blender and renders its warm-up view, the process may run on
+`threads` CPUs only (the first ones it was allowed); the pool is then sized to `threads` for the
+process's life, and the CPU mask is widened back, so the operating system still moves the engine
+between cores and several engines on one machine do not share one core. `threads` 0 (all cores,
+the documented non-deterministic choice) leaves the mask alone, as do platforms without CPU masks.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+
+@contextmanager
+def narrowed(threads: int) -> Iterator[None]:
+    """Run the body on at most `threads` CPUs (the first of the process's mask), then restore the
+    mask."""
+    if threads <= 0 or not hasattr(os, "sched_getaffinity"):
+        yield
+        return
+    allowed = sorted(os.sched_getaffinity(0))
+    if len(allowed) <= threads:
+        yield
+        return
+    os.sched_setaffinity(0, allowed[:threads])
+    try:
+        yield
+    finally:
+        os.sched_setaffinity(0, allowed)
