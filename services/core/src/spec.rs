@@ -170,7 +170,7 @@ pub struct RenderSettings {
     /// at 640×480 over the render study's objects (docs/studies/render/render_study.md).
     pub samples: u32,
     /// OpenImageDenoise on the RGB image (guided by albedo and normals): what reaches 35 dB on the
-    /// foreground; off by default, not yet byte-reproducible in every case (docs/rendering.md).
+    /// foreground; on by default (docs/rendering.md).
     pub denoise: bool,
     /// The firefly filter's threshold (share of full scale; 0: off).
     pub despeckle: f64,

@@ -1,4 +1,4 @@
-//! The tiny run's pictures at the spec defaults (raw samples and the firefly filter; three objects,
+//! The tiny run's pictures at the spec defaults (denoised, then the firefly filter; three objects,
 //! both hands): no firefly on the object, the hand or the arm (`tests/python/check_fireflies.py`,
 //! which reads only the dataset's PNGs and id maps); every view's occlusion within the spec's range
 //! (`tests/python/check_occlusion.py`, from the mask files alone).

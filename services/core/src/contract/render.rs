@@ -10,13 +10,13 @@ use crate::asset::Asset;
 
 pub const WIDTH_PX: Bound<u32> = Bound::new(16, 8192, 128);
 pub const HEIGHT_PX: Bound<u32> = Bound::new(16, 8192, 128);
-/// Cycles samples per pixel of the RGB image. Default 32: with the denoiser (`denoise = true`), the
+/// Cycles samples per pixel of the RGB image. Default 32: with the denoiser (on by default), the
 /// cheapest setting whose foreground — the object, hand and arm pixels — reaches 35 dB median PSNR
 /// against a 512-sample reference at 640×480 over the render study's opaque and glass objects,
 /// with no firefly (docs/studies/render/render_study.md).
 pub const SAMPLES: Bound<u32> = Bound::new(1, 65_536, 32);
 /// Whether the RGB image is denoised (`Settings::denoise`).
-pub const DENOISE: bool = false;
+pub const DENOISE: bool = true;
 /// Horizontal field of view (degrees).
 pub const FOV_DEG: Bound<f64> = Bound::new(5.0, 150.0, 60.0);
 /// Each end of the camera's distance range from the object (m).
@@ -110,9 +110,8 @@ pub struct Settings {
     pub height: u32,
     #[schemars(range(min = SAMPLES.min, max = SAMPLES.max))]
     pub samples: u32,
-    /// OpenImageDenoise on the RGB image, guided by the albedo and normal passes, run by the
-    /// engine. Off by default: a denoised view can still differ by one level at a pixel between
-    /// a warm engine and a fresh one (docs/rendering.md).
+    /// OpenImageDenoise on the RGB image, guided by the albedo and normal passes; run by the
+    /// engine outside Blender, so it is byte-reproducible (docs/rendering.md). On by default.
     pub denoise: bool,
     /// The firefly filter's threshold (share of full scale; 0: off).
     #[schemars(range(min = DESPECKLE.min, max = DESPECKLE.max))]
