@@ -13,10 +13,13 @@ model at the recorded object pose is measured here (closest point on the triangl
 the winding number), with no code of the engine that wrote the dataset.
 
 - recall: the share of taxels within NEAR_M of the surface or inside it that read > 0;
-- precision: the share of taxels reading > 0 that lie within TOUCH_M of the surface or inside it.
+- precision: the share of taxels reading > 0 that lie within TOUCH_M of the surface or inside it;
+- palm: in every power grasp (`physics.grasp_type`), some taxel of the layout's `palm` link reads > 0
+  and lies within TOUCH_M of the surface (the object rests on the palm, and the palm feels it).
 
 Usage: check_touch_recall.py DIR [--catalog CATALOG_DIR]. Prints one JSON line; exits 1 when
-recall < MIN_RECALL or precision < MIN_PRECISION, 2 on a dataset it cannot read.
+recall < MIN_RECALL, precision < MIN_PRECISION or a power grasp's palm feels nothing, 2 on a
+dataset it cannot read.
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ TOUCH_M = 5e-4  # an active taxel this close to the surface (or inside it) is in
 REACH_M = 2e-3  # distances beyond this are not needed: such a taxel neither touches nor counts as in contact
 MIN_RECALL = 0.90
 MIN_PRECISION = 0.95
+PALM_LINK = "palm"  # the built-in hands' palm link (the layout's `link` column)
 CATALOG = Path(__file__).resolve().parents[2] / "catalog"
 
 
@@ -157,7 +161,10 @@ def check_grasp(
     distance = signed_distances(taxels_in_object_frame(links, positions, grasp["trial"]), meshes[key])
     active = np.asarray(grasp["touch"]["readings"], dtype=np.float64) > 0.0
     near = distance <= NEAR_M
+    palm = np.array([link == PALM_LINK for link in links])
     return {
+        "power": grasp["physics"].get("grasp_type") == "power",
+        "palm_feeling": int((palm & active & (distance <= TOUCH_M)).sum()),
         "near": int(near.sum()),
         "near_active": int((near & active).sum()),
         "active": int(active.sum()),
@@ -177,6 +184,8 @@ def main(root: Path, catalog: Path) -> int:
     meshes: dict[Path, trimesh.Trimesh] = {}
     totals = {"grasps": 0, "near": 0, "near_active": 0, "active": 0, "active_touching": 0}
     worst: list[dict[str, Any]] = []
+    power = 0
+    numb_palms: list[str] = []  # power grasps whose palm feels nothing
     try:
         for path in sorted(root.glob("*/grasp.json")):
             grasp = json.loads(path.read_text(encoding="utf-8"))
@@ -184,6 +193,10 @@ def main(root: Path, catalog: Path) -> int:
             totals["grasps"] += 1
             for key in ("near", "near_active", "active", "active_touching"):
                 totals[key] += result[key]
+            if result["power"]:
+                power += 1
+                if result["palm_feeling"] == 0:
+                    numb_palms.append(path.parent.name)
             worst.append(
                 {
                     "grasp": path.parent.name,
@@ -207,10 +220,12 @@ def main(root: Path, catalog: Path) -> int:
         "precision": precision,
         "near_m": NEAR_M,
         "touch_m": TOUCH_M,
+        "power_grasps": power,
+        "power_grasps_with_numb_palm": numb_palms,
         "worst_grasps": worst[:3],
     }
     print(json.dumps(report))
-    return 0 if recall >= MIN_RECALL and precision >= MIN_PRECISION else 1
+    return 0 if recall >= MIN_RECALL and precision >= MIN_PRECISION and not numb_palms else 1
 
 
 if __name__ == "__main__":

@@ -1,7 +1,8 @@
 //! The tiny run's touch against geometry (`tests/python/check_touch_recall.py`, which reads only
 //! the dataset's grasp records, the layout they cite and the exported models, and measures each
 //! taxel's distance to the model with its own code): the taxels that touch the object fire, and
-//! the taxels that fire touch it; a grasp record whose object is moved off its pose fails the check.
+//! the taxels that fire touch it, and in every power grasp the palm feels the object; a grasp
+//! record whose object is moved off its pose, or whose palm readings are zeroed, fails the check.
 
 use std::path::Path;
 use std::process::Output;
@@ -26,7 +27,48 @@ fn taxels_touching_the_object_fire_and_active_taxels_touch_it() {
     // Power grasps (the default) keep about half the trials: tiny's 12 give 5 on this machine.
     assert!(report["grasps"].as_u64().unwrap_or(0) >= 4, "the tiny run's grasps: {report}");
     assert!(report["near"].as_u64().unwrap_or(0) >= 30, "taxels against the object: {report}");
-    assert!(out.status.success(), "recall ≥ 0.90 and precision ≥ 0.95: {report}");
+    assert_eq!(report["power_grasps"], report["grasps"], "tiny grasps with the spec's default power grasp: {report}");
+    assert!(out.status.success(), "recall ≥ 0.90, precision ≥ 0.95, every power grasp's palm feels: {report}");
+}
+
+/// The palm check can fail: the same records with every palm taxel's reading zeroed.
+#[test]
+fn touch_check_fails_when_a_power_grasps_palm_feels_nothing() {
+    let numb = tiny().with_file_name("out-touch-numb-palm");
+    copy_models(&numb);
+    for entry in std::fs::read_dir(tiny()).expect("dataset dir") {
+        let grasp = entry.expect("entry").path().join("grasp.json");
+        let Ok(bytes) = std::fs::read(&grasp) else { continue };
+        let mut record: Value = serde_json::from_slice(&bytes).expect("grasp.json");
+        let layout = repo_root().join("catalog").join(record["hand"]["taxels"]["layout"].as_str().expect("layout"));
+        let links: Vec<String> = std::fs::read_to_string(layout)
+            .expect("taxel layout")
+            .lines()
+            .skip(1)
+            .map(|line| line.split(',').nth(1).expect("link column").to_string())
+            .collect();
+        let readings = record["touch"]["readings"].as_array_mut().expect("readings");
+        for (reading, link) in readings.iter_mut().zip(&links) {
+            if link == "palm" {
+                *reading = Value::from(0.0);
+            }
+        }
+        let dir = numb.join(grasp.parent().and_then(Path::file_name).expect("grasp dir"));
+        std::fs::create_dir_all(&dir).expect("grasp dir");
+        std::fs::write(dir.join("grasp.json"), record.to_string()).expect("write grasp.json");
+    }
+    let (out, report) = check_touch_recall(&numb);
+    assert_eq!(out.status.code(), Some(1), "{report}");
+    let numb_palms = report["power_grasps_with_numb_palm"].as_array().map_or(0, Vec::len);
+    assert_eq!(numb_palms as u64, report["power_grasps"].as_u64().unwrap_or(0), "{report}");
+}
+
+fn copy_models(to: &Path) {
+    std::fs::create_dir_all(to.join("models")).expect("models dir");
+    for entry in std::fs::read_dir(tiny().join("models")).expect("models") {
+        let path = entry.expect("entry").path();
+        std::fs::copy(&path, to.join("models").join(path.file_name().expect("name"))).expect("copy model");
+    }
 }
 
 /// The check can fail: the same records with the object 3 mm off its recorded pose put the active
@@ -34,11 +76,7 @@ fn taxels_touching_the_object_fire_and_active_taxels_touch_it() {
 #[test]
 fn touch_check_fails_when_the_object_is_off_its_pose() {
     let moved = tiny().with_file_name("out-touch-moved");
-    std::fs::create_dir_all(moved.join("models")).expect("models dir");
-    for entry in std::fs::read_dir(tiny().join("models")).expect("models") {
-        let path = entry.expect("entry").path();
-        std::fs::copy(&path, moved.join("models").join(path.file_name().expect("name"))).expect("copy model");
-    }
+    copy_models(&moved);
     for entry in std::fs::read_dir(tiny()).expect("dataset dir") {
         let grasp = entry.expect("entry").path().join("grasp.json");
         let Ok(bytes) = std::fs::read(&grasp) else { continue };
