@@ -5,11 +5,18 @@ accepted grasp.
 
 Usage (from the repository root):
     .venv/bin/python benches/grasp_types.py --trials 16 [--type power] [--json out.json]
+    .venv/bin/python benches/grasp_types.py --trials 8 --type power --sweep CLOSE_S=0.2,0.4,0.8
     PYTHONPATH=/tmp/before/workers/engines .venv/bin/python benches/grasp_types.py --trials 16
 
 The second form measures another revision's engines (`git archive <rev> workers/engines catalog |
 tar -x -C /tmp/before`); `--type` is left out then (older engines have no `grasp_type`). Physics
 are `examples/tiny.toml`'s (2 ms, 0.5 s hold). Seeds follow `benches/grasp_procedure.py`.
+
+`--sweep NAME=v1,v2,...` reruns the same trials once per value of one of the procedure's constants
+in `vint_engines/grasp/trial.py` (`SWEEPABLE`: how long the fingers close, how far the palm presses,
+how many steps find the standoff), set on the module for the bench's own process only, and prints
+one summary line per value: acceptance, reasons, palm and back-contact shares and CPU per accepted
+grasp against the procedure's resolution.
 
 Independent of the engine's own checks: the back of a link is read from its geometry in the
 record's `hand.links` (a finger link's dorsal half is the side away from the palm, link -x, by the
@@ -29,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from vint_engines.grasp import trial
 from vint_engines.grasp.engine import GraspEngine
 from vint_engines.grasp.hands import hand_dims
 from vint_engines.grasp.scene import GraspScene, ObjectSpec, hand_geometry
@@ -44,6 +52,8 @@ ACTIVATION_N = 0.2
 # behind the plane through its axis (link x < -BACK_FRACTION · r, over 30° past its side): clear
 # of the sides, which the engine judges by its layout (`touch.DORSAL_CONE_DEG`).
 BACK_FRACTION = 0.5
+# The procedure's constants `--sweep` may set (trial.py's names).
+SWEEPABLE = ("CLOSE_S", "SQUEEZE_S", "PALM_PRESS_M", "PALM_APPROACH_S", "STANDOFF_ITERATIONS")
 
 
 def back_force(record: dict[str, Any], links: dict[str, dict[str, Any]]) -> tuple[float, str]:
@@ -143,19 +153,39 @@ def main() -> None:
     parser.add_argument("--hands", default="trx3,allegro")
     parser.add_argument("--objects", default="tomato_soup_can,mustard_bottle,mug")
     parser.add_argument("--json", type=Path, default=None, help="write every trial's row here")
+    parser.add_argument("--sweep", default=None, help=f"NAME=v1,v2,... (NAME: {', '.join(SWEEPABLE)})")
     args = parser.parse_args()
     catalog = {e["name"]: e for e in tomllib.loads((ROOT / "catalog/objects.toml").read_text())["object"]}
-    engine, rows = GraspEngine(), []
+    engine = GraspEngine()
+    if args.sweep is None:
+        rows = run_all(engine, catalog, args)
+        for hand in args.hands.split(","):
+            print(hand, "all", json.dumps(summary([r for r in rows if r["hand"] == hand])))
+        print("all", json.dumps(summary(rows)))
+    else:
+        name, _, values = args.sweep.partition("=")
+        if name not in SWEEPABLE or not values:
+            parser.error(f"--sweep: expected NAME=v1,v2,... with NAME one of {SWEEPABLE}, got {args.sweep!r}")
+        kind = type(getattr(trial, name))
+        rows = []
+        for value in (kind(v) for v in values.split(",")):
+            setattr(trial, name, value)
+            swept = [{**row, name: value} for row in run_all(engine, catalog, args)]
+            print(f"{name}={value}", "all", json.dumps(summary(swept)), flush=True)
+            rows += swept
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1))
+
+
+def run_all(engine: GraspEngine, catalog: dict[str, Any], args: argparse.Namespace) -> list[dict[str, Any]]:
+    """Every (hand, object) pair's trials, one summary line per pair."""
+    rows = []
     for i, (hand, name) in enumerate((h, o) for h in args.hands.split(",") for o in args.objects.split(",")):
         seeds = [SEED0 + SEED_STEP * k + PAIR_STEP * i for k in range(args.trials)]
         pair = run_pair(engine, hand, catalog[name], seeds, args.type)
         print(hand, name, json.dumps(summary(pair)), flush=True)
         rows += pair
-    for hand in args.hands.split(","):
-        print(hand, "all", json.dumps(summary([r for r in rows if r["hand"] == hand])))
-    print("all", json.dumps(summary(rows)))
-    if args.json:
-        args.json.write_text(json.dumps(rows, indent=1))
+    return rows
 
 
 if __name__ == "__main__":
