@@ -12,9 +12,11 @@ the same bytes for a spec whatever its workers rendered before.
 
 So while the engine starts Blender and renders its warm-up view, the process may run on
 `threads` CPUs only (the first ones it was allowed); the pool is then sized to `threads` for the
-process's life, and the CPU mask is widened back, so the operating system still moves the engine
-between cores and several engines on one machine do not share one core. `threads` 0 (all cores,
-the documented non-deterministic choice) leaves the mask alone, as do platforms without CPU masks.
+process's life, and the CPU mask is widened back — on every thread of the process, since a thread
+started meanwhile (Cycles' session thread, which renders every later view) inherited the narrow
+mask — so the operating system still moves the engine between cores and several engines on one
+machine do not share one core. `threads` 0 (all cores, the documented non-deterministic choice)
+leaves the mask alone, as do platforms without CPU masks.
 """
 
 from __future__ import annotations
@@ -35,8 +37,28 @@ def narrowed(threads: int) -> Iterator[None]:
     if len(allowed) <= threads:
         yield
         return
-    os.sched_setaffinity(0, allowed[:threads])
+    narrow = allowed[:threads]
+    os.sched_setaffinity(0, narrow)
     try:
         yield
     finally:
-        os.sched_setaffinity(0, allowed)
+        widen(set(narrow), allowed)
+
+
+def widen(narrow: set[int], allowed: list[int]) -> None:
+    """Give every thread of this process still on the `narrow` CPU set the `allowed` ones (Linux
+    reads a thread id where the call takes a pid)."""
+    for tid in thread_ids():
+        try:
+            if os.sched_getaffinity(tid) == narrow:
+                os.sched_setaffinity(tid, allowed)
+        except ProcessLookupError:  # the thread ended meanwhile
+            continue
+
+
+def thread_ids() -> list[int]:
+    """This process's thread ids (the main thread's alone where /proc is not there)."""
+    try:
+        return [int(name) for name in os.listdir("/proc/self/task")]
+    except OSError:
+        return [0]
