@@ -24,14 +24,14 @@ fn check_touch_recall(dir: &Path) -> (Output, Value) {
 #[test]
 fn taxels_touching_the_object_fire_and_active_taxels_touch_it() {
     let (out, report) = check_touch_recall(tiny());
-    // Power grasps (the default) keep about half the trials: tiny's 12 give 5 on this machine.
+    // tiny's 12 trials (grasp.type any) keep 8–10 on this machine; power grasps would keep about 5.
     assert!(report["grasps"].as_u64().unwrap_or(0) >= 4, "the tiny run's grasps: {report}");
     assert!(report["near"].as_u64().unwrap_or(0) >= 30, "taxels against the object: {report}");
-    assert_eq!(report["power_grasps"], report["grasps"], "tiny grasps with the spec's default power grasp: {report}");
     assert!(out.status.success(), "recall ≥ 0.90, precision ≥ 0.95, every power grasp's palm feels: {report}");
 }
 
-/// The palm check can fail: the same records with every palm taxel's reading zeroed.
+/// The palm check can fail: the same records, stated as power grasps, with every palm taxel's
+/// reading zeroed.
 #[test]
 fn touch_check_fails_when_a_power_grasps_palm_feels_nothing() {
     let numb = tiny().with_file_name("out-touch-numb-palm");
@@ -47,6 +47,7 @@ fn touch_check_fails_when_a_power_grasps_palm_feels_nothing() {
             .skip(1)
             .map(|line| line.split(',').nth(1).expect("link column").to_string())
             .collect();
+        record["physics"]["grasp_type"] = Value::from("power");
         let readings = record["touch"]["readings"].as_array_mut().expect("readings");
         for (reading, link) in readings.iter_mut().zip(&links) {
             if link == "palm" {
@@ -60,7 +61,7 @@ fn touch_check_fails_when_a_power_grasps_palm_feels_nothing() {
     let (out, report) = check_touch_recall(&numb);
     assert_eq!(out.status.code(), Some(1), "{report}");
     let numb_palms = report["power_grasps_with_numb_palm"].as_array().map_or(0, Vec::len);
-    assert_eq!(numb_palms as u64, report["power_grasps"].as_u64().unwrap_or(0), "{report}");
+    assert_eq!(numb_palms as u64, report["grasps"].as_u64().unwrap_or(0), "every grasp's palm is numb: {report}");
 }
 
 fn copy_models(to: &Path) {
