@@ -34,17 +34,18 @@ fn tiny_example_is_valid() {
 #[test]
 fn grasp_type_defaults_to_the_papers_power_grasp_and_names_its_choices() {
     use vint_core::contract::grasp::GraspType;
-    // tiny.toml names its grasp type; without the line the spec's default applies.
-    let type_line = TINY.lines().find(|line| line.starts_with("type = ")).expect("tiny.toml's grasp.type line");
-    let unnamed = tiny_with(type_line, "");
-    assert_eq!(DatasetSpec::parse(&unnamed).unwrap().grasp.r#type, GraspType::Power, "VinT-6D App. A.1.3");
-    let spec = DatasetSpec::parse(&tiny_with(type_line, "type = \"precision\"")).unwrap();
+    assert!(!TINY.lines().any(|line| line.starts_with("type = ")), "tiny.toml takes the spec's default grasp");
+    assert_eq!(DatasetSpec::parse(TINY).unwrap().grasp.r#type, GraspType::Power, "VinT-6D App. A.1.3");
+    let spec = DatasetSpec::parse(&tiny_with("max_drop_m = 0.02", "max_drop_m = 0.02\ntype = \"precision\"")).unwrap();
     assert_eq!(spec.grasp.r#type, GraspType::Precision);
     assert_single_error(
-        &tiny_with(type_line, "type = \"pinch\""),
+        &tiny_with("max_drop_m = 0.02", "max_drop_m = 0.02\ntype = \"pinch\""),
         "grasp.type: must be one of power, precision, any, got \"pinch\"",
     );
-    assert_single_error(&tiny_with(type_line, "type = 1"), "grasp.type: must be one of power, precision, any, got 1");
+    assert_single_error(
+        &tiny_with("max_drop_m = 0.02", "max_drop_m = 0.02\ntype = 1"),
+        "grasp.type: must be one of power, precision, any, got 1",
+    );
 }
 
 #[test]

@@ -326,8 +326,8 @@ mod tests {
     /// default scene (table, flange), the sensor model and the denoiser, one `vintctl run
     /// examples/tiny.toml --workers 1` took 53.6 CPU-s (user + system, every process, engine
     /// start-ups included) for its 60 samples on 2026-11-27 beside a render study (43.9 CPU-s with
-    /// `denoise = false`), ~64 s for tiny's bound of 72; with the spec's power grasp instead of
-    /// tiny's `any` (5 of 12 trials accepted, 30 samples) 28.5 CPU-s alone, ~68 s for 72 at that rate;
+    /// `denoise = false`), ~64 s for tiny's bound of 72 (grasp type `any` then); with the spec's
+    /// power grasp (5 of 12 trials accepted, 30 samples) 28.5 CPU-s alone, ~68 s for 72 at that rate;
     /// 12.83 MB written since each grasp's record is stored once rather than in every view's
     /// meta.json (docs/benchmarks.md).
     #[test]

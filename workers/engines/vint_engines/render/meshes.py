@@ -6,6 +6,7 @@ Sizes follow MuJoCo: box half extents, sphere [r], capsule and cylinder [r, half
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 
@@ -69,7 +70,7 @@ def _create(bm: bmesh.types.BMesh, kind: str, size: Sequence[float], matrix: Mat
         hx, hy, hz = size
         bmesh.ops.create_cube(bm, size=1.0, matrix=matrix @ Matrix.Diagonal((2 * hx, 2 * hy, 2 * hz, 1.0)))
     elif kind == "sphere":
-        bmesh.ops.create_uvsphere(bm, u_segments=SEGMENTS, v_segments=RINGS, radius=size[0], matrix=matrix)
+        _uv_sphere(bm, size[0], matrix)
     elif kind == "cylinder":
         radius, half = size
         bmesh.ops.create_cone(
@@ -93,10 +94,33 @@ def _create(bm: bmesh.types.BMesh, kind: str, size: Sequence[float], matrix: Mat
             matrix=matrix,
         )
         for end in (-half, half):
-            cap = matrix @ Matrix.Translation((0.0, 0.0, end))
-            bmesh.ops.create_uvsphere(bm, u_segments=SEGMENTS, v_segments=RINGS, radius=radius, matrix=cap)
+            _uv_sphere(bm, radius, matrix @ Matrix.Translation((0.0, 0.0, end)))
     else:
         raise BadInput(f"unsupported geom type {kind!r}")
+
+
+def _uv_sphere(bm: bmesh.types.BMesh, radius: float, matrix: Matrix) -> None:
+    """A UV sphere of SEGMENTS meridians and RINGS bands placed by `matrix`, its vertices and faces
+    made one by one in a fixed order, faces wound outwards. (`bmesh.ops.create_uvsphere` orders its
+    faces and their loops differently from one process to the next; the ray tracer breaks a tie
+    between two triangles of a mesh by their order, so a view's pixels could differ by a few ULP —
+    a path's whole branch after a bounce — between processes.)"""
+    top = bm.verts.new(matrix @ Vector((0.0, 0.0, radius)))
+    turns = [2.0 * math.pi * j / SEGMENTS for j in range(SEGMENTS)]
+    rings = []
+    for i in range(1, RINGS):
+        theta = math.pi * i / RINGS
+        z, rho = radius * math.cos(theta), radius * math.sin(theta)
+        rings.append(
+            [bm.verts.new(matrix @ Vector((rho * math.cos(a), rho * math.sin(a), z))) for a in turns]
+        )
+    bottom = bm.verts.new(matrix @ Vector((0.0, 0.0, -radius)))
+    for j in range(SEGMENTS):
+        k = (j + 1) % SEGMENTS
+        bm.faces.new((top, rings[0][j], rings[0][k]))
+        for upper, lower in itertools.pairwise(rings):
+            bm.faces.new((upper[j], lower[j], lower[k], upper[k]))
+        bm.faces.new((rings[-1][j], bottom, rings[-1][k]))
 
 
 def geom_matrix(p: Sequence[float], q: Sequence[float]) -> Matrix:
