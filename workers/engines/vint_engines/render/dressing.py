@@ -11,9 +11,10 @@ still match them to a fraction of a millimetre (the rounded edges move inwards b
 r·(1 - 1/√2) ≈ 1.2 mm at a box's edge).
 
 The sensor skin is not drawn yet: drawn as hundreds of small discs on a link, it made the depth of
-that link differ by one ULP at a few pixels between a warm and a fresh engine (the ray tracer's
-acceleration structure for a mesh that large is built on several threads), and a dataset must be
-the same bytes for the same spec.
+that link differ by one ULP at a few pixels between a warm and a fresh engine, and a dataset must be
+the same bytes for the same spec. (Then blamed on the ray tracer's multi-threaded build; more
+likely the order of the discs' faces, which bmesh varied between processes as it did the spheres'
+— `meshes.py` builds its spheres in a fixed order since — so worth a second try.)
 
 The flange. A robot hand is never seen floating: it hangs off an arm. Each built-in hand names its
 mount (where its wrist meets the arm, and the direction the arm leaves in, in the palm frame:
