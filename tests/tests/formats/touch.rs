@@ -35,12 +35,7 @@ fn taxels_touching_the_object_fire_and_active_taxels_touch_it() {
 /// reading zeroed.
 #[test]
 fn touch_check_fails_when_a_power_grasps_palm_feels_nothing() {
-    let numb = tiny().with_file_name("out-touch-numb-palm");
-    copy_models(&numb);
-    for entry in std::fs::read_dir(tiny()).expect("dataset dir") {
-        let grasp = entry.expect("entry").path().join("grasp.json");
-        let Ok(bytes) = std::fs::read(&grasp) else { continue };
-        let mut record: Value = serde_json::from_slice(&bytes).expect("grasp.json");
+    let numb = edited_copy("out-touch-numb-palm", |record| {
         let layout = repo_root().join("catalog").join(record["hand"]["taxels"]["layout"].as_str().expect("layout"));
         let links: Vec<String> = std::fs::read_to_string(layout)
             .expect("taxel layout")
@@ -55,14 +50,27 @@ fn touch_check_fails_when_a_power_grasps_palm_feels_nothing() {
                 *reading = Value::from(0.0);
             }
         }
-        let dir = numb.join(grasp.parent().and_then(Path::file_name).expect("grasp dir"));
-        std::fs::create_dir_all(&dir).expect("grasp dir");
-        std::fs::write(dir.join("grasp.json"), record.to_string()).expect("write grasp.json");
-    }
+    });
     let (out, report) = check_touch_recall(&numb);
     assert_eq!(out.status.code(), Some(1), "{report}");
     let numb_palms = report["power_grasps_with_numb_palm"].as_array().map_or(0, Vec::len);
     assert_eq!(numb_palms as u64, report["grasps"].as_u64().unwrap_or(0), "every grasp's palm is numb: {report}");
+}
+
+/// A copy of the tiny run's grasp records (and models) under `name`, each record changed by `edit`.
+fn edited_copy(name: &str, edit: impl Fn(&mut Value)) -> std::path::PathBuf {
+    let to = tiny().with_file_name(name);
+    copy_models(&to);
+    for entry in std::fs::read_dir(tiny()).expect("dataset dir") {
+        let grasp = entry.expect("entry").path().join("grasp.json");
+        let Ok(bytes) = std::fs::read(&grasp) else { continue };
+        let mut record: Value = serde_json::from_slice(&bytes).expect("grasp.json");
+        edit(&mut record);
+        let dir = to.join(grasp.parent().and_then(Path::file_name).expect("grasp dir"));
+        std::fs::create_dir_all(&dir).expect("grasp dir");
+        std::fs::write(dir.join("grasp.json"), record.to_string()).expect("write grasp.json");
+    }
+    to
 }
 
 fn copy_models(to: &Path) {
@@ -77,18 +85,10 @@ fn copy_models(to: &Path) {
 /// taxels off the surface and other taxels into it.
 #[test]
 fn touch_check_fails_when_the_object_is_off_its_pose() {
-    let moved = tiny().with_file_name("out-touch-moved");
-    copy_models(&moved);
-    for entry in std::fs::read_dir(tiny()).expect("dataset dir") {
-        let grasp = entry.expect("entry").path().join("grasp.json");
-        let Ok(bytes) = std::fs::read(&grasp) else { continue };
-        let mut record: Value = serde_json::from_slice(&bytes).expect("grasp.json");
+    let moved = edited_copy("out-touch-moved", |record| {
         let x = &mut record["trial"]["object_pose"]["p"][0];
         *x = Value::from(x.as_f64().expect("object_pose.p") + 0.003);
-        let dir = moved.join(grasp.parent().and_then(Path::file_name).expect("grasp dir"));
-        std::fs::create_dir_all(&dir).expect("grasp dir");
-        std::fs::write(dir.join("grasp.json"), record.to_string()).expect("write grasp.json");
-    }
+    });
     let (out, report) = check_touch_recall(&moved);
     assert_eq!(out.status.code(), Some(1), "{report}");
     assert!(report["recall"].as_f64().unwrap_or(1.0) < 0.9 || report["precision"].as_f64().unwrap_or(1.0) < 0.95);
