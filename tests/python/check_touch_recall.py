@@ -15,11 +15,17 @@ the winding number), with no code of the engine that wrote the dataset.
 - recall: the share of taxels within NEAR_M of the surface or inside it that read > 0;
 - precision: the share of taxels reading > 0 that lie within TOUCH_M of the surface or inside it;
 - palm: in every power grasp (`physics.grasp_type`), some taxel of the layout's `palm` link reads > 0
-  and lies within TOUCH_M of the surface (the object rests on the palm, and the palm feels it).
+  and lies within TOUCH_M of the surface (the object rests on the palm, and the palm feels it);
+- back: no grasp presses the object with the back of a link: MuJoCo's contacts the record keeps
+  (`touch.contact_samples`, points in the link's frame) are judged against the link's own geoms in
+  the record (`hand.links`): a finger link's back is the side away from the palm (link -x, the
+  built-in hands' convention), behind its capsule's axis by more than BACK_FRACTION of its radius
+  and short of its end cap; the palm's back is its -z half. A link whose mean force there over the
+  samples exceeds ACTIVATION_N fails the grasp.
 
 Usage: check_touch_recall.py DIR [--catalog CATALOG_DIR]. Prints one JSON line; exits 1 when
-recall < MIN_RECALL, precision < MIN_PRECISION or a power grasp's palm feels nothing, 2 on a
-dataset it cannot read.
+recall < MIN_RECALL, precision < MIN_PRECISION, a power grasp's palm feels nothing or a grasp
+presses with a link's back, 2 on a dataset it cannot read.
 """
 
 from __future__ import annotations
@@ -44,6 +50,8 @@ REACH_M = 2e-3  # distances beyond this are not needed: such a taxel neither tou
 MIN_RECALL = 0.90
 MIN_PRECISION = 0.95
 PALM_LINK = "palm"  # the built-in hands' palm link (the layout's `link` column)
+ACTIVATION_N = 0.2  # the FSR's actuation force: a back contact above it would have been felt
+BACK_FRACTION = 0.5  # behind the axis by this share of the radius: clear of the link's sides
 CATALOG = Path(__file__).resolve().parents[2] / "catalog"
 
 
@@ -176,6 +184,30 @@ def check_grasp(
     }
 
 
+def on_back(link: dict[str, Any], p: Array) -> bool:
+    """Whether the link-frame point `p` is on the back of `link`, from the record's geoms."""
+    if link["name"] == PALM_LINK:
+        return bool(p[2] < 0.0)
+    capsules = [g for g in link["geoms"] if g["type"] == "capsule"]
+    if not capsules:
+        return False  # not a built-in finger link: no convention for its back
+    radius, half = capsules[0]["size"]
+    end = capsules[0]["p"][2] + half  # the fingertip's end cap is sensorised all round
+    return bool(p[2] <= end and p[0] < -BACK_FRACTION * radius)
+
+
+def back_forces(grasp: dict[str, Any]) -> dict[str, float]:
+    """Mean normal force (N) on the back of each link over the record's contact samples."""
+    links = {link["name"]: link for link in grasp["hand"]["links"]}
+    samples = grasp["touch"]["contact_samples"]
+    forces: dict[str, float] = {}
+    for contacts in samples:
+        for c in contacts:
+            if on_back(links[c["link"]], np.asarray(c["p_link"], dtype=np.float64)):
+                forces[c["link"]] = forces.get(c["link"], 0.0) + c["force_n"] / len(samples)
+    return forces
+
+
 def ratio(part: int, whole: int) -> float:
     return part / whole if whole else 1.0
 
@@ -186,6 +218,7 @@ def main(root: Path, catalog: Path) -> int:
     worst: list[dict[str, Any]] = []
     power = 0
     numb_palms: list[str] = []  # power grasps whose palm feels nothing
+    pressed_backs: list[dict[str, Any]] = []  # grasps pressing the object with a link's back
     try:
         for path in sorted(root.glob("*/grasp.json")):
             grasp = json.loads(path.read_text(encoding="utf-8"))
@@ -197,6 +230,9 @@ def main(root: Path, catalog: Path) -> int:
                 power += 1
                 if result["palm_feeling"] == 0:
                     numb_palms.append(path.parent.name)
+            backs = {link: f for link, f in back_forces(grasp).items() if f > ACTIVATION_N}
+            if backs:
+                pressed_backs.append({"grasp": path.parent.name, "back_force_n": backs})
             worst.append(
                 {
                     "grasp": path.parent.name,
@@ -222,10 +258,12 @@ def main(root: Path, catalog: Path) -> int:
         "touch_m": TOUCH_M,
         "power_grasps": power,
         "power_grasps_with_numb_palm": numb_palms,
+        "grasps_pressing_with_a_back": pressed_backs,
         "worst_grasps": worst[:3],
     }
     print(json.dumps(report))
-    return 0 if recall >= MIN_RECALL and precision >= MIN_PRECISION and not numb_palms else 1
+    passed = recall >= MIN_RECALL and precision >= MIN_PRECISION and not numb_palms and not pressed_backs
+    return 0 if passed else 1
 
 
 if __name__ == "__main__":

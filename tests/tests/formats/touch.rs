@@ -1,8 +1,9 @@
 //! The tiny run's touch against geometry (`tests/python/check_touch_recall.py`, which reads only
 //! the dataset's grasp records, the layout they cite and the exported models, and measures each
 //! taxel's distance to the model with its own code): the taxels that touch the object fire, and
-//! the taxels that fire touch it, and in every power grasp the palm feels the object; a grasp
-//! record whose object is moved off its pose, or whose palm readings are zeroed, fails the check.
+//! the taxels that fire touch it, in every power grasp the palm feels the object, and no grasp
+//! presses it with the back of a link; a grasp record whose object is moved off its pose, whose
+//! palm readings are zeroed, or with a contact on a finger's back, fails the check.
 
 use std::path::Path;
 use std::process::Output;
@@ -55,6 +56,35 @@ fn touch_check_fails_when_a_power_grasps_palm_feels_nothing() {
     assert_eq!(out.status.code(), Some(1), "{report}");
     let numb_palms = report["power_grasps_with_numb_palm"].as_array().map_or(0, Vec::len);
     assert_eq!(numb_palms as u64, report["grasps"].as_u64().unwrap_or(0), "every grasp's palm is numb: {report}");
+}
+
+/// The back check can fail: the same records with one more contact, 1 N on the back of a finger
+/// link (behind its capsule's axis by its whole radius, at the capsule's middle), in every sample.
+#[test]
+fn touch_check_fails_when_a_grasp_presses_with_a_finger_back() {
+    let pressed = edited_copy("out-touch-pressed-back", |record| {
+        let finger = record["hand"]["links"]
+            .as_array()
+            .expect("hand.links")
+            .iter()
+            .find_map(|link| {
+                let capsule = link["geoms"].as_array()?.iter().find(|g| g["type"] == "capsule")?;
+                let radius = capsule["size"][0].as_f64()?;
+                Some((link["name"].clone(), radius, capsule["p"][2].as_f64()?))
+            })
+            .expect("a finger link with a capsule");
+        let (name, radius, middle) = finger;
+        let contact = serde_json::json!({
+            "link": name, "force_n": 1.0, "p_link": [-radius, 0.0, middle], "n_link": [-1.0, 0.0, 0.0],
+        });
+        for sample in record["touch"]["contact_samples"].as_array_mut().expect("contact_samples") {
+            sample.as_array_mut().expect("a sample's contacts").push(contact.clone());
+        }
+    });
+    let (out, report) = check_touch_recall(&pressed);
+    assert_eq!(out.status.code(), Some(1), "{report}");
+    let pressing = report["grasps_pressing_with_a_back"].as_array().map_or(0, Vec::len);
+    assert_eq!(pressing as u64, report["grasps"].as_u64().unwrap_or(0), "every grasp presses with a back: {report}");
 }
 
 /// A copy of the tiny run's grasp records (and models) under `name`, each record changed by `edit`.
