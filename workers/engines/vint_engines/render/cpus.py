@@ -8,7 +8,10 @@ one engine (mug/trx3, mustard/trx3, then tomato_soup_can/allegro g000001) made 1
 can's six views differ in their float radiance from a fresh engine rendering the can alone (by up
 to 0.5 %: a path took another branch), and differ again between two such replays; the same
 histories on one CPU (`taskset -c 0`) gave the fresh engine's image every time. A dataset must be
-the same bytes for a spec whatever its workers rendered before.
+the same bytes for a spec whatever its workers rendered before. (The mechanism, found later: the
+pool's threads moved where Blender's allocations landed, and that set the face order of the hand's
+spheres, which `meshes.py` now fixes; the replay matches without the narrowing since. It stays, so
+that Blender's work around a render is single-threaded by construction, as the render is.)
 
 So while the engine starts Blender and renders its warm-up view, the process may run on
 `threads` CPUs only (the first ones it was allowed); the pool is then sized to `threads` for the
