@@ -82,7 +82,11 @@ def test_same_bytes_in_fresh_processes() -> None:
     here = hashlib.sha256(Denoiser(1)(noisy(clean), albedo, normal).tobytes()).hexdigest()
     code = FRESH.format(tests=str(Path(__file__).parent))
     for _ in range(2):
-        run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+        engines = Path(__file__).resolve().parents[1]  # where `vint_engines` is importable from
+        run = subprocess.run(
+            [sys.executable, "-c", code], cwd=engines, capture_output=True, text=True, check=False
+        )
+        assert run.returncode == 0, run.stderr[-3000:]
         assert run.stdout.strip() == here
 
 
