@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
+import sys
 import time
 import tomllib
 from pathlib import Path
@@ -44,42 +45,27 @@ from vint_engines.grasp.touch import Skin, TouchParams
 from vint_engines.grasp.trial import Physics, run_trial
 from vint_engines.poses import quat_to_matrix
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "python"))
+from check_touch_recall import back_forces  # the dataset check's own back rule
+
 ROOT = Path(__file__).resolve().parents[1]
 SEED0, SEED_STEP, PAIR_STEP = 1234567890123, 7919, 104729
 TINY_PHYSICS = {"timestep": 0.002, "hold_s": 0.5, "lift_height": 0.10, "max_drop_m": 0.02}
 ACTIVATION_N = 0.2
-# A contact counts as on the back of a finger link when it lies this fraction of the link's radius
-# behind the plane through its axis (link x < -BACK_FRACTION · r, over 30° past its side): clear
-# of the sides, which the engine judges by its layout (`touch.DORSAL_CONE_DEG`).
-BACK_FRACTION = 0.5
 # The procedure's constants `--sweep` may set (trial.py's names).
 SWEEPABLE = ("CLOSE_S", "SQUEEZE_S", "PALM_PRESS_M", "PALM_APPROACH_S", "STANDOFF_ITERATIONS")
 
 
 def back_force(record: dict[str, Any], links: dict[str, dict[str, Any]]) -> tuple[float, str]:
     """The largest mean normal force (N) on the back of one link over the record's contact
-    samples, and that link."""
-    samples = record["touch"]["contact_samples"]
-    per_link: dict[str, float] = {}
-    for contacts in samples:
-        for c in contacts:
-            if on_back(links[c["link"]], np.array(c["p_link"])):
-                per_link[c["link"]] = per_link.get(c["link"], 0.0) + c["force_n"] / len(samples)
-    if not per_link:
+    samples, and that link, judged as the dataset check judges it (`back_forces` in
+    tests/python/check_touch_recall.py: a finger's back is link -x, behind its capsule's axis by
+    half its radius, short of its end cap; the palm's is its -z half)."""
+    forces = back_forces({"hand": {"links": list(links.values())}, "touch": record["touch"]})
+    if not forces:
         return 0.0, ""
-    link = max(per_link, key=lambda k: per_link[k])
-    return per_link[link], link
-
-
-def on_back(link: dict[str, Any], p: np.ndarray) -> bool:
-    """Whether the link-frame point `p` is on the link's dorsal side, from its geometry alone."""
-    geoms = link["geoms"]
-    if link["name"] == "palm":
-        return bool(p[2] < 0.0)
-    capsule = next(g for g in geoms if g["type"] == "capsule")
-    radius, end = capsule["size"][0], capsule["p"][2] + capsule["size"][1]
-    # The fingertip's end cap (beyond the last link's end) is sensorised all round.
-    return bool(p[2] <= end and p[0] < -BACK_FRACTION * radius)
+    link = max(forces, key=lambda k: forces[k])
+    return forces[link], link
 
 
 def centre_from_palm(scene: GraspScene, record: dict[str, Any]) -> tuple[float, float]:
