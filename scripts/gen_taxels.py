@@ -62,7 +62,6 @@ def main() -> int:
 
 
 MESH_SUFFIXES = (".stl", ".obj", ".msh")
-MESH_GEOM = 7  # mujoco.mjtGeom.mjGEOM_MESH
 
 
 def mjcf_layout(mjcf: Path, count: int, out: Path, check: bool) -> int:
@@ -77,13 +76,6 @@ def mjcf_layout(mjcf: Path, count: int, out: Path, check: bool) -> int:
         if path.suffix.lower() in MESH_SUFFIXES
     }
     hand = load_mjcf_hand(mjcf.stem, mjcf.read_text(encoding="utf-8"), str(mjcf), mjcf.name, files)
-    if any(int(hand.model.geom_type[g]) == MESH_GEOM for g in range(hand.model.ngeom)):
-        print(
-            f"{mjcf}: a hand with mesh geoms needs a taxel layout of its own; this generator lays "
-            "taxels on boxes, capsules and spheres (docs/hands.md)",
-            file=sys.stderr,
-        )
-        return 2
     if check:
         if not is_current(hand, count, out):
             print(f"stale taxel layout: {out} (run scripts/gen_taxels.py --mjcf {mjcf} ...)", file=sys.stderr)

@@ -346,13 +346,45 @@ def test_the_rendered_segmentation_matches_a_projection_of_the_visual_meshes(
     assert checked > 300
 
 
-def test_the_layout_generator_asks_a_mesh_hand_for_a_layout_of_its_own(tmp_path: Path) -> None:
+def test_the_layout_generator_lays_taxels_on_the_leading_faces_of_the_colliding_meshes(
+    tmp_path: Path,
+) -> None:
+    """Judged on the boxes this file wrote, not on the hulls the generator read: the palm's +z face,
+    each finger link's +x face (its joint turns about +y, so closing swings +z towards +x) and the
+    fingertip's end face; 1.5 mm inside each face, evenly spread."""
     files = write_hand(tmp_path)
     hand = load_mjcf_hand(
         "mesh_hand", files["assets/hand.xml"].read_text(), "hand.xml", "assets/hand.xml", files
     )
-    with pytest.raises(ValueError, match="a hand with mesh geoms needs a layout of its own"):
-        generate_layout(hand, 100)
+    layout = generate_layout(hand, 240)
+    assert len(layout.links) == 240
+    micron, margin = 1.01e-6, 0.0015 - 1e-6
+    faces_hit: set[tuple[str, str]] = set()
+    for link, p, n, region in zip(
+        layout.links, layout.positions, layout.normals, layout.regions, strict=True
+    ):
+        if link == "palm":
+            assert region == "palm"
+            assert abs(p[2] - PALM_HALF[2]) < micron and np.allclose(n, (0, 0, 1)), (link, p, n)
+            assert abs(p[0]) <= PALM_HALF[0] - margin and abs(p[1]) <= PALM_HALF[1] - margin, p
+            faces_hit.add((link, "+z"))
+            continue
+        part = link.split("_")[1]
+        assert region == ("tip" if part == "tip" else "pulp"), (link, region)
+        assert abs(p[1]) <= FINGER_HALF - margin, p
+        if abs(p[0] - FINGER_HALF) < micron:  # the leading face
+            assert np.allclose(n, (1, 0, 0)) and margin <= p[2] <= LENGTHS[part], (link, p, n)
+            faces_hit.add((link, "+x"))
+        else:  # only a fingertip's end face besides
+            assert part == "tip" and abs(p[2] - LENGTHS[part]) < micron, (link, p, n)
+            assert np.allclose(n, (0, 0, 1)) and abs(p[0]) <= FINGER_HALF - margin, (link, p, n)
+            faces_hit.add((link, "+z"))
+    expected = {("palm", "+z")} | {(f"{s}_{p}", "+x") for s in COLOURS for p in LENGTHS}
+    assert faces_hit == expected | {(f"{s}_tip", "+z") for s in COLOURS}
+    palm = layout.positions[[i for i, link in enumerate(layout.links) if link == "palm"]]
+    gaps = np.linalg.norm(palm[:, None] - palm[None], axis=2) + np.eye(len(palm))
+    assert gaps.min() > 0.003, "farthest-point sampling spreads the palm's taxels"
+    assert generate_layout(hand, 240).to_csv() == layout.to_csv()
 
 
 def robosuite_grippers() -> Path | None:
@@ -407,29 +439,6 @@ def adapt_robosuite_hand(xml: str) -> str:
     return ET.tostring(root, encoding="unicode")
 
 
-def surface_layout(hand: Any, per_link: int = 40) -> str:
-    """A crude layout for a test: vertices of each link's colliding meshes (link frame), the
-    normal pointing away from the mesh's centre."""
-    model = hand.model
-    lines = ["taxel,link,x,y,z,nx,ny,nz,region"]
-    for link in hand.link_names():
-        body = model.body(link).id
-        for g in np.flatnonzero(model.geom_bodyid == body):
-            if not model.geom_contype[g] or int(model.geom_type[g]) != 7:  # colliding meshes
-                continue
-            m = int(model.geom_dataid[g])
-            local = model.mesh_vert[model.mesh_vertadr[m] : model.mesh_vertadr[m] + model.mesh_vertnum[m]]
-            rotation = quat_to_matrix(model.geom_quat[g])
-            points = local @ rotation.T + model.geom_pos[g]
-            centre = points.mean(axis=0)
-            region = "palm" if link == "palm" else "tip" if link in hand.fingertips() else "pulp"
-            for p in points[:: max(1, len(points) // per_link)][:per_link]:
-                n = (p - centre) / max(np.linalg.norm(p - centre), 1e-9)
-                cells = [*(f"{v:.6f}" for v in p), *(f"{v:.6f}" for v in n)]
-                lines.append(",".join([str(len(lines) - 1), link, *cells, region]))
-    return "\n".join(lines) + "\n"
-
-
 def test_robosuites_inspire_hand_adapted_as_documented_loads_and_grasps(
     tmp_path: Path, engine: EngineProcess
 ) -> None:
@@ -445,7 +454,12 @@ def test_robosuites_inspire_hand_adapted_as_documented_loads_and_grasps(
         files[f"hands/meshes/inspire_hands/{mesh.name}"] = mesh
     hand = load_mjcf_hand("inspire", xml, "params.hand.mjcf", "hands/inspire.xml", files)
     assert len(hand.mesh_files) == 13 and len(hand.visual_geoms()) == 13
-    (spec_dir / "hands" / "inspire_taxels.csv").write_text(surface_layout(hand))
+    layout = generate_layout(hand, 400)  # on the colliding meshes' hulls, as scripts/gen_taxels.py lays it
+    assert {"palm", "pulp", "tip"} == set(layout.regions)
+    assert {layout.links[i] for i, region in enumerate(layout.regions) if region == "tip"} == set(
+        hand.fingertips()
+    )
+    (spec_dir / "hands" / "inspire_taxels.csv").write_text(layout.to_csv())
     files["hands/inspire_taxels.csv"] = spec_dir / "hands" / "inspire_taxels.csv"
     assets, inputs, sha = staged(files)
     params = {

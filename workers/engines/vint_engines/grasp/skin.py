@@ -29,9 +29,23 @@ lies within its last-bit difference (~1e-17 m) of a rounding boundary (half a nm
 once in 1e8 values. Layouts are still compared within a tolerance (`taxels.layout_differences`),
 and the committed files, not the generator, are what the engines read and datasets cite.
 
-A user's MJCF hand (`hands/mjcf.py`) is sampled the same way (`scripts/gen_taxels.py --mjcf`) when
-it follows the built-in hands' link convention (link +x on the palmar side, +z along the link) and
-uses boxes, capsules and spheres; its fingertip links are the ends of its chains.
+A user's MJCF hand (`hands/mjcf.py`) is sampled the same way (`scripts/gen_taxels.py --mjcf`); its
+fingertip links are the ends of its chains. Its boxes, capsules and spheres follow the built-in
+hands' link convention (link +x on the palmar side, +z along the link). Its colliding **mesh** geoms
+are felt through the convex hull MuJoCo compiles for them, so their taxels lie on that hull, and a
+real hand's mesh frames follow its CAD, not our convention: on a mesh the skin covers
+(`_mesh_candidates`)
+
+- `palm`: the hull's faces turned within 60° of the palm's +z (the palm normal every hand has);
+- `pulp`: the faces turned within 60° of the way the link moves as the hand closes (its leading
+  side: the motion of the hull's centroid from the open pose a step towards `vint_closed`);
+- `tip`: the same, and the faces turned within 60° of the link's length (from the link's origin,
+  its joint, to the hull's centroid): the fingertip's end.
+
+Each chosen hull face is cut into n² equal triangles (n from its area, for 0.5 mm spacing) whose
+centroids are the candidates, kept 1.5 mm from the border of the chosen faces and 1 mm clear of
+every other geom (a hull's distance is the largest of its face planes', a lower bound: never too
+close). A link that does not move as the hand closes (and is not the palm) gets no taxels.
 """
 
 from __future__ import annotations
@@ -55,6 +69,9 @@ SPACING = 0.0005  # m between candidates
 EDGE_MARGIN = 0.0015  # m
 CLEARANCE = 0.001  # m
 TIP_PALMAR_POLAR = math.radians(120.0)
+MESH_FACING_COS = 0.5  # a mesh face is on a side when its normal is within 60° of the side's direction
+CLOSING_STEP = 0.01  # of the way from the open pose to the closed one: the motion that finds a link's lead
+STILL_M = 1e-9  # a link's centroid moving less than this on that step does not move
 MICROMETRES_PER_M = 1_000_000  # candidate positions are snapped to this lattice (the file's digits)
 NANOMETRES_PER_M = 1_000_000_000  # clearances are compared in whole nanometres
 
@@ -102,6 +119,10 @@ def hand_patches(dims: GraspHand) -> list[Patch]:
     for name, angle in zip(dims.joint_names(), dims.open_pose(), strict=True):
         data.qpos[model.joint(name).qposadr[0]] = angle
     mujoco.mj_kinematics(model, data)  # the open hand; the palm sits at the world origin
+    closing = mujoco.MjData(model)  # a step towards the closed hand: which way each link leads
+    for name, start, end in zip(dims.joint_names(), dims.open_pose(), dims.closed_pose(), strict=True):
+        closing.qpos[model.joint(name).qposadr[0]] = start + CLOSING_STEP * (end - start)
+    mujoco.mj_kinematics(model, closing)
     solid = [g for g in range(model.ngeom) if model.geom_contype[g]]  # not the touch probe
     last_links = set(dims.fingertips())
     patches = []
@@ -109,13 +130,22 @@ def hand_patches(dims: GraspHand) -> list[Patch]:
         body = model.body(link).id
         for geom in (g for g in solid if model.geom_bodyid[g] == body):
             region = "palm" if link == "palm" else "tip" if link in last_links else "pulp"
-            points, normals, cell = _candidates(model, geom, palm=link == "palm")
             to_link = _geom_in_link(model, geom)
-            points, normals = points @ to_link[:3, :3].T + to_link[:3, 3], normals @ to_link[:3, :3].T
+            if model.geom_type[geom] == mujoco.mjtGeom.mjGEOM_MESH:
+                hull = _hull(model, geom, to_link)
+                sides = _mesh_sides(hull, region, data, closing, body)
+                points, normals, area_of = _mesh_candidates(hull, sides)
+                cell = 0.0
+            else:
+                points, normals, cell = _candidates(model, geom, palm=link == "palm")
+                points, normals = points @ to_link[:3, :3].T + to_link[:3, 3], normals @ to_link[:3, :3].T
+                area_of = None
             keep = _clear_of_others(model, data, body, geom, solid, points)
             if keep.any():
                 on_lattice = micrometres(points[keep]) / MICROMETRES_PER_M
-                patches.append(Patch(link, region, on_lattice, normals[keep], cell * int(keep.sum())))
+                # fsum: one correctly rounded area whatever the order (the share-out compares them)
+                area = cell * int(keep.sum()) if area_of is None else math.fsum(area_of[keep])
+                patches.append(Patch(link, region, on_lattice, normals[keep], area))
     return patches
 
 
@@ -171,9 +201,113 @@ def _candidates(model: mujoco.MjModel, geom: int, palm: bool) -> tuple[Array, Ar
     name = mujoco.mjtGeom(int(kind)).name.removeprefix("mjGEOM_").lower()
     raise ValueError(
         f"no taxel sampling for a {name} geom (body {model.body(int(model.geom_bodyid[geom])).name!r}): the "
-        "generator lays taxels on boxes, capsules and spheres; a hand with mesh geoms needs a layout "
-        "of its own (docs/hands.md, taxel layout)"
+        "generator lays taxels on boxes, capsules, spheres and meshes; give this hand a layout of its "
+        "own (docs/hands.md, taxel layout)"
     )
+
+
+@dataclass(frozen=True)
+class Hull:
+    """A colliding mesh geom's convex hull as MuJoCo compiled it, in its link's frame: vertices,
+    triangles and their outward unit normals."""
+
+    vertices: Array
+    faces: npt.NDArray[np.int64]
+    normals: Array
+
+
+def _hull(model: mujoco.MjModel, geom: int, pose: Array) -> Hull:
+    """The convex hull MuJoCo collides with for mesh `geom` (`mesh_graph`: numvert, numface, then
+    vert_edgeadr, vert_globalid, edge_localid and face_globalid), moved by the 4×4 `pose` from the
+    geom's frame (the link's: `_geom_in_link`; the geom's own: the identity)."""
+    mesh = int(model.geom_dataid[geom])
+    adr = int(model.mesh_graphadr[mesh])
+    if adr < 0:
+        body = model.body(int(model.geom_bodyid[geom])).name
+        raise ValueError(f"mesh geom {geom} of body {body!r} has no convex hull to lay taxels on")
+    graph = model.mesh_graph
+    nv, nf = int(graph[adr]), int(graph[adr + 1])
+    start = adr + 2 + 2 * nv + (nv + 3 * nf)  # edge_localid: each vertex's edges, -1 ended
+    faces = np.asarray(graph[start : start + 3 * nf], dtype=np.int64).reshape(nf, 3)
+    first, count = int(model.mesh_vertadr[mesh]), int(model.mesh_vertnum[mesh])
+    vertices = np.asarray(model.mesh_vert[first : first + count], dtype=np.float64)
+    vertices = vertices @ pose[:3, :3].T + pose[:3, 3]
+    a, b, c = (vertices[faces[:, i]] for i in range(3))
+    normals = np.cross(b - a, c - a)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    inward = np.einsum("ij,ij->i", normals, a - vertices[np.unique(faces)].mean(axis=0)) < 0
+    normals[inward] *= -1.0
+    faces[inward] = faces[inward][:, ::-1]
+    return Hull(vertices, faces, normals)
+
+
+def _mesh_sides(
+    hull: Hull, region: str, data: mujoco.MjData, closing: mujoco.MjData, body: int
+) -> npt.NDArray[np.bool_]:
+    """Which hull faces the skin covers (module docstring): facing the palm normal on the palm,
+    facing the link's closing motion on a finger link, and its length too on a fingertip."""
+    if region == "palm":
+        return hull.normals @ np.array([0.0, 0.0, 1.0]) >= MESH_FACING_COS
+    centroid = hull.vertices[np.unique(hull.faces)].mean(axis=0)
+    moved = (closing.xmat[body].reshape(3, 3) @ centroid + closing.xpos[body]) - (
+        data.xmat[body].reshape(3, 3) @ centroid + data.xpos[body]
+    )
+    if np.linalg.norm(moved) < STILL_M * CLOSING_STEP:
+        return np.zeros(len(hull.faces), dtype=bool)
+    lead = data.xmat[body].reshape(3, 3).T @ moved  # in the link's frame (open pose)
+    sides = hull.normals @ (lead / np.linalg.norm(lead)) >= MESH_FACING_COS
+    if region == "tip" and np.linalg.norm(centroid) > 0.0:
+        sides |= hull.normals @ (centroid / np.linalg.norm(centroid)) >= MESH_FACING_COS
+    return sides
+
+
+def _mesh_candidates(hull: Hull, sides: npt.NDArray[np.bool_]) -> tuple[Array, Array, Array]:
+    """Candidates on the chosen hull faces (link frame): each face cut into n×n equal triangles, n
+    from its area, their centroids; the area each stands for; none within EDGE_MARGIN of the
+    border of the chosen faces."""
+    points, normals, areas = [], [], []
+    for face in np.flatnonzero(sides):
+        a, b, c = hull.vertices[hull.faces[face]]
+        area = 0.5 * float(np.linalg.norm(np.cross(b - a, c - a)))
+        n = max(1, math.ceil(math.sqrt(2.0 * area) / SPACING))
+        i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+        up = (i + j) <= n - 1
+        down = (i + j) <= n - 2
+        u = np.concatenate([(i[up] + 1 / 3) / n, (i[down] + 2 / 3) / n])
+        v = np.concatenate([(j[up] + 1 / 3) / n, (j[down] + 2 / 3) / n])
+        points.append(a + u[:, None] * (b - a) + v[:, None] * (c - a))
+        normals.append(np.broadcast_to(hull.normals[face], (len(u), 3)))
+        areas.append(np.full(len(u), area / (n * n)))
+    if not points:
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
+    p, nrm, w = np.vstack(points), np.vstack(normals), np.concatenate(areas)
+    keep = _distance_to_segments(p, _border(hull, sides)) >= EDGE_MARGIN
+    return p[keep], nrm[keep], w[keep]
+
+
+def _border(hull: Hull, sides: npt.NDArray[np.bool_]) -> Array:
+    """The chosen faces' border: edges of a chosen face whose other face is not chosen, as
+    (m, 2, 3) end points."""
+    chosen: dict[tuple[int, int], int] = {}
+    for face in np.flatnonzero(sides):
+        tri = hull.faces[face]
+        for k in range(3):
+            edge = (int(min(tri[k], tri[(k + 1) % 3])), int(max(tri[k], tri[(k + 1) % 3])))
+            chosen[edge] = chosen.get(edge, 0) + 1
+    border = [edge for edge, uses in chosen.items() if uses == 1]
+    if not border:
+        return np.zeros((0, 2, 3))
+    return hull.vertices[np.array(border)]
+
+
+def _distance_to_segments(points: Array, segments: Array) -> Array:
+    """Each point's distance to the nearest segment (inf with none)."""
+    nearest = np.full(len(points), np.inf)
+    for start, end in segments:
+        along = end - start
+        t = np.clip((points - start) @ along / float(along @ along), 0.0, 1.0)
+        nearest = np.minimum(nearest, np.linalg.norm(points - (start + t[:, None] * along), axis=1))
+    return nearest
 
 
 def _box_face(half: Array, outward: Array) -> tuple[Array, Array, float]:
@@ -247,9 +381,25 @@ def _clear_of_others(
         if other == geom:
             continue
         local = (world - data.geom_xpos[other]) @ data.geom_xmat[other].reshape(3, 3)
-        distance = signed_distance(int(model.geom_type[other]), model.geom_size[other], local)
+        if model.geom_type[other] == mujoco.mjtGeom.mjGEOM_MESH:
+            hull = _hull(model, other, np.eye(4))
+            # Beyond the hull's bounding sphere by the clearance a point is clear: no planes needed.
+            reach = float(np.linalg.norm(hull.vertices, axis=1).max()) + 2 * CLEARANCE
+            near = np.linalg.norm(local, axis=1) < reach
+            distance = np.full(len(local), reach)
+            distance[near] = hull_distance(hull, local[near])
+        else:
+            distance = signed_distance(int(model.geom_type[other]), model.geom_size[other], local)
         keep &= np.rint(distance * NANOMETRES_PER_M) >= clearance_nm
     return keep
+
+
+def hull_distance(hull: Hull, local: Array) -> Array:
+    """The largest signed distance of geom-frame points to a convex hull's face planes: exact
+    inside and where a face is nearest, below the true distance near an edge or corner outside."""
+    offsets = np.einsum("ij,ij->i", hull.normals, hull.vertices[hull.faces[:, 0]])
+    distance: Array = (local @ hull.normals.T - offsets).max(axis=1)
+    return distance
 
 
 def signed_distance(kind: int, size: Array, local: Array) -> Array:
