@@ -39,6 +39,10 @@ VARIANTS: dict[str, dict[str, Any]] = {
         "scene": {"table": True, "flange": True},
         "sensor": {"enabled": True},
     },
+    "default + 4 distractors": {
+        "scene": {"table": True, "flange": True, "distractors": 4},
+        "sensor": {"enabled": True},
+    },
 }
 
 

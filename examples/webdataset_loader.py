@@ -84,6 +84,8 @@ def to_tensors(sample: dict[str, Any]) -> dict[str, Any]:
         "depth": torch.from_numpy(sample["depth.npy"]),
         "mask": torch.from_numpy(sample["mask.png"] > 0),
         "K": torch.tensor(camera["K"], dtype=torch.float32),
+        # OpenCV's lens distortion [k1, k2, p1, p2, k3]; a record without it is a pinhole's.
+        "dist": torch.tensor(camera.get("dist", [0.0] * 5), dtype=torch.float32),
         "R": torch.tensor(camera["R_m2c"], dtype=torch.float32),
         "t": torch.tensor(camera["t_m2c"], dtype=torch.float32),
         "touch": torch.from_numpy(touch),
@@ -100,7 +102,7 @@ def collate(samples: list[dict[str, Any]]) -> dict[str, Any]:
         "sample_id": [s["sample_id"] for s in samples],
         "split": [s["split"] for s in samples],
     }
-    for name in ("rgb", "depth", "depth_noisy", "mask", "K", "R", "t"):
+    for name in ("rgb", "depth", "depth_noisy", "mask", "K", "dist", "R", "t"):
         if all(name in s for s in samples):
             batch[name] = torch.stack([s[name] for s in samples])
     most = max(len(s["touch"]) for s in samples)
@@ -147,7 +149,7 @@ def main(argv: list[str] | None = None) -> int:
         size = len(batch["sample_id"])
         samples += size
         touch_points += int(batch["touch_valid"].sum())
-        for name in ("rgb", "depth", "depth_noisy", "mask", "K", "R", "t"):
+        for name in ("rgb", "depth", "depth_noisy", "mask", "K", "dist", "R", "t"):
             if name in batch:
                 shapes[name] = list(batch[name].shape[1:])
         for i, sample_id in enumerate(batch["sample_id"]):

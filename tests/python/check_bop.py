@@ -356,6 +356,13 @@ def check_image(
     fail.check(len(gt) == 1 and len(info) == 1, f"{where}: expected one object instance")
     gt, info = gt[0], info[0]
     R, t, K = gt["cam_R_m2c"], gt["cam_t_m2c"], cam["cam_K"]
+    if np.any(cam.get("cam_dist", [])):
+        # A distorted view's images are not a pinhole's of cam_K (its cam_dist says how): this
+        # check's z-buffer renders a pinhole, so it cannot vouch for them.
+        fail.check(
+            False, f"{where}: cam_dist: a distorted image, which this pinhole z-buffer cannot re-render"
+        )
+        return
     fail.check(
         np.allclose(R @ R.T, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0,
         f"{where}: cam_R_m2c is not a rotation",

@@ -193,6 +193,7 @@ impl JobPlan {
                 roll_deg: r.roll_deg,
                 offcentre: r.offcentre,
                 intrinsics_jitter: r.intrinsics_jitter,
+                distortion: r.distortion,
                 occlusion: r.occlusion,
                 palm_side: r.palm_side,
                 scene: r.scene.clone(),
@@ -625,6 +626,16 @@ mod tests {
             package.params["samples"].as_array().unwrap().iter().map(|s| s["sample_id"].as_str().unwrap()).collect();
         assert_eq!(ids.first(), Some(&"tomato_soup_can.trx3.g000002.v00"));
         assert_eq!(ids.last(), Some(&"tomato_soup_can.trx3.g000002.v05"));
+    }
+
+    #[test]
+    fn the_spec_lens_distortion_reaches_the_render_task_and_a_pinhole_adds_nothing() {
+        let c = GraspChunk { object: "tomato_soup_can".into(), hand: "trx3".into(), chunk: 0 };
+        let s = spec("[render]\ndistortion = [-0.1, 0.02, 0.001, -0.002, 0.0]\n");
+        let render = &after_grasp(&plan(&s), &c, &[0]).unwrap()[0].params["render"];
+        assert_eq!(render["distortion"], json!([-0.1, 0.02, 0.001, -0.002, 0.0]));
+        let render = &after_grasp(&plan(&spec("")), &c, &[0]).unwrap()[0].params["render"];
+        assert!(render.get("distortion").is_none(), "{render}");
     }
 
     #[test]

@@ -194,6 +194,8 @@ pub struct RenderSettings {
     pub offcentre: f64,
     /// Per-view spread of the focal length and principal point (σ; 0 keeps the nominal pinhole).
     pub intrinsics_jitter: f64,
+    /// Lens distortion, OpenCV's [k1, k2, p1, p2, k3]; all 0 (the default) is a pinhole.
+    pub distortion: [f64; 5],
     /// The range a sampled view's occlusion must fall in; its camera is redrawn until it does.
     pub occlusion: [f64; 2],
     /// Which side of the palm a sampled camera may stand on.
@@ -279,7 +281,9 @@ impl Outputs {
 
 /// A number field of the spec and its bounds: what the reader below enforces, listed so that
 /// tests can set every field to its extremes (`tests/tests/contract.rs`). Paths use `*` for a
-/// name of the spec's own (`object.*.mass_kg`) and `[*]` for every entry of a list of tables.
+/// name of the spec's own (`object.*.mass_kg`), `[*]` for every entry of a list of tables and
+/// `[i]` for one entry of a fixed-length list whose entries have bounds of their own
+/// (`render.distortion[2]`: the others keep their defaults).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct NumberField {
     pub path: &'static str,
@@ -343,10 +347,16 @@ pub fn number_fields() -> Vec<NumberField> {
         pair(float("render.roll_deg", render_contract::ROLL_DEG)),
         float("render.offcentre", render_contract::OFFCENTRE),
         float("render.intrinsics_jitter", render_contract::INTRINSICS_JITTER),
+        float("render.distortion[0]", render_contract::DISTORTION[0].1),
+        float("render.distortion[1]", render_contract::DISTORTION[1].1),
+        float("render.distortion[2]", render_contract::DISTORTION[2].1),
+        float("render.distortion[3]", render_contract::DISTORTION[3].1),
+        float("render.distortion[4]", render_contract::DISTORTION[4].1),
         pair(float("render.occlusion", render_contract::OCCLUSION)),
         float("render.clamp_indirect", render_contract::CLAMP_INDIRECT),
         float("render.despeckle", render_contract::DESPECKLE),
         float("render.scene.table_gap_m", render_contract::TABLE_GAP_M),
+        count("render.scene.distractors", render_contract::DISTRACTORS),
         float("render.light.strength_ev_sigma", render_contract::STRENGTH_EV_SIGMA),
         float("render.light.rotation_jitter_deg", render_contract::ROTATION_JITTER_DEG),
         pair(float("render.light.temperature_k", render_contract::TEMPERATURE_K)),
@@ -641,6 +651,7 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
         ),
         offcentre: r.number(&mut rd, "render", "offcentre", render_contract::OFFCENTRE),
         intrinsics_jitter: r.number(&mut rd, "render", "intrinsics_jitter", render_contract::INTRINSICS_JITTER),
+        distortion: read_distortion(r, &mut rd),
         occlusion: r.float_range(
             &mut rd,
             "render",
@@ -669,6 +680,7 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
             ),
         );
     }
+    check_distortion(r, &render);
     r.finish(
         rd,
         "render",
@@ -688,6 +700,7 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
             "roll_deg",
             "offcentre",
             "intrinsics_jitter",
+            "distortion",
             "occlusion",
             "palm_side",
             "scene",
@@ -823,6 +836,59 @@ fn check_min_range(r: &mut Reader, render: &RenderSettings, noise: &NoiseSetting
                  move the camera out, choose a mode with a shorter range (wfov_2x2binned, wfov_unbinned: 0.25 m), \
                  or set noise.ignore_min_range = true",
                 mode.as_str()
+            ),
+        );
+    }
+}
+
+/// `render.distortion`: OpenCV's five coefficients [k1, k2, p1, p2, k3], each within its bound;
+/// a pinhole when absent.
+fn read_distortion(r: &mut Reader, rd: &mut Table) -> [f64; 5] {
+    let path = "render.distortion";
+    let mut out = render_contract::PINHOLE;
+    match rd.remove("distortion") {
+        None => {}
+        Some(Value::Array(items)) if items.len() == out.len() => {
+            for (i, v) in items.into_iter().enumerate() {
+                let (_, bound) = render_contract::DISTORTION[i];
+                if let Some(x) = r.float_value(&format!("{path}[{i}]"), v, (bound.min, bound.max)) {
+                    out[i] = x;
+                }
+            }
+        }
+        Some(v) => r.error(path, v, "must be an array of five numbers [k1, k2, p1, p2, k3] (OpenCV's order)"),
+    }
+    out
+}
+
+/// A distorted image is resampled from a pinhole render, which needs the lens invertible over the
+/// whole image: its radial map must keep growing out to the corners at the nominal intrinsics
+/// (`render_contract::radial_reach`; the renderer checks each view's own, which
+/// `render.intrinsics_jitter` moves).
+fn check_distortion(r: &mut Reader, render: &RenderSettings) {
+    // A refused value's stand-in (its default) says nothing about this lens.
+    let refused = |e: &SpecError| {
+        ["render.resolution", "render.fov_deg", "render.distortion"].iter().any(|p| e.path.starts_with(p))
+    };
+    if render.distortion == render_contract::PINHOLE || r.errors.iter().any(refused) {
+        return;
+    }
+    let [width, height] = render.resolution.map(f64::from);
+    let focal_px = (width / 2.0) / (render.fov_deg.to_radians() / 2.0).tan();
+    let corner = ((width - 1.0) / 2.0).hypot((height - 1.0) / 2.0) / focal_px;
+    let reach = render_contract::radial_reach(&render.distortion, corner);
+    if reach < corner {
+        r.error(
+            "render.distortion",
+            Value::Array(render.distortion.iter().map(|&k| Value::Float(k)).collect()),
+            format!(
+                "must stay invertible out to the image's corners: with resolution {}×{} and fov_deg {} they lie \
+                 at radius {corner:.3} (normalised), but the radial map r·(1 + k1·r² + k2·r⁴ + k3·r⁶) stops \
+                 growing (slope below {}) at radius {reach:.3}: weaken k1, k2 or k3, or narrow the field of view",
+                render.resolution[0],
+                render.resolution[1],
+                render.fov_deg,
+                render_contract::MIN_RADIAL_SLOPE,
             ),
         );
     }
@@ -1105,7 +1171,7 @@ fn render_subtable(r: &mut Reader, rd: &mut Table, key: &str) -> Table {
     }
 }
 
-/// `[render.scene]`: the table and the flange around the grasp.
+/// `[render.scene]`: the table, the flange and the distractors around the grasp.
 fn read_scene(r: &mut Reader, rd: &mut Table) -> render_contract::Scene {
     let mut t = render_subtable(r, rd, "scene");
     let defaults = render_contract::Scene::default();
@@ -1113,8 +1179,13 @@ fn read_scene(r: &mut Reader, rd: &mut Table) -> render_contract::Scene {
         table: r.boolean(&mut t, "render.scene.table", "table", defaults.table),
         table_gap_m: r.number(&mut t, "render.scene", "table_gap_m", render_contract::TABLE_GAP_M),
         flange: r.boolean(&mut t, "render.scene.flange", "flange", defaults.flange),
+        distractors: r.count(&mut t, "render.scene", "distractors", render_contract::DISTRACTORS),
     };
-    r.finish(t, "render.scene", &["table", "table_gap_m", "flange"]);
+    r.finish(t, "render.scene", &["table", "table_gap_m", "flange", "distractors"]);
+    if scene.distractors > 0 && !scene.table {
+        let value = Value::Integer(i64::from(scene.distractors));
+        r.error("render.scene.distractors", value, "needs the table to stand on (render.scene.table = true)");
+    }
     scene
 }
 

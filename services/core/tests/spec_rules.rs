@@ -180,6 +180,33 @@ fn ranges_must_be_ordered_and_bounded() {
 }
 
 #[test]
+fn lens_distortion_is_bounded_per_coefficient_and_must_stay_invertible_over_the_image() {
+    assert_eq!(DatasetSpec::parse(TINY).unwrap().render.distortion, [0.0; 5], "a pinhole unless asked");
+    let with = |value: &str| tiny_with("fov_deg = 50.0", &format!("fov_deg = 50.0\ndistortion = {value}"));
+    // A colour camera's mild lens, in OpenCV's order.
+    let kinect = DatasetSpec::parse(&with("[0.08, -0.06, 0.0007, -0.0003, 0.02]")).unwrap();
+    assert_eq!(kinect.render.distortion, [0.08, -0.06, 0.0007, -0.0003, 0.02]);
+    assert_single_error(&with("[0, 0, 0.2, 0, 0]"), "render.distortion[2]: must be in [-0.1, 0.1], got 0.2");
+    assert_single_error(&with("[1.5, 0, 0, 0, 0]"), "render.distortion[0]: must be in [-1, 1], got 1.5");
+    assert_single_error(&with("[0, 0, 0, 0, nan]"), "render.distortion[4]: must be a finite number, got nan");
+    assert_single_error(
+        &with("[0, 0, 0, 0]"),
+        "render.distortion: must be an array of five numbers [k1, k2, p1, p2, k3] (OpenCV's order), got [0, 0, 0, 0]",
+    );
+    // tiny's corners lie at radius 0.654 (128×128 at 50°); k1 = -0.6 folds the map back at 0.49.
+    let errs = errors(&with("[-0.6, 0, 0, 0, 0]"));
+    assert_eq!(errs.len(), 1, "{errs:#?}");
+    assert!(
+        errs[0].starts_with("render.distortion: must stay invertible out to the image's corners: with resolution 128×128 and fov_deg 50 they lie at radius 0.654"),
+        "{errs:#?}"
+    );
+    assert!(errs[0].contains("at radius 0.489") && errs[0].ends_with("got [-0.6, 0.0, 0.0, 0.0, 0.0]"), "{errs:#?}");
+    // The same lens over a narrower view is fine: the fold lies outside the image.
+    let narrow = tiny_with("fov_deg = 50.0", "fov_deg = 30.0\ndistortion = [-0.6, 0, 0, 0, 0]");
+    assert_eq!(DatasetSpec::parse(&narrow).unwrap().render.distortion[0], -0.6);
+}
+
+#[test]
 fn noise_modes_are_named_and_the_old_gaussian_fields_are_refused_with_a_pointer() {
     assert_single_error(
         &tiny_with("mode = \"wfov_2x2binned\"", "mode = \"kinect\""),
@@ -616,7 +643,18 @@ fn cycles_settings_have_defaults_and_ranges() {
     );
     assert_single_error(
         &tiny_with("samples = 16", "samples = 16\nscene = { tabel = true }"),
-        "render.scene.tabel: unknown key (did you mean `table`? known keys: table, table_gap_m, flange), got true",
+        "render.scene.tabel: unknown key (did you mean `table`? known keys: table, table_gap_m, flange, distractors), got true",
+    );
+    assert_eq!(DatasetSpec::parse(TINY).unwrap().render.scene.distractors, 0, "scenery is asked for");
+    let text = tiny_with("samples = 16", "samples = 16\nscene = { distractors = 3 }");
+    assert_eq!(DatasetSpec::parse(&text).unwrap().render.scene.distractors, 3);
+    assert_single_error(
+        &tiny_with("samples = 16", "samples = 16\nscene = { distractors = 9 }"),
+        "render.scene.distractors: must be 0..=8, got 9",
+    );
+    assert_single_error(
+        &tiny_with("samples = 16", "samples = 16\nscene = { table = false, distractors = 2 }"),
+        "render.scene.distractors: needs the table to stand on (render.scene.table = true), got 2",
     );
 }
 

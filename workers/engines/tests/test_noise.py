@@ -6,10 +6,12 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 
-from vint_engines.noise import sensor
+from vint_engines.noise import geometry, sensor
+from vint_engines.noise.engine import intrinsics
 from vint_engines.noise.geometry import Intrinsics
 from vint_engines.noise.model import NoiseModel, Surfaces
 from vint_engines.protocol import BadInput
@@ -325,3 +327,29 @@ def test_a_depth_map_that_is_not_a_2d_image_is_refused() -> None:
         NoiseModel.parse({}).apply(
             np.zeros((4, 4, 2), np.float32), camera(4, 4, 4.0), None, np.random.default_rng(0)
         )
+
+
+def test_a_distorted_views_normals_follow_each_pixels_ray_through_its_lens() -> None:
+    """A wall facing the camera has the same depth at every pixel, whatever the lens; its
+    incidence cosine at a pixel is 1/|ray|, the ray found by OpenCV through the recorded lens
+    (`noise.engine.intrinsics` reads `dist`). The pinhole's rays would be wrong by degrees at a
+    wide lens's corners."""
+    width, height, f = 160, 120, 110.0
+    K = [[f, 0.0, (width - 1) / 2], [0.0, f, (height - 1) / 2], [0.0, 0.0, 1.0]]
+    dist = [-0.25, 0.05, 0.01, -0.01, 0.01]
+    wall = np.ones((height, width), np.float32)
+    valid = np.ones(wall.shape, bool)
+    record = {"K": K, "width": width, "height": height, "dist": dist}
+    cos = geometry.cos_incidence(wall, valid, intrinsics(record, wall.shape, "v00"))
+    rows, cols = np.indices(wall.shape)
+    pixels = np.stack([cols.ravel(), rows.ravel()], axis=-1).reshape(-1, 1, 2).astype(np.float64)
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-10)
+    xy = cv2.undistortPointsIter(pixels, np.array(K), np.array(dist), None, None, criteria).reshape(-1, 2)
+    expected = (1 / np.sqrt(1 + (xy**2).sum(axis=1))).reshape(wall.shape)
+    assert np.abs(cos - expected).max() < 1e-5
+    pinhole = geometry.cos_incidence(
+        wall, valid, intrinsics({**record, "dist": [0.0] * 5}, wall.shape, "v00")
+    )
+    assert np.degrees(np.abs(np.arccos(pinhole) - np.arccos(expected))).max() > 3.0
+    with pytest.raises(BadInput, match=r"v00_camera\.json: dist must be 5 finite numbers"):
+        intrinsics({**record, "dist": [0.1, 0.0]}, wall.shape, "v00")

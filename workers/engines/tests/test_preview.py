@@ -48,10 +48,10 @@ T_W2C = np.array([0.01, -0.02, 0.5])
 K = np.array([[FOCAL, 0, (WIDTH - 1) / 2], [0, FOCAL, (HEIGHT - 1) / 2], [0, 0, 1]])
 
 
-def expected_pixel() -> tuple[float, float, float]:
+def expected_pixel(t_w2c: np.ndarray = T_W2C) -> tuple[float, float, float]:
     """(u, v, z) of the active taxel, by hand: palm → world → camera → pixel."""
     world = rodrigues(PALM_AXIS, PALM_DEG) @ P_PALM + PALM_P
-    x, y, z = R_W2C @ world + T_W2C
+    x, y, z = R_W2C @ world + t_w2c
     return FOCAL * x / z + (WIDTH - 1) / 2, FOCAL * y / z + (HEIGHT - 1) / 2, z
 
 
@@ -63,10 +63,19 @@ def segmentation_image() -> np.ndarray:
     return labels
 
 
-def write_sample(root: Path, obj: str, hand: str, surface_z: float, noisy: bool = False) -> str:
+def write_sample(
+    root: Path,
+    obj: str,
+    hand: str,
+    surface_z: float,
+    noisy: bool = False,
+    dist: list[float] | None = None,
+    t_w2c: np.ndarray = T_W2C,
+) -> str:
     """A grasp record and one view of it: rgb, depth (`surface_z` everywhere but a background
     corner and a strip 10 cm farther along the bottom), segmentation, and depth_noisy (the depth
-    20 cm farther) only when `noisy`."""
+    20 cm farther) only when `noisy`; the camera at `t_w2c`, with the lens distortion `dist` when
+    given."""
     grasp_id = f"{obj}.{hand}.g000001"
     sample_id = f"{grasp_id}.v00"
     (root / grasp_id).mkdir(parents=True)
@@ -98,12 +107,14 @@ def write_sample(root: Path, obj: str, hand: str, surface_z: float, noisy: bool 
             "width": WIDTH,
             "height": HEIGHT,
             "R_w2c": R_W2C.tolist(),
-            "t_w2c": T_W2C.tolist(),
+            "t_w2c": t_w2c.tolist(),
             "segmentation": SEGMENT_NAMES,
         },
         "visibility": {"visible_px": 75, "full_px": 100, "occlusion": 0.25},
         "grasp": {"record": f"../{grasp_id}/grasp.json"},
     }
+    if dist is not None:
+        meta["camera"]["dist"] = dist
     (directory / "meta.json").write_text(json.dumps(meta))
     cv2.imwrite(str(directory / "rgb.png"), np.full((HEIGHT, WIDTH, 3), RGB_BGR, dtype=np.uint8))
     depth = np.full((HEIGHT, WIDTH), surface_z, dtype=np.float32)
@@ -147,6 +158,29 @@ def test_the_active_taxel_projects_to_the_independently_computed_pixel(tmp_path:
     centre = drawn[round(v), round(u)]
     assert not np.array_equal(centre, RGB_BGR), "seen by the camera: a filled dot"
     np.testing.assert_array_equal(centre, sheet.reading_colours(np.array([READING]))[0])
+
+
+def test_a_distorted_views_taxel_projects_through_its_lens(tmp_path: Path) -> None:
+    """With `dist` in the camera record the taxel lands where OpenCV's lens model (written out
+    here by hand) puts it, pixels from the pinhole's pixel, and the dot is drawn there. The camera
+    is moved so that the taxel lies well off its axis, where the lens moves it most."""
+    k1, k2, p1, p2, k3 = dist = [-0.3, 0.08, 0.004, -0.003, 0.01]
+    t_w2c = T_W2C + np.array([0.17, 0.06, 0.0])
+    pinhole_u, pinhole_v, z = expected_pixel(t_w2c)
+    x, y = (pinhole_u - (WIDTH - 1) / 2) / FOCAL, (pinhole_v - (HEIGHT - 1) / 2) / FOCAL
+    r2 = x * x + y * y
+    radial = 1 + k1 * r2 + k2 * r2**2 + k3 * r2**3
+    u = FOCAL * (x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)) + (WIDTH - 1) / 2
+    v = FOCAL * (y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y) + (HEIGHT - 1) / 2
+    assert math.hypot(u - pinhole_u, v - pinhole_v) > 2, "the lens moves the taxel"
+    write_sample(tmp_path, "mug", "trx3", surface_z=z + 0.001, dist=dist, t_w2c=t_w2c)
+    sample = dataset.load(dataset.list_samples(tmp_path)[0])
+    projected = taxels.active_taxels(sample.grasp, sample.camera)
+    np.testing.assert_allclose(projected.uv[0], [u, v], atol=1e-6)
+    np.testing.assert_allclose(projected.z[0], z, atol=1e-12)
+    drawn = tile(one_sheet(tmp_path), 0, "taxels").astype(int)
+    centre_v, centre_u = np.argwhere(np.any(drawn != RGB_BGR, axis=2)).mean(axis=0)
+    assert abs(centre_u - u) < 0.5 and abs(centre_v - v) < 0.5, (centre_u, centre_v, u, v)
 
 
 def test_a_taxel_behind_a_nearer_surface_is_a_ring(tmp_path: Path) -> None:

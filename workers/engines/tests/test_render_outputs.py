@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -14,7 +15,7 @@ import cv2
 import numpy as np
 import pytest
 from conftest import EngineProcess, new_dir, started_engine, trx3_grasps
-from geometry import rasterise_depth, signed_distance_to_primitive
+from geometry import is_convex, rasterise_depth, signed_distance_to_primitive
 
 from vint_engines.noise.engine import NoiseEngine
 from vint_engines.objects import load_catalog
@@ -107,10 +108,10 @@ def to_camera(camera: dict[str, Any], R: np.ndarray, t: np.ndarray, points: np.n
     return (R_w2c @ (R @ points.T + t[:, None]) + t_w2c[:, None]).T
 
 
-def assert_valid_view(view: dict[str, Any]) -> None:
+def assert_valid_view(view: dict[str, Any], shape: tuple[int, int] = (64, 64)) -> None:
     camera = view["camera"]
     depth = view["depth"]
-    assert depth.shape == (64, 64) and np.isfinite(depth).all() and (depth >= 0).all()
+    assert depth.shape == shape and np.isfinite(depth).all() and (depth >= 0).all()
     assert camera["visible_px"] == np.count_nonzero(view["mask"])
     assert camera["full_px"] == np.count_nonzero(view["mask_full"])
     assert not np.any((view["mask"] > 0) & (view["mask_full"] == 0))  # visible ⊆ full
@@ -438,3 +439,158 @@ def test_a_noise_task_reads_the_rendered_segmentation_and_camera_record(
     for missing in ("v00_segmentation.png", "v00_camera.json"):
         with pytest.raises(BadInput, match=missing):
             noisy({n: p for n, p in files.items() if n != missing}, f"noise_without_{missing[4:9]}")
+
+
+# A strong barrel lens with every coefficient in play, in OpenCV's order [k1, k2, p1, p2, k3], on a
+# taller than wide image with jittered intrinsics: the pinhole canvas the renderer resamples from
+# is taller than wide and its principal point off centre, so these views hold Blender's camera
+# shift on such a canvas to OpenCV too.
+LENS = [-0.28, -0.02, 0.004, -0.003, 0.02]
+LENS_RENDER = {"width": 96, "height": 128, "fov_deg": 40.0, "intrinsics_jitter": 0.04}
+UNDISTORT = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-9)
+
+
+@pytest.fixture(scope="module")
+def lens_views(engine: EngineProcess, grasp: dict[str, Any], workdir: Path) -> Path:
+    """Two views with the can well off the image centre (where the lens moves it most), in
+    opposite quadrants."""
+    out = new_dir(workdir, "lens")
+    p_obj = np.array(grasp["trial"]["object_pose"]["p"])
+    views = []
+    for v, (azimuth, offset) in enumerate(((30.0, (0.2, 0.28)), (210.0, (-0.2, -0.28)))):
+        a, e = np.radians(azimuth), np.radians(60.0)
+        eye = p_obj + 0.26 * np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
+        centred = look_at(eye, p_obj).R_w2c
+        # Look past the can so that it lands `offset` (normalised) off the optical axis.
+        aim = p_obj - 0.26 * (offset[0] * centred[0] + offset[1] * centred[1])
+        views.append(camera_view(v, look_at(eye, aim)))
+    render(engine, grasp, out, ALL, views, **LENS_RENDER, distortion=LENS)
+    return out
+
+
+def test_a_distorted_view_shows_the_object_where_opencv_projects_it_with_k_and_dist(
+    lens_views: Path, grasp: dict[str, Any]
+) -> None:
+    """Checked with OpenCV alone, not with the renderer's lens code: the can's model vertices,
+    projected with the recorded K and dist (`cv2.projectPoints`), land on its full mask; the full
+    mask is the pixels whose ray (`cv2.undistortPointsIter`) falls inside the can's pinhole
+    silhouette (the convex hull of its projected vertices: the can is convex), centroid on
+    centroid; the rendered depth along those rays lies on the can's surface. Ignoring dist (K
+    alone) fails each check by a wide margin, as would a renderer that skipped or inverted the
+    remap."""
+    vertices, faces = read_ply_m(grasp["dir"] / "object.ply")
+    assert is_convex(vertices, faces)
+    for v in range(2):
+        view = load(lens_views, v)
+        camera = view["camera"]
+        assert camera["dist"] == LENS
+        assert view["mask_full"].shape == (128, 96) and np.count_nonzero(view["mask"]) > 100
+        K = np.array(camera["K"])
+        assert abs(K[0, 2] - 47.5) + abs(K[1, 2] - 63.5) > 0.3  # jittered
+        lens = lens_fit(view, vertices, grasp, np.array(camera["dist"]))
+        pinhole = lens_fit(view, vertices, grasp, None)
+        assert lens.on_mask > 0.98, (v, lens)
+        assert lens.missed <= 0.25 * lens.outline and lens.shift_px < 0.5, (v, lens)
+        assert lens.off_surface_m < 0.001, (v, lens)
+        assert pinhole.on_mask < lens.on_mask - 0.1, (v, pinhole)
+        assert pinhole.missed > 3 * lens.missed, (v, pinhole)
+        assert pinhole.off_surface_m > 2 * lens.off_surface_m, (v, pinhole)
+
+
+@dataclass(frozen=True)
+class LensFit:
+    """How well a view's images agree with its camera record read with one distortion."""
+
+    on_mask: float  # share of the in-image projected vertices on the (1 px dilated) full mask
+    missed: int  # pixels where the predicted silhouette and the full mask disagree
+    outline: int  # pixels just outside the full mask: the scale of `missed`
+    shift_px: float  # between the centroids of the predicted silhouette and the full mask
+    off_surface_m: float  # median distance of the visible pixels' depth points from the can
+
+
+def lens_fit(
+    view: dict[str, Any], vertices: np.ndarray, grasp: dict[str, Any], dist: np.ndarray | None
+) -> LensFit:
+    camera = view["camera"]
+    K = np.array(camera["K"])
+    full, visible = view["mask_full"] > 0, view["mask"] > 0
+    height, width = full.shape
+    rvec, tvec = cv2.Rodrigues(np.array(camera["R_m2c"]))[0], np.array(camera["t_m2c"])
+    near = cv2.dilate(full.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    uv = cv2.projectPoints(vertices, rvec, tvec, K, dist)[0].reshape(-1, 2)
+    u, w = np.rint(uv).astype(int).T
+    inside = (u >= 0) & (u < width) & (w >= 0) & (w < height)
+    # Each pixel's ray, undistorted by OpenCV (with K alone: the pixel's own), in the pinhole image.
+    rows, cols = np.indices(full.shape)
+    pixels = np.stack([cols.ravel(), rows.ravel()], axis=-1).reshape(-1, 1, 2).astype(np.float64)
+    xy = cv2.undistortPointsIter(pixels, K, dist, None, None, UNDISTORT).reshape(-1, 2)
+    rays = np.column_stack([xy, np.ones(len(xy))])
+    hull = cv2.convexHull(cv2.projectPoints(vertices, rvec, tvec, K, None)[0].astype(np.float32))
+    silhouette = np.array(
+        [cv2.pointPolygonTest(hull, (float(x), float(y)), False) >= 0 for x, y, _ in rays @ K.T]
+    ).reshape(full.shape)
+    seen = rays.reshape(height, width, 3)[visible] * view["depth"][visible][:, None]
+    R_w2c, t_w2c = np.array(camera["R_w2c"]), np.array(camera["t_w2c"])
+    world = (R_w2c.T @ (seen - t_w2c).T).T
+    return LensFit(
+        on_mask=float(np.mean(near[w[inside], u[inside]])),
+        missed=int(np.count_nonzero(silhouette != full)),
+        outline=int(np.count_nonzero(near & ~full)),
+        shift_px=float(np.linalg.norm(np.argwhere(silhouette).mean(0) - np.argwhere(full).mean(0))),
+        off_surface_m=float(np.median(np.abs(object_distance(grasp, world)))),
+    )
+
+
+def test_a_distorted_views_labels_and_depths_come_from_its_canvas_unblended(lens_views: Path) -> None:
+    """Nearest-neighbour resampling: every label is one the scene has, the masks agree with the
+    segmentation and with the counts recorded, and depth is 0 exactly on the background (a blend
+    would smear depth across its edge)."""
+    for v in range(2):
+        view = load(lens_views, v)
+        assert_valid_view(view, (128, 96))
+        labels = {int(k) for k in view["camera"]["segmentation"]}
+        assert set(np.unique(view["segmentation"])) <= labels
+        assert (view["depth"][view["segmentation"] == 0] == 0).all()
+        assert (view["depth"][view["segmentation"] > 0] > 0).all()
+        assert cv2.imread(str(lens_views / f"v{v:02d}_rgb.png")).shape == (128, 96, 3)
+
+
+def test_a_lens_of_zeros_changes_no_byte(
+    engine: EngineProcess, grasp: dict[str, Any], workdir: Path, views: Path
+) -> None:
+    """`distortion = [0, 0, 0, 0, 0]` is the pinhole of a task without the field: the same files,
+    byte for byte, and no `dist` in the camera record."""
+    out = new_dir(workdir, "lens_zero")
+    view = [{"view_index": 0, "seed": SEEDS[0]}]
+    render(engine, grasp, out, ALL, view, intrinsics_jitter=0.04, distortion=[0.0] * 5)
+    for name in ("rgb.png", *GEOMETRY_FILES, "camera.json"):
+        assert (out / f"v00_{name}").read_bytes() == (views / f"v00_{name}").read_bytes(), name
+    assert "dist" not in json.loads((out / "v00_camera.json").read_text())
+
+
+def test_a_lens_that_cannot_be_inverted_over_the_image_fails_the_task_before_any_view(
+    engine: EngineProcess, grasp: dict[str, Any], workdir: Path
+) -> None:
+    """At 64×64 and 60° the corners lie at radius 0.80; k1 = -0.6 folds the radial map back well
+    inside. Refused (not retryable) before anything renders, naming the parameter and the rule;
+    so is a coefficient out of its bound."""
+    inputs = [grasp["dir"] / "grasps.json", grasp["dir"] / "object.ply"]
+    for name, distortion, expected in (
+        (
+            "folds",
+            [-0.6, 0.0, 0.0, 0.0, 0.0],
+            "params.render.distortion: [-0.6, 0.0, 0.0, 0.0, 0.0] must stay",
+        ),
+        ("bound", [0.0, 0.0, 0.2, 0.0, 0.0], "params.render.distortion[2]: 0.2 is outside [-0.1, 0.1]"),
+    ):
+        out = new_dir(workdir, f"lens_{name}")
+        params = {
+            "grasp_index": grasp["trial"]["grasp_index"],
+            "render": {**RENDER, "distortion": distortion},
+            "views": [{"view_index": 0, "seed": SEEDS[0]}],
+            "outputs": ALL,
+        }
+        reply = engine.task(out.name, params, out, inputs)
+        assert reply["ok"] is False and reply["retryable"] is False, reply
+        assert expected in reply["error"], reply["error"]
+        assert not list(out.iterdir())

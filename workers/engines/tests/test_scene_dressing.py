@@ -16,10 +16,10 @@ import cv2
 import numpy as np
 import pytest
 from conftest import EngineProcess, new_dir, started_engine
-from geometry import signed_distance_to_primitive
+from geometry import distance_to_mesh, signed_distance_to_primitive
 
 from vint_engines.grasp.engine import GraspEngine
-from vint_engines.objects import load_catalog
+from vint_engines.objects import build_model, load_catalog
 from vint_engines.objects.meshio import read_ply_m
 from vint_engines.poses import quat_to_matrix
 from vint_engines.protocol import TaskRequest
@@ -218,7 +218,12 @@ def test_without_the_scene_only_the_hand_and_object_are_labelled(
     view = load(out, 0)
     names = set(view["camera"]["segmentation"].values())
     assert not any(name.startswith(("arm/", "scene/")) for name in names)
-    assert view["camera"]["scene"] == {"table": False, "table_top_z": None, "flange": False}
+    assert view["camera"]["scene"] == {
+        "table": False,
+        "table_top_z": None,
+        "flange": False,
+        "distractors": [],
+    }
     assert int(view["segmentation"].max()) <= 1 + len(grasp["doc"]["hand"]["links"])
 
 
@@ -235,3 +240,57 @@ def test_a_camera_below_the_table_top_sees_no_table(
     assert view["camera"]["scene"]["table"] is False
     table_id = label_ids(view["camera"])["scene/table"]
     assert not np.any(view["segmentation"] == table_id)
+
+
+def test_distractors_stand_on_the_table_clear_of_the_grasp_where_they_are_drawn(
+    engine: EngineProcess, grasp: dict[str, Any], workdir: Path
+) -> None:
+    """Each distractor the record lists, rebuilt from the catalog at its recorded pose: its lowest
+    point on the table top, at least 2 cm from the object's mesh, every hand primitive and the arm
+    pieces; the pixels labelled with it back-project onto its surface."""
+    out = new_dir(workdir, f"bench_{grasp['hand']}")
+    views = [{"view_index": v, "seed": 400 + v} for v in range(3)]
+    scene = {"table": True, "table_gap_m": GAP_M, "flange": True, "distractors": 4}
+    render(engine, grasp, out, views, scene=scene)
+    catalog = load_catalog()
+    first = load(out, 0)["camera"]["scene"]
+    assert len(first["distractors"]) == 4, first
+    assert "tomato_soup_can" not in {d["name"] for d in first["distractors"]}, "never the grasped object"
+    top = first["table_top_z"]
+    vertices, _ = read_ply_m(grasp["dir"] / "object.ply")
+    R_o, t_o = pose(grasp["trial"]["object_pose"])
+    object_points = vertices @ R_o.T + t_o
+    seen = 0
+    for v in range(3):
+        view = load(out, v)
+        camera = view["camera"]
+        assert camera["scene"]["distractors"] == first["distractors"], "one bench for every view of a grasp"
+        ids = label_ids(camera)
+        n = len(grasp["doc"]["hand"]["links"])
+        for i, stand in enumerate(camera["scene"]["distractors"]):
+            assert ids[f"distractor/{stand['name']}"] == 5 + n + i
+            model = build_model(catalog[stand["name"]]).mesh
+            R, t = pose(stand)
+            points = model.vertices @ R.T + t
+            assert abs(points[:, 2].min() - top) < 1e-6, (stand["name"], points[:, 2].min(), top)
+            gaps = [np.min(np.linalg.norm(points[:, None] - object_points[None], axis=2))]
+            for link in grasp["doc"]["hand"]["links"]:
+                R_l, t_l = pose(grasp["trial"]["link_poses"][link["name"]])
+                for geom in link["geoms"]:
+                    R_g = R_l @ quat_to_matrix(np.array(geom["q"]))
+                    local = (points - (R_l @ np.array(geom["p"]) + t_l)) @ R_g
+                    gaps.append(float(signed_distance_to_primitive(local, geom["type"], geom["size"]).min()))
+            for c, a, r, h in arm_cylinders(grasp):
+                gaps.append(
+                    float(signed_distance_to_primitive(to_axis_frame(points, c, a), "cylinder", [r, h]).min())
+                )
+            assert min(gaps) > 0.0199, (stand["name"], min(gaps))
+            pixels = view["segmentation"] == ids[f"distractor/{stand['name']}"]
+            if np.count_nonzero(pixels) > 20:
+                seen += 1
+                off = distance_to_mesh(back_project(view, pixels), points, model.faces)
+                assert np.median(off) < 0.001 and np.percentile(off, 90) < 0.002, (
+                    stand["name"],
+                    np.median(off),
+                )
+    assert seen >= 2, "distractors are seen"

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 
@@ -174,6 +175,24 @@ def test_back_projection_puts_a_fronto_parallel_plane_at_its_depth() -> None:
     # Row-major order, (0, 0) dropped: the first point is pixel (u, v) = (1, 0), (1 - 15.5) / 100 · z
     # to the left of the axis and (0 - 11.5) / 100 · z above it.
     assert np.allclose(points[0], [-14.5 / 100 * 500.0, -11.5 / 100 * 500.0, 500.0])
+
+
+def test_back_projection_of_a_distorted_view_follows_each_pixels_ray_through_its_lens() -> None:
+    """Points back-projected with the record's `dist` project back onto their pixels through K and
+    dist (OpenCV's projection); read as a pinhole they would miss them by pixels."""
+    K = np.array([[60.0, 0.0, 31.5], [0.0, 60.0, 23.5], [0.0, 0.0, 1.0]])
+    dist = [-0.25, 0.05, 0.004, -0.003, 0.01]
+    depth = np.full((48, 64), 0.5, dtype=np.float32)
+    mask = np.ones((48, 64), dtype=bool)
+    points = back_project(depth, mask, K, dist)
+    assert np.allclose(points[:, 2], 500.0)
+    v, u = np.nonzero(mask)
+    uv = cv2.projectPoints(points, np.zeros(3), np.zeros(3), K, np.array(dist))[0].reshape(-1, 2)
+    assert np.abs(uv - np.column_stack([u, v])).max() < 1e-6
+    pinhole = back_project(depth, mask, K, [0.0] * 5)
+    assert np.array_equal(pinhole, back_project(depth, mask, K))
+    corner = cv2.projectPoints(pinhole[:1], np.zeros(3), np.zeros(3), K, np.array(dist))[0].reshape(2)
+    assert np.hypot(*(corner - [0.0, 0.0])) > 2.0
 
 
 def test_taxels_go_from_the_palm_frame_through_the_world_to_the_camera() -> None:

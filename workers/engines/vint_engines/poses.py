@@ -74,3 +74,15 @@ def pose_matrix(p: Sequence[float] | Vec, q: Sequence[float] | Vec) -> Vec:
     t[:3, :3] = quat_to_matrix(q)
     t[:3, 3] = p
     return t
+
+
+def quat_multiply(a: Sequence[float], b: Sequence[float]) -> tuple[float, float, float, float]:
+    """The rotation `b` then `a`, (w, x, y, z) quaternions."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return (
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    )

@@ -38,6 +38,27 @@ pub const OFFCENTRE: Bound<f64> = Bound::new(0.0, 0.9, 0.6);
 /// 1 + N(0, σ), the principal point moved by N(0, σ) of the image's width and height, per view.
 /// 0 (the default) keeps the nominal pinhole: principal point at the centre, `fov_deg`.
 pub const INTRINSICS_JITTER: Bound<f64> = Bound::new(0.0, 0.1, 0.0);
+/// Each radial coefficient of the lens distortion (k1, k2, k3 of OpenCV's Brown–Conrady model).
+/// Real colour cameras sit far inside: the Azure Kinect's colour camera, which its factory
+/// calibrates with OpenCV's rational model, bends like k1 ≈ 0.1 near the axis (one published
+/// unit: k1 = 0.34 over k4 = 0.22), and wide-angle lenses that the five coefficients still
+/// describe reach |k1| ≈ 0.3–0.5; past 1 the polynomial describes no lens over a useful field of
+/// view (fisheyes need another model). Whether a lens is invertible over the image depends on the
+/// field of view too: `radial_reach`.
+pub const DISTORTION_RADIAL: Bound<f64> = Bound::new(-1.0, 1.0, 0.0);
+/// Each tangential (decentring) coefficient, p1 and p2: calibrated lenses give |p| ~ 1e-4–1e-3
+/// (that Azure Kinect unit: below 5e-4); 0.1 is a lens element grossly off its axis.
+pub const DISTORTION_TANGENTIAL: Bound<f64> = Bound::new(-0.1, 0.1, 0.0);
+/// The lens distortion's coefficients in OpenCV's order, [k1, k2, p1, p2, k3], with their bounds.
+pub const DISTORTION: [(&str, Bound<f64>); 5] = [
+    ("k1", DISTORTION_RADIAL),
+    ("k2", DISTORTION_RADIAL),
+    ("p1", DISTORTION_TANGENTIAL),
+    ("p2", DISTORTION_TANGENTIAL),
+    ("k3", DISTORTION_RADIAL),
+];
+/// No distortion: a pinhole (the default; nothing is resampled).
+pub const PINHOLE: [f64; 5] = [0.0; 5];
 /// Each end of the range a sampled view's occlusion must fall in (the share of the object's full
 /// mask the hand and arm hide). Default the paper's: "occlusion by the fingers 10–90 %"
 /// (VinT-6D, §3.3.7). The renderer redraws a view's camera until it lands in range, at most
@@ -51,6 +72,10 @@ pub const DESPECKLE: Bound<f64> = Bound::new(0.0, 1.0, 0.3);
 pub const CLAMP_INDIRECT: Bound<f64> = Bound::new(0.0, 1000.0, 10.0);
 /// The table top's gap below the lowest point of the hand, the object and the arm's flange (m).
 pub const TABLE_GAP_M: Bound<f64> = Bound::new(0.0, 1.0, 0.05);
+/// Catalog objects standing on the table around the grasp (0: none). At most 8: a 1.6 × 1.0 m top
+/// around a grasp holds about that many household objects with 2 cm between them, and each is an
+/// object in every view's segmentation and RGB scene.
+pub const DISTRACTORS: Bound<u32> = Bound::new(0, 8, 0);
 /// The light's per-view strength spread (standard deviation, EV; 0: the environment's own).
 pub const STRENGTH_EV_SIGMA: Bound<f64> = Bound::new(0.0, 3.0, 0.0);
 /// The light's per-view turn about world +z, uniform within ± this (degrees; 0: none).
@@ -143,6 +168,11 @@ pub struct Settings {
     /// Per-view spread of the focal length and principal point (σ, fraction; 0: nominal).
     #[schemars(range(min = INTRINSICS_JITTER.min, max = INTRINSICS_JITTER.max))]
     pub intrinsics_jitter: f64,
+    /// Lens distortion, OpenCV's [k1, k2, p1, p2, k3]; all 0 (the default) is a pinhole. Left out
+    /// of the parameters when 0, so a pinhole task's parameters are what they were before it.
+    #[serde(skip_serializing_if = "is_pinhole")]
+    #[schemars(schema_with = "distortion_schema")]
+    pub distortion: [f64; 5],
     /// The range a sampled view's occlusion must fall in, [min, max] (min ≤ max): its camera is
     /// redrawn (seeded, bounded) until it does. A view with an explicit camera is not redrawn.
     #[schemars(inner(range(min = OCCLUSION.min, max = OCCLUSION.max)))]
@@ -242,12 +272,21 @@ pub struct Scene {
     pub table_gap_m: f64,
     /// The robot arm's flange and last link at the hand's wrist.
     pub flange: bool,
+    /// Catalog objects standing on the table around the grasp (needs the table). Left out of the
+    /// task parameters when 0, so a task without them is the one planned before they existed.
+    #[serde(skip_serializing_if = "is_zero")]
+    #[schemars(range(min = DISTRACTORS.min, max = DISTRACTORS.max), extend("default" = 0))]
+    pub distractors: u32,
 }
 
 impl Default for Scene {
     fn default() -> Scene {
-        Scene { table: true, table_gap_m: TABLE_GAP_M.default, flange: true }
+        Scene { table: true, table_gap_m: TABLE_GAP_M.default, flange: true, distractors: DISTRACTORS.default }
     }
+}
+
+fn is_zero(count: &u32) -> bool {
+    *count == 0
 }
 
 impl Default for Settings {
@@ -268,6 +307,7 @@ impl Default for Settings {
             roll_deg: ROLL_DEG_DEFAULT,
             offcentre: OFFCENTRE.default,
             intrinsics_jitter: INTRINSICS_JITTER.default,
+            distortion: PINHOLE,
             occlusion: OCCLUSION_DEFAULT,
             palm_side: PalmSide::default(),
             scene: Scene::default(),
@@ -276,6 +316,65 @@ impl Default for Settings {
         }
     }
 }
+
+fn is_pinhole(distortion: &[f64; 5]) -> bool {
+    *distortion == PINHOLE
+}
+
+/// `distortion`'s schema: five numbers, each within its own coefficient's bound, by default a
+/// pinhole's (written here: a field skipped when at its default gets none from schemars).
+fn distortion_schema(_: &mut schemars::SchemaGenerator) -> schemars::Schema {
+    let items: Vec<serde_json::Value> = DISTORTION
+        .iter()
+        .map(|(name, b)| {
+            serde_json::json!({"title": name, "type": "number", "format": "double", "minimum": b.min, "maximum": b.max})
+        })
+        .collect();
+    schemars::json_schema!({
+        "type": "array",
+        "prefixItems": items,
+        "items": false,
+        "minItems": DISTORTION.len(),
+        "maxItems": DISTORTION.len(),
+        "default": PINHOLE,
+    })
+}
+
+/// How far out a lens stays invertible: the largest distorted radius (normalised image
+/// coordinates, |(x, y)| / z) its radial map r ↦ r·(1 + k1·r² + k2·r⁴ + k3·r⁶) reaches while its
+/// slope stays at least `MIN_RADIAL_SLOPE`, looking no further than `out_to` (returned when the
+/// map gets there). A view is resampled only from a lens whose reach covers the image's corners;
+/// the spec checks the nominal intrinsics with this, the renderer each view's own
+/// (`vint_engines/render/lens.py`, tangential terms included).
+pub fn radial_reach(distortion: &[f64; 5], out_to: f64) -> f64 {
+    let [k1, k2, _, _, k3] = *distortion;
+    let radius = |r: f64| r * (1.0 + r * r * (k1 + r * r * (k2 + r * r * k3)));
+    let slope = |r: f64| 1.0 + r * r * (3.0 * k1 + r * r * (5.0 * k2 + r * r * 7.0 * k3));
+    // While the slope stays above MIN_RADIAL_SLOPE the map passes `out_to` before
+    // r = out_to / MIN_RADIAL_SLOPE: a bounded walk, in steps fine enough for a degree-6 slope.
+    if !(out_to > 0.0 && out_to.is_finite()) {
+        return out_to;
+    }
+    let step = out_to / RADIAL_STEPS;
+    let mut r = 0.0;
+    while r <= out_to / MIN_RADIAL_SLOPE {
+        if slope(r) < MIN_RADIAL_SLOPE {
+            return radius(r).min(out_to);
+        }
+        if radius(r) >= out_to {
+            break;
+        }
+        r += step;
+    }
+    out_to
+}
+
+/// The least slope of a lens's radial map over the image (`radial_reach`): 0 is where the map
+/// folds back (no longer invertible); above it, a distorted pixel stands for at most
+/// 1 / `MIN_RADIAL_SLOPE` undistorted ones along a radius, so the pinhole canvas a view is
+/// resampled from stays within a few times the image and its corners keep detail to resample.
+pub const MIN_RADIAL_SLOPE: f64 = 0.2;
+const RADIAL_STEPS: f64 = 4096.0;
 
 /// Cycles' light-path caps (Cycles' defaults); volume bounces are always 0.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
@@ -447,5 +546,30 @@ mod tests {
             [ViewFile::Camera, ViewFile::Rgb, ViewFile::Mask, ViewFile::MaskFull]
         );
         assert_eq!(view_files(&RenderOutput::all()).len(), 6, "what the tiny run's render tasks write per view");
+    }
+
+    #[test]
+    fn a_pinhole_task_leaves_distortion_out_of_its_parameters_and_reads_back_a_pinhole() {
+        let pinhole = serde_json::to_value(Settings::default()).expect("serializes");
+        assert!(pinhole.get("distortion").is_none(), "the parameters of a pinhole task are as before");
+        let back: Settings = serde_json::from_value(pinhole).expect("deserializes");
+        assert_eq!(back.distortion, PINHOLE);
+        let lens = Settings { distortion: [-0.2, 0.05, 0.001, 0.0, 0.0], ..Settings::default() };
+        let written = serde_json::to_value(&lens).expect("serializes");
+        assert_eq!(written["distortion"], serde_json::json!([-0.2, 0.05, 0.001, 0.0, 0.0]));
+    }
+
+    #[test]
+    fn a_lens_reaches_as_far_as_its_radial_map_keeps_growing() {
+        assert_eq!(radial_reach(&PINHOLE, 0.72), 0.72);
+        assert_eq!(radial_reach(&[0.5, 0.2, 0.1, -0.1, 0.1], 3.0), 3.0, "pincushion never folds");
+        // k1 = -0.3: slope 1 - 0.9 r² reaches MIN_RADIAL_SLOPE at r = 0.943, where the map is at
+        // 0.691 — short of a 640×480 60° image's corners (0.722), beyond a 50° one's (0.583).
+        let barrel = [-0.3, 0.0, 0.0, 0.0, 0.0];
+        let reach = radial_reach(&barrel, 0.722);
+        assert!((reach - 0.6914).abs() < 1e-3, "{reach}");
+        assert_eq!(radial_reach(&barrel, 0.583), 0.583);
+        // k2 > 0 straightens it out again.
+        assert_eq!(radial_reach(&[-0.3, 0.1, 0.0, 0.0, 0.0], 0.722), 0.722);
     }
 }

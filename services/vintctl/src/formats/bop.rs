@@ -441,6 +441,9 @@ fn write_image(
 /// The camera of one view, from `meta.json`'s `camera` (metres, OpenCV).
 struct View {
     k: Mat3,
+    /// OpenCV's lens distortion [k1, k2, p1, p2, k3] of a distorted view (the record's `dist`);
+    /// `None` for a pinhole (no `dist`, or all zero).
+    dist: Option<[f64; 5]>,
     width: usize,
     height: usize,
     world_to_camera: Rigid,
@@ -451,8 +454,16 @@ impl View {
     fn of(camera: &Value) -> anyhow::Result<View> {
         let size =
             |key: &str| camera[key].as_u64().and_then(|v| usize::try_from(v).ok()).ok_or_else(|| anyhow!("no {key}"));
+        let dist = match camera.get("dist") {
+            None => None,
+            Some(value) => {
+                let v = numbers(value, 5).ok_or_else(|| anyhow!("dist: expected 5 numbers, found {value}"))?;
+                Some([v[0], v[1], v[2], v[3], v[4]]).filter(|d| d.iter().any(|&k| k != 0.0))
+            }
+        };
         Ok(View {
             k: mat3(&camera["K"]).context("K")?,
+            dist,
             width: size("width")?,
             height: size("height")?,
             world_to_camera: Rigid {
@@ -466,15 +477,22 @@ impl View {
         })
     }
 
+    /// BOP's camera record. BOP has no lens distortion: a distorted view adds `cam_dist`
+    /// (OpenCV's order, as the native `dist`), a key BOP's own tools pass over and which
+    /// `cam_K` alone does not describe (`docs/formats.md`).
     fn scene_camera(&self) -> Value {
-        json!({
+        let mut camera = json!({
             "cam_K": row_major(&self.k).map(|v| round(v, UNIT_DECIMALS)),
             "cam_R_w2c": row_major(&self.world_to_camera.r).map(|v| round(v, UNIT_DECIMALS)),
             "cam_t_w2c": self.world_to_camera.t.map(mm),
             "depth_scale": DEPTH_SCALE_MM,
             "width": self.width,
             "height": self.height,
-        })
+        });
+        if let Some(dist) = self.dist {
+            camera["cam_dist"] = json!(dist.map(|v| round(v, UNIT_DECIMALS)));
+        }
+        camera
     }
 }
 
@@ -744,6 +762,25 @@ mod tests {
         assert_eq!(written["cam_t_w2c"], json!([10.0, 0.0, 500.0]));
         assert_eq!(written["depth_scale"], 0.1);
         assert_eq!((view.width, view.height), (128, 96));
+        assert!(written.get("cam_dist").is_none(), "a pinhole's record is BOP's own");
         assert!(View::of(&json!({"K": [[1.0, 0.0]]})).is_err());
+    }
+
+    #[test]
+    fn a_distorted_view_adds_its_lens_as_cam_dist_and_a_zero_lens_adds_nothing() {
+        let mut camera = json!({
+            "K": [[100.0, 0.0, 63.5], [0.0, 100.0, 47.5], [0.0, 0.0, 1.0]], "width": 128, "height": 96,
+            "R_w2c": [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], "t_w2c": [0.0, 0.0, 0.5],
+            "R_m2c": [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], "t_m2c": [0.0, 0.0, 0.5],
+            "dist": [-0.2, 0.05, 0.001, -0.002, 0.01],
+        });
+        let written = View::of(&camera).expect("view").scene_camera();
+        assert_eq!(written["cam_dist"], json!([-0.2, 0.05, 0.001, -0.002, 0.01]));
+        assert_eq!(written["cam_K"], json!([100.0, 0.0, 63.5, 0.0, 100.0, 47.5, 0.0, 0.0, 1.0]));
+        camera["dist"] = json!([0.0, 0.0, 0.0, 0.0, 0.0]);
+        assert!(View::of(&camera).expect("view").scene_camera().get("cam_dist").is_none());
+        camera["dist"] = json!([0.1, 0.0]);
+        let error = View::of(&camera).err().expect("a short dist is refused");
+        assert!(error.to_string().contains("dist: expected 5 numbers"), "{error}");
     }
 }

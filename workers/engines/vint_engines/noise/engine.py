@@ -16,6 +16,7 @@ from vint_engines import __version__, contract
 from vint_engines.noise.geometry import Intrinsics
 from vint_engines.noise.model import NoiseModel, Surfaces
 from vint_engines.protocol import BadInput, Json, TaskRequest, TaskResult
+from vint_engines.render import lens
 
 
 class NoiseEngine:
@@ -92,7 +93,8 @@ def load_segmentation(path: Path) -> np.ndarray:
 
 
 def intrinsics(camera: Json, shape: tuple[int, ...], prefix: str) -> Intrinsics:
-    """The pinhole intrinsics of `camera`'s `K`, checked against the depth map's size."""
+    """The intrinsics of `camera`'s `K`, checked against the depth map's size, with each pixel's
+    ray through the lens when the record has a non-zero `dist` (OpenCV's [k1, k2, p1, p2, k3])."""
     try:
         K = np.asarray(camera["K"], dtype=np.float64)
         width, height = int(camera["width"]), int(camera["height"])
@@ -104,7 +106,24 @@ def intrinsics(camera: Json, shape: tuple[int, ...], prefix: str) -> Intrinsics:
         raise BadInput(
             f"{prefix}_camera.json: {width}×{height} does not match the depth map's {shape[1]}×{shape[0]}"
         )
-    return Intrinsics(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]))
+    fx, fy, cx, cy = float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
+    dist = camera.get("dist")
+    if dist is None:
+        return Intrinsics(fx, fy, cx, cy)
+    try:
+        coefficients = np.asarray(dist, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise BadInput(f"{prefix}_camera.json: dist must be 5 numbers [k1, k2, p1, p2, k3]: {exc}") from exc
+    if coefficients.shape != (5,) or not np.isfinite(coefficients).all():
+        raise BadInput(f"{prefix}_camera.json: dist must be 5 finite numbers [k1, k2, p1, p2, k3]")
+    if not coefficients.any():
+        return Intrinsics(fx, fy, cx, cy)
+    rows, cols = np.indices((height, width), dtype=np.float64)
+    try:
+        xy = lens.rays(np.column_stack([cols.ravel(), rows.ravel()]), K, coefficients.tolist())
+    except lens.NotInvertible as exc:
+        raise BadInput(f"{prefix}_camera.json: dist {coefficients.tolist()} does not invert: {exc}") from exc
+    return Intrinsics(fx, fy, cx, cy, rays=(xy[:, 0].reshape(height, width), xy[:, 1].reshape(height, width)))
 
 
 def segment_materials(camera: Json, prefix: str) -> dict[int, str]:

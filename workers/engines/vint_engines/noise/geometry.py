@@ -3,7 +3,7 @@ with the camera's intrinsics) and the concavity of the surface around each pixel
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -15,12 +15,15 @@ Mask = npt.NDArray[np.bool_]
 
 @dataclass(frozen=True)
 class Intrinsics:
-    """A pinhole camera: K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (OpenCV, docs/rendering.md)."""
+    """A camera: K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (OpenCV, docs/rendering.md) and, for a
+    view with lens distortion, each pixel's ray through the lens: `rays` = (X/Z, Y/Z), H×W each,
+    in place of the pinhole's ((u - cx) / fx, (v - cy) / fy)."""
 
     fx: float
     fy: float
     cx: float
     cy: float
+    rays: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None = field(default=None, compare=False)
 
 
 def cos_incidence(depth: Image, valid: Mask, k: Intrinsics) -> Image:
@@ -29,10 +32,14 @@ def cos_incidence(depth: Image, valid: Mask, k: Intrinsics) -> Image:
     depth step is smaller (so a depth edge does not tilt the surfaces beside it). A pixel without a
     valid neighbour along an axis gets 1 (nothing to estimate from)."""
     h, w = depth.shape
-    u = (np.arange(w, dtype=np.float32) - np.float32(k.cx)) / np.float32(k.fx)
-    v = (np.arange(h, dtype=np.float32) - np.float32(k.cy)) / np.float32(k.fy)
-    x = depth * u[None, :]
-    y = depth * v[:, None]
+    if k.rays is None:
+        u = (np.arange(w, dtype=np.float32) - np.float32(k.cx)) / np.float32(k.fx)
+        v = (np.arange(h, dtype=np.float32) - np.float32(k.cy)) / np.float32(k.fy)
+        x = depth * u[None, :]
+        y = depth * v[:, None]
+    else:
+        x = depth * k.rays[0].astype(np.float32)
+        y = depth * k.rays[1].astype(np.float32)
     points = np.stack([x, y, depth], axis=-1)
     du = _one_sided_difference(points, valid, axis=1)
     dv = _one_sided_difference(points, valid, axis=0)

@@ -61,8 +61,12 @@ def seen_by_tof(depth: Depth, valid: Mask, k: Intrinsics, mode: Mode, baseline_m
     z = depth[rows, cols].astype(np.float64)
     # The point in the ToF's frame: shifted by the baseline along x, turned by the tilt about x
     # (the ToF looks 6° further down: its optical axis is the colour's turned towards +y).
-    x = (cols - k.cx) / k.fx * z - baseline_m
-    y = (rows - k.cy) / k.fy * z
+    if k.rays is None:
+        x = (cols - k.cx) / k.fx * z - baseline_m
+        y = (rows - k.cy) / k.fy * z
+    else:  # a distorted view: each pixel's own ray
+        x = k.rays[0][rows, cols] * z - baseline_m
+        y = k.rays[1][rows, cols] * z
     cos_t, sin_t = math.cos(math.radians(TILT_DEG)), math.sin(math.radians(TILT_DEG))
     y_tof = cos_t * y - sin_t * z
     z_tof = sin_t * y + cos_t * z

@@ -1,5 +1,6 @@
 """Where a grasp's taxels fall in a view: the camera of the sample's `meta.json` (OpenCV: `K`,
-`R_w2c`, `t_w2c`; `docs/rendering.md`) applied to the grasp record's taxels.
+`R_w2c`, `t_w2c`, and `dist` when the view has a distorted lens; `docs/rendering.md`) applied to
+the grasp record's taxels.
 
 Active taxels come from `grasp.json`'s `touch.active` (position in the palm frame, reading), taken
 into the world by the palm's pose `trial.hand_pose`: `p_cam = R_w2c (R_palm p_palm + t_palm) +
@@ -12,10 +13,11 @@ by `trial.link_poses`. A hand brought by a spec has no catalog file here, and ge
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 import numpy.typing as npt
 
@@ -30,13 +32,16 @@ SEEN_WITHIN_M = 0.004  # a taxel this far behind the surface its pixel shows sti
 
 @dataclass(frozen=True)
 class Camera:
-    """A view's pinhole camera: pixel (u, v) centred on integer coordinates (`docs/rendering.md`)."""
+    """A view's camera: pixel (u, v) centred on integer coordinates, OpenCV's lens distortion
+    `dist` ([k1, k2, p1, p2, k3]; all 0, as a record without it says: a pinhole;
+    `docs/rendering.md`)."""
 
     K: Array  # (3, 3)
     R_w2c: Array  # (3, 3)
     t_w2c: Array  # (3,)
     width: int
     height: int
+    dist: Array = field(default_factory=lambda: np.zeros(5))  # (5,)
 
     @staticmethod
     def from_record(camera: dict[str, Any]) -> Camera:
@@ -47,12 +52,17 @@ class Camera:
             t_w2c=np.asarray(camera["t_w2c"], dtype=np.float64).reshape(3),
             width=int(camera["width"]),
             height=int(camera["height"]),
+            dist=np.asarray(camera.get("dist", [0.0] * 5), dtype=np.float64).reshape(5),
         )
 
     def project(self, points_world: Array) -> tuple[Array, Array]:
-        """Pixel coordinates (n, 2) and camera-frame depth z (n,) of world points (n, 3)."""
+        """Pixel coordinates (n, 2) and camera-frame depth z (n,) of world points (n, 3); a point
+        behind the camera (z ≤ 0) gets a pixel no caller draws."""
         p_cam = points_world @ self.R_w2c.T + self.t_w2c
         z = p_cam[:, 2]
+        if np.any(self.dist) and len(p_cam):
+            uv, _ = cv2.projectPoints(p_cam.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), self.K, self.dist)
+            return uv.reshape(-1, 2), z
         with np.errstate(divide="ignore", invalid="ignore"):
             uvw = p_cam @ self.K.T
             uv = uvw[:, :2] / uvw[:, 2:3]

@@ -64,11 +64,12 @@ class Intrinsics:
         )
 
     def blender_shift(self) -> tuple[float, float]:
-        """Blender's camera shift (fractions of the larger image side) that puts the principal
-        point at `principal_point`: a shift to the right moves the optical axis's image left, a
-        shift up moves it down (image v grows downwards)."""
-        side = max(self.width, self.height)
-        return -self.offset_px[0] / side, self.offset_px[1] / side
+        """Blender's camera shift that puts the principal point at `principal_point`: a shift to
+        the right moves the optical axis's image left, a shift up moves it down (image v grows
+        downwards). Shifts are fractions of the sensor's fitted side, the image width (the
+        camera's `sensor_fit` is horizontal, `scene.py`) — also for a taller than wide image,
+        such as a distorted view's canvas (`lens.py`)."""
+        return -self.offset_px[0] / self.width, self.offset_px[1] / self.width
 
     @property
     def angle_rad(self) -> float:

@@ -89,6 +89,7 @@ class SceneDressing:
     table: bool = True
     table_gap_m: float = 0.05
     flange: bool = True
+    distractors: int = 0  # catalog objects standing on the table around the grasp (`clutter.py`)
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,9 @@ sampled with the view's seed (or given by the view): always the geometry passes 
 indices, the object's full mask; no path tracing) — for a sampled camera once per attempt, redrawn
 until the hand's occlusion of the object is within `render.occlusion` (`viewpoint.py`) —, and the
 path-traced RGB image under the view's environment only when `rgb` is requested (once per view,
-for the chosen camera), with bounce caps pruned to what the materials can use.
+for the chosen camera), with bounce caps pruned to what the materials can use. A view with lens
+distortion renders a pinhole canvas and resamples every image into its distorted camera
+(`lens.py`), the geometry passes within each attempt.
 Views are rendered grouped by environment, starting with the one already loaded (every view's
 output depends on its own parameters only, so the order changes no pixel). An environment is a
 bundled HDRI or a user's file staged with the task (`params.assets`), known by its SHA-256.
@@ -33,23 +35,25 @@ import pyoidn
 
 from vint_engines import __version__, contract
 from vint_engines.assets import StagedAsset, asset_file, staged_assets
-from vint_engines.objects import MODEL_FILE, ObjectSpec
+from vint_engines.objects import MODEL_FILE, ObjectSpec, build_model, load_catalog
 from vint_engines.objects.spec import MeshFile
 from vint_engines.objects.textured import MeshSource
 from vint_engines.poses import quat_to_matrix, read_pose
 from vint_engines.protocol import BadInput, Json, TaskRequest, TaskResult
-from vint_engines.render import cpus, lighting, viewpoint
+from vint_engines.render import clutter, cpus, dressing, lighting, viewpoint
 from vint_engines.render.camera import CameraPose, Intrinsics, framed, look_at, sample_on_hemisphere
 from vint_engines.render.cycles import Bounces, PathTracing, render_threads
 from vint_engines.render.denoise import Denoiser
 from vint_engines.render.dressing import SceneDressing
 from vint_engines.render.fireflies import despeckle
+from vint_engines.render.lens import Distortion, Lens, check_lens, is_pinhole, view_lens
 from vint_engines.render.scene import OBJECT_PASS_INDEX, BlenderScene, Geometry, Hdri, Radiance, environments
 from vint_engines.render.sensor import SensorModel, capture, encode_srgb8
 from vint_engines.render.viewpoint import Palm, Viewpoint, ViewpointRule, attempt_rng, occlusion_share
 
 GRASPS_INPUT = "grasps.json"
 INTRINSICS_STREAM = 0x1C  # appended to the view's seed: the intrinsics jitter's own random stream
+DISTORTION_FIELD = "params.render.distortion"
 SIDECAR_SUFFIXES = (".mtl", ".png", ".jpg", ".jpeg", ".bin")  # vint_core::asset::SIDECAR_EXTENSIONS
 
 
@@ -68,6 +72,7 @@ class RenderSettings:
     offcentre: float
     despeckle: float
     intrinsics_jitter: float
+    distortion: Distortion  # OpenCV's [k1, k2, p1, p2, k3]; all 0: a pinhole
     scene: SceneDressing
     sensor: SensorModel
     light: lighting.LightJitter
@@ -83,6 +88,11 @@ class RenderSettings:
         low, high = fields["light"]["temperature_k"]
         if low > high:
             raise BadInput(f"{where}.light.temperature_k: min {low} exceeds max {high}")
+        if fields["scene"]["distractors"] > 0 and not fields["scene"]["table"]:
+            raise BadInput(
+                f"{where}.scene.distractors: {fields['scene']['distractors']} needs a table to stand "
+                "on (scene.table = true)"
+            )
         return RenderSettings(
             intrinsics=Intrinsics(width=fields["width"], height=fields["height"], fov_deg=fields["fov_deg"]),
             tracing=PathTracing(
@@ -99,10 +109,12 @@ class RenderSettings:
             offcentre=float(fields["offcentre"]),
             despeckle=float(fields["despeckle"]),
             intrinsics_jitter=float(fields["intrinsics_jitter"]),
+            distortion=distortion_param(fields["distortion"]),
             scene=SceneDressing(
                 table=bool(fields["scene"]["table"]),
                 table_gap_m=float(fields["scene"]["table_gap_m"]),
                 flange=bool(fields["scene"]["flange"]),
+                distractors=int(fields["scene"]["distractors"]),
             ),
             sensor=SensorModel.from_fields(fields["sensor"]),
             light=lighting.LightJitter.from_fields(fields["light"]),
@@ -246,6 +258,7 @@ class RenderEngine:
             self.scene = BlenderScene(self.scratch)
             self.denoiser = Denoiser(self.scene.threads)
             self._warm_up()
+        self._footprints: dict[str, clutter.Footprint] = {}  # catalog name → how it rests
 
     def hello(self) -> Json:
         return {
@@ -279,6 +292,10 @@ class RenderEngine:
             render.grasp_index,
             render.views,
         )
+        for view in views:  # a lens that cannot be inverted fails the task before any view renders
+            check_lens(
+                view_intrinsics(view.seed, settings), settings.distortion, DISTORTION_FIELD, whose(view)
+            )
         assets = staged_assets(task)
         render.check_assets(task.params, assets)
         grasps = load_grasps(task.input_path(GRASPS_INPUT))
@@ -297,6 +314,7 @@ class RenderEngine:
         object_radius = self.scene.object_radius()
         links = {name: read_pose(pose, f"link_poses.{name}") for name, pose in trial["link_poses"].items()}
         self.scene.pose(object_pose, links)
+        self.scene.set_distractors(self._bench(settings.scene, trial, grasps["object"], object_pose[0]))
         palm = palm_of(links)
         if settings.viewpoint.palm_side == "front" and palm is None:
             raise BadInput(
@@ -318,7 +336,8 @@ class RenderEngine:
         for view in self._render_order(views):
             started = time.perf_counter()
             intrinsics = view_intrinsics(view.seed, settings)
-            chosen = self._viewpoint(view, intrinsics, settings, object_pose[0], object_radius, palm)
+            lens = view_lens(intrinsics, settings.distortion, DISTORTION_FIELD, whose(view))
+            chosen = self._viewpoint(view, intrinsics, lens, settings, object_pose[0], object_radius, palm)
             camera, geometry = chosen.camera, chosen.geometry
             attempts += chosen.attempts
             renders += chosen.renders
@@ -333,6 +352,8 @@ class RenderEngine:
                 lights[view.index] = light
                 self.scene.set_environment(hdris[environment], light.rotation_deg, light.strength, light.tint)
                 light_in = self.light_in(self.scene.render_rgb(tracing, view.seed))
+                if lens is not None:  # the denoised canvas; the sensor's noise is per distorted pixel
+                    light_in = lens.light(light_in)
                 # The sensor first, then the filter: the sensor's gains could lift a pixel just under
                 # the threshold over it (a camera's defect-pixel correction also runs last).
                 captured, sensors[view.index] = capture(light_in, settings.sensor, view.seed)
@@ -347,6 +368,7 @@ class RenderEngine:
                 chosen.record(settings.viewpoint),
                 camera,
                 intrinsics,
+                settings.distortion,
                 outputs,
                 object_pose,
                 geometry,
@@ -375,21 +397,61 @@ class RenderEngine:
         )
         return result
 
+    def _bench(
+        self,
+        scene: dressing.SceneDressing,
+        trial: Mapping[str, Any],
+        grasped: Mapping[str, Any],
+        centre: np.ndarray,
+    ) -> list[tuple[clutter.Placed, ObjectSpec]]:
+        """The catalog objects standing on the table around this grasp (`clutter.py`): the
+        layout drawn from the trial's seed, so all its views (from any worker) share it."""
+        top = self.scene.table_top_z
+        if scene.distractors == 0 or top is None:
+            return []
+        catalog = load_catalog()
+        names = sorted(name for name in catalog if name != grasped.get("name"))
+
+        def footprint(name: str) -> clutter.Footprint:
+            if name not in self._footprints:
+                rest = build_model(catalog[name], where=f"catalog object {name!r}").rest
+                self._footprints[name] = clutter.Footprint(rest.quat, rest.height, rest.radius)
+            return self._footprints[name]
+
+        seed = trial.get("seed")
+        if not isinstance(seed, int):
+            raise BadInput(f"{GRASPS_INPUT}: trial {trial.get('grasp_index')} has no integer seed")
+        placed = clutter.place(
+            seed,
+            names,
+            footprint,
+            scene.distractors,
+            (float(centre[0]), float(centre[1])),
+            self.scene.grasp_reach(),
+            top,
+            (dressing.TABLE_SIZE_M[0] / 2, dressing.TABLE_SIZE_M[1] / 2),
+        )
+        return [(stand, catalog[stand.name]) for stand in placed]
+
     def _viewpoint(
         self,
         view: RenderView,
         intrinsics: Intrinsics,
+        lens: Lens | None,
         settings: RenderSettings,
         target: np.ndarray,
         object_radius: float,
         palm: Palm | None,
     ) -> Viewpoint[Geometry]:
         """The view's camera (given, or drawn until it meets the spec's viewpoint rules) with its
-        geometry passes rendered and placed, ready for the RGB render."""
+        geometry passes rendered and placed, ready for the RGB render. With a `lens`, Cycles
+        renders its pinhole canvas and each attempt is measured on the distorted images the files
+        will hold."""
+        rendered = intrinsics if lens is None else lens.canvas
 
         def measure(camera: CameraPose) -> tuple[Geometry, float]:
-            self.scene.place_camera(camera, intrinsics)
-            geometry = self.scene.render_geometry()
+            self.scene.place_camera(camera, rendered)
+            geometry = through_lens(self.scene.render_geometry(), lens)
             return geometry, geometry_occlusion(geometry)
 
         def draw(attempt: int) -> CameraPose:
@@ -399,7 +461,7 @@ class RenderEngine:
         if view.camera is not None:
             return viewpoint.given(view.camera, measure, settings.viewpoint, palm)
         chosen = viewpoint.search(draw, measure, settings.viewpoint, palm)
-        self.scene.place_camera(chosen.camera, intrinsics)  # the RGB render uses the chosen one
+        self.scene.place_camera(chosen.camera, rendered)  # the RGB render uses the chosen one
         return chosen
 
     def light_in(self, radiance: Radiance) -> np.ndarray:
@@ -432,6 +494,7 @@ class RenderEngine:
         viewpoint_record: dict[str, Any],
         camera: CameraPose,
         intrinsics: Intrinsics,
+        distortion: Distortion,
         outputs: frozenset[str],
         object_pose: tuple[np.ndarray, np.ndarray],
         geometry: Geometry,
@@ -461,6 +524,7 @@ class RenderEngine:
         full_px = int(np.count_nonzero(geometry.object_full | visible))
         record = {
             "K": intrinsics.matrix().tolist(),
+            **({} if is_pinhole(distortion) else {"dist": list(distortion)}),
             "width": intrinsics.width,
             "height": intrinsics.height,
             "R_w2c": camera.R_w2c.tolist(),
@@ -478,6 +542,7 @@ class RenderEngine:
                 "table": self.scene.table_shown(),
                 "table_top_z": self.scene.table_top_z if self.scene.table_shown() else None,
                 "flange": "arm/flange" in labels.values(),
+                "distractors": [stand.to_json() for stand in self.scene.distractors_shown()],
             },
         }
         if sensor is not None:
@@ -488,6 +553,25 @@ class RenderEngine:
         path.write_text(json.dumps(record, indent=1))
         result.add(path, "application/json")
         return float(record["occlusion"])
+
+
+def distortion_param(coefficients: list[float]) -> Distortion:
+    """`render.distortion` (checked against the contract: five bounded numbers)."""
+    k1, k2, p1, p2, k3 = (float(k) for k in coefficients)
+    return k1, k2, p1, p2, k3
+
+
+def whose(view: RenderView) -> str:
+    """Whose intrinsics a lens error speaks of."""
+    return f"view {view.index}'s intrinsics"
+
+
+def through_lens(geometry: Geometry, lens: Lens | None) -> Geometry:
+    """A view's geometry passes as its image holds them: a pinhole's as rendered, a distorted
+    view's resampled from its canvas by nearest neighbour (no depth or label is blended)."""
+    if lens is None:
+        return geometry
+    return Geometry(**{name: lens.nearest(pixels) for name, pixels in vars(geometry).items()})
 
 
 def view_intrinsics(seed: int, settings: RenderSettings) -> Intrinsics:

@@ -44,7 +44,7 @@ from vint_engines.objects.meshio import read_ply_m
 from vint_engines.objects.textured import MeshSource, SurfaceLook
 from vint_engines.poses import pose_matrix
 from vint_engines.protocol import BadInput
-from vint_engines.render import cycles, dressing, materials, meshes
+from vint_engines.render import clutter, cycles, dressing, materials, meshes
 from vint_engines.render.camera import CameraPose, Intrinsics
 from vint_engines.render.cycles import PathTracing
 from vint_engines.render.passes import (
@@ -58,7 +58,7 @@ from vint_engines.render.passes import (
 OBJECT_PASS_INDEX = 1
 FIRST_LINK_PASS_INDEX = 2  # link k of the hand (in grasps.json order) has pass index 2 + k;
 # after the n links: the arm's flange (2 + n) and last link (3 + n), then the table (4 + n)
-# (`dressing.py`), each labelled only while the task shows it.
+# (`dressing.py`), then distractor i (5 + n + i, `clutter.py`), each labelled only while shown.
 HAND_MATERIAL_TAG = dressing.HAND_MATERIAL_TAG
 RGB_PREFIX = "rgb_"
 RGB_PASSES = ("image",)  # the path-traced image, linear
@@ -164,6 +164,10 @@ class BlenderScene:
         self.dressing = dressing.SceneDressing()
         self._table = self._add_table()
         self.table_top_z: float | None = None
+        # Distractors: a pool of objects, shown while a grasp stands that many (`set_distractors`).
+        self._distractors: list[bpy.types.Object] = []
+        self._distractor_meshes: dict[str, tuple[ObjectSpec, bpy.types.Mesh]] = {}  # by catalog name
+        self._standing: list[tuple[clutter.Placed, ObjectSpec]] = []
 
     def _configure_geometry(self) -> None:
         """Both geometry scenes: no path tracing, and one flat material for every surface, so no
@@ -354,6 +358,8 @@ class BlenderScene:
                 piece = self._add_object(mesh, (self._arm_materials[name],), first + i)
                 self._arm[name] = (piece, mount.link)
         self._table.pass_index = self._table_pass_index()
+        for i, obj in enumerate(self._distractors):
+            obj.pass_index = self._table_pass_index() + 1 + i
         self._hand_key = key
 
     def set_object(
@@ -425,6 +431,47 @@ class BlenderScene:
         """What of the scene around the grasp the next `pose` shows."""
         self.dressing = dressing_
 
+    def grasp_reach(self) -> float:
+        """How far the shown object, hand and arm pieces reach horizontally from the object's
+        centre (m): the radius of the grasp's footprint."""
+        assert self._object is not None
+        centre = np.asarray(self._object.matrix_world, dtype=np.float64)[:2, 3]
+        shown = [self._object, *self._links.values()]
+        if self.dressing.flange:
+            shown += [piece for piece, _ in self._arm.values()]
+        reach = 0.0
+        for obj in shown:
+            points = _world_vertices(obj)
+            if len(points):
+                reach = max(reach, float(np.linalg.norm(points[:, :2] - centre, axis=1).max()))
+        return reach
+
+    def set_distractors(self, standing: Sequence[tuple[clutter.Placed, ObjectSpec]]) -> None:
+        """Stand these catalog objects where `clutter.place` put them (none hides them all); each
+        keeps its mesh by name, its material made when an RGB view first shows it."""
+        while len(self._distractors) < len(standing):
+            mesh = bpy.data.meshes.new(f"distractor_{len(self._distractors)}_empty")
+            obj = self._add_object(mesh, (), self._table_pass_index() + 1 + len(self._distractors))
+            self._distractors.append(obj)
+        for i, obj in enumerate(self._distractors):
+            if i >= len(standing):
+                obj.hide_render = True
+                continue
+            placed, spec = standing[i]
+            cached = self._distractor_meshes.get(spec.name)
+            if cached is None or cached[0] != spec:
+                vertices, faces = _rebuilt_mesh(spec)
+                mesh = meshes.triangle_mesh(f"distractor_{spec.name}", vertices, faces, SHARP_EDGE_DEG)
+                self._distractor_meshes[spec.name] = (spec, mesh)
+            obj.data = self._distractor_meshes[spec.name][1]
+            obj.matrix_world = Matrix(pose_matrix(placed.position, placed.quat).tolist())
+            obj.hide_render = self._table.hide_render
+        self._standing = list(standing)
+
+    def distractors_shown(self) -> list[clutter.Placed]:
+        """The distractors the placed camera sees stand (none when it does not see the table)."""
+        return [placed for placed, _ in self._standing] if self.table_shown() else []
+
     def _place_table(self, object_position: np.ndarray) -> None:
         """The table top level under the object, `table_gap_m` below the lowest shown point."""
         if not self.dressing.table:
@@ -454,6 +501,8 @@ class BlenderScene:
                 labels[piece.pass_index] = f"arm/{piece.name.removeprefix('arm_')}"
         if self.dressing.table:
             labels[self._table_pass_index()] = "scene/table"
+        for i, (placed, _) in enumerate(self._standing):
+            labels[self._table_pass_index() + 1 + i] = f"distractor/{placed.name}"
         return labels
 
     def _table_pass_index(self) -> int:
@@ -472,6 +521,8 @@ class BlenderScene:
         for index, label in self.segmentation_labels().items():
             if label.startswith(("arm/", "scene/")):
                 tags[index] = dressing.MATERIAL_TAGS[label]
+        for i, (_, spec) in enumerate(self._standing):
+            tags[self._table_pass_index() + 1 + i] = spec.material
         return tags
 
     def lobes(self) -> frozenset[str]:
@@ -484,6 +535,8 @@ class BlenderScene:
             lobes |= materials.lobes(dressing.FLANGE_ALUMINIUM) | materials.lobes(dressing.ARM_PAINT)
         if self.dressing.table:
             lobes |= materials.lobes(dressing.TABLE_WOOD)
+        for _, spec in self._standing:
+            lobes |= materials.object_lobes(spec.material)
         return lobes
 
     def place_camera(self, camera: CameraPose, intrinsics: Intrinsics) -> None:
@@ -497,6 +550,8 @@ class BlenderScene:
             self._table.hide_render = not dressing.camera_sees_table(
                 float(camera.position[2]), self.table_top_z
             )
+        for obj in self._distractors[: len(self._standing)]:  # they stand on the table
+            obj.hide_render = self._table.hide_render
 
     def table_shown(self) -> bool:
         """Whether the placed camera sees the table."""
@@ -516,6 +571,7 @@ class BlenderScene:
         the denoiser's guides when `tracing.denoise` asks for them."""
         scene = self.rgb_scene
         self._dress_object()
+        self._dress_distractors()
         tracing.apply(scene, seed)
         passes = DENOISED_PASSES if tracing.denoise else RGB_PASSES
         use_pass_tree(scene, self._rgb_trees[passes], passes)
@@ -536,6 +592,14 @@ class BlenderScene:
         if not mesh.materials:
             spec = self._object_spec
             mesh.materials.append(materials.object_material(spec.name, spec.material, spec.texture))
+
+    def _dress_distractors(self) -> None:
+        """Give each standing distractor's mesh its catalog material, made the first time an RGB
+        view shows it."""
+        for _, spec in self._standing:
+            mesh = self._distractor_meshes[spec.name][1]
+            if not mesh.materials:
+                mesh.materials.append(materials.object_material(spec.name, spec.material, spec.texture))
 
     def _add_object(
         self, mesh: bpy.types.Mesh, slots: Sequence[bpy.types.Material], pass_index: int
@@ -601,12 +665,17 @@ def _table_material() -> bpy.types.Material:
 
 def _lowest_z(obj: bpy.types.Object) -> float:
     """The lowest world z of `obj`'s mesh vertices."""
+    return float(_world_vertices(obj)[:, 2].min())
+
+
+def _world_vertices(obj: bpy.types.Object) -> npt.NDArray[np.float64]:
+    """`obj`'s mesh vertices in world coordinates, n×3."""
     mesh = obj.data
     co = np.empty(3 * len(mesh.vertices), np.float64)
     mesh.vertices.foreach_get("co", co)
     world = np.asarray(obj.matrix_world, dtype=np.float64)
-    points = co.reshape(-1, 3) @ world[:3, :3].T + world[:3, 3]
-    return float(points[:, 2].min())
+    points: npt.NDArray[np.float64] = co.reshape(-1, 3) @ world[:3, :3].T + world[:3, 3]
+    return points
 
 
 def _rebuilt_mesh(spec: ObjectSpec) -> tuple[np.ndarray, np.ndarray]:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -21,6 +21,7 @@ import numpy.typing as npt
 
 from vint_engines.objects import meshio
 from vint_engines.poses import quat_to_matrix
+from vint_engines.render import lens
 
 Array = npt.NDArray[np.float64]
 
@@ -42,11 +43,17 @@ class View:
     touch_mm: Array  # (k, 3) camera frame: the active taxels' positions
 
 
-def back_project(depth_m: Array, mask: npt.NDArray[np.bool_], K: Array) -> Array:
+def back_project(
+    depth_m: Array, mask: npt.NDArray[np.bool_], K: Array, dist: Sequence[float] | None = None
+) -> Array:
     """Camera-frame points (mm) of the masked pixels with a depth reading (z along the optical axis,
-    OpenCV axes; 0 = no return, dropped)."""
+    OpenCV axes; 0 = no return, dropped), each along its pixel's ray: through the lens `dist`
+    (OpenCV's [k1, k2, p1, p2, k3], the camera record's) when the view has one."""
     v, u = np.nonzero(mask & (depth_m > 0) & np.isfinite(depth_m))
     z = depth_m[v, u].astype(np.float64) * 1000.0
+    if dist is not None and any(dist):
+        xy = lens.rays(np.column_stack([u, v]).astype(np.float64), K, dist)
+        return np.column_stack([xy, np.ones(len(u))]) * z[:, None]
     pixels = np.stack([u.astype(np.float64), v.astype(np.float64), np.ones(len(u))])
     rays = np.linalg.solve(K, pixels)  # columns (x/z, y/z, 1)
     return (rays * z).T
@@ -95,7 +102,7 @@ def read_view(data: Path, sample_id: str, noisy: bool, grasps: dict[str, dict[st
         visible_px=int(camera["visible_px"]),
         R_gt=np.asarray(camera["R_m2c"], dtype=np.float64),
         t_gt_mm=np.asarray(camera["t_m2c"], dtype=np.float64) * 1000.0,
-        vision_mm=back_project(depth, read_mask(sample / "mask.png"), K),
+        vision_mm=back_project(depth, read_mask(sample / "mask.png"), K, camera.get("dist")),
         touch_mm=taxels_in_camera(grasps[grasp_id], R_w2c, t_w2c),
     )
 
