@@ -1,7 +1,8 @@
 """The hand's meshes are the same bytes in every process: vertices, and the order of the faces and
 their loops. The ray tracer breaks a tie between two triangles by their order, so a mesh built in
 another order renders a few pixels differently (`docs/rendering.md`, "Byte-stable RGB");
-`bmesh.ops.create_uvsphere` gave another loop order in every fresh process."""
+`bmesh.ops.create_uvsphere` gave another loop order in every fresh process. The sensor skin's
+discs are held to the same (a link carrying hundreds of them)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,8 @@ import sys
 
 from conftest import ENGINES_DIR
 
-# Every primitive the renderer draws, and a rounded palm box, hashed in a fresh process.
+# Every primitive the renderer draws, a rounded palm box and a fingertip with taxel discs, hashed in
+# a fresh process.
 SCRIPT = """
 import hashlib
 import bpy
@@ -24,8 +26,14 @@ for kind, size, radius in (
     ("sphere", (0.012,), 0.0),
     ("cylinder", (0.01, 0.02), 0.0),
     ("box", (0.0475, 0.0565, 0.0204), 0.004),
+    ("skin", (0.012,), 0.0),
 ):
-    mesh = meshes.new_mesh(kind, [(kind, size, place)], [0], radius)
+    angles = np.linspace(0.0, 3.0, 60)
+    normals = np.stack([np.sin(angles), np.cos(angles), np.cos(3 * angles)], axis=1)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    discs = (0.0122 * normals, normals, 0.0018, 0.0002, 2) if kind == "skin" else None
+    shape = "sphere" if kind == "skin" else kind
+    mesh = meshes.new_mesh(kind, [(shape, size, place)], [0], radius, (), discs)
     co = np.empty(3 * len(mesh.vertices), np.float32)
     mesh.vertices.foreach_get("co", co)
     loops = np.empty(len(mesh.loops), np.int32)
@@ -49,9 +57,9 @@ def mesh_digests() -> str:
     lines = [
         line
         for line in done.stdout.splitlines()
-        if line.split(" ")[0] in {"capsule", "sphere", "cylinder", "box"}
+        if line.split(" ")[0] in {"capsule", "sphere", "cylinder", "box", "skin"}
     ]
-    assert len(lines) == 4, done.stdout + done.stderr
+    assert len(lines) == 5, done.stdout + done.stderr
     return "\n".join(lines)
 
 

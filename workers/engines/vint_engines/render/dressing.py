@@ -10,11 +10,14 @@ follows the same scheme). The shapes stay within the physics primitives, so dept
 still match them to a fraction of a millimetre (the rounded edges move inwards by at most
 r·(1 - 1/√2) ≈ 1.2 mm at a box's edge).
 
-The sensor skin is not drawn yet: drawn as hundreds of small discs on a link, it made the depth of
-that link differ by one ULP at a few pixels between a warm and a fresh engine, and a dataset must be
-the same bytes for the same spec. (Then blamed on the ray tracer's multi-threaded build; more
-likely the order of the discs' faces, which bmesh varied between processes as it did the spheres'
-— `meshes.py` builds its spheres in a fixed order since — so worth a second try.)
+The sensor skin. The hands carry whole-hand taxel arrays (fingertips, pulps, palm: VinT-6D's
+sensors); where the hand's taxel layout is a built-in one (`catalog/hands/<hand>/taxels.csv`,
+named and hashed by grasps.json's `hand.taxels`), each taxel is drawn as a dark sensing element, a
+disc of `TAXEL_RADIUS_M` standing `2 · TAXEL_HALF_HEIGHT_M` proud of the link surface, in the
+link's own mesh and label. A user's layout is not staged for rendering, so its hand is drawn
+without them. (An earlier skin made of bmesh's cones made a link's depth differ by one ULP at a
+few pixels between a warm and a fresh engine — the same cause as the spheres': bmesh's face order
+varied between processes. `meshes.add_discs` builds every disc vertex by vertex in a fixed order.)
 
 The flange. A robot hand is never seen floating: it hangs off an arm. Each built-in hand names its
 mount (where its wrist meets the arm, and the direction the arm leaves in, in the palm frame:
@@ -33,6 +36,7 @@ camera of the default elevations; a camera at or below the top sees no table (th
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -40,11 +44,15 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from vint_engines.grasp.taxels import TaxelLayout, parse_layout
+from vint_engines.objects.catalog import CATALOG_DIR
 from vint_engines.protocol import BadInput
 
 Vec = npt.NDArray[np.float64]
 
 PALM_EDGE_RADIUS_M = 0.004
+TAXEL_RADIUS_M = 0.0018
+TAXEL_HALF_HEIGHT_M = 0.0002
 TABLE_SIZE_M = (1.6, 1.0, 0.03)
 FLANGE_RADIUS_M = 0.0315
 FLANGE_LENGTH_M = 0.010
@@ -59,6 +67,7 @@ ANODISED_BLACK = {
     "Specular IOR Level": 0.35,
 }
 FINGERTIP_PAD = {"Base Color": (0.78, 0.77, 0.72, 1.0), "Metallic": 0.0, "Roughness": 0.7}
+TAXEL_SKIN = {"Base Color": (0.035, 0.05, 0.09, 1.0), "Metallic": 0.0, "Roughness": 0.55}
 FLANGE_ALUMINIUM = {"Base Color": (0.8, 0.8, 0.82, 1.0), "Metallic": 1.0, "Roughness": 0.32}
 ARM_PAINT = {"Base Color": (0.12, 0.125, 0.13, 1.0), "Metallic": 0.0, "Roughness": 0.5}
 # The table: oiled oak-like wood (linear RGB), grain bands about 1 cm apart.
@@ -140,6 +149,21 @@ def arm_pieces(mount: Mount) -> list[tuple[str, float, float, Vec, Vec]]:
         ("flange", FLANGE_RADIUS_M, FLANGE_LENGTH_M / 2, flange_centre, mount.axis),
         ("link", ARM_LINK_RADIUS_M, ARM_LINK_LENGTH_M / 2, link_centre, mount.axis),
     ]
+
+
+def built_in_taxels(hand: Mapping[str, Any], links: Sequence[str]) -> TaxelLayout | None:
+    """The hand's taxel layout when it is a built-in one whose file matches the hash grasps.json
+    cites; None otherwise (a user's layout, or none)."""
+    info = hand.get("taxels")
+    if not isinstance(info, Mapping) or not isinstance(info.get("layout"), str):
+        return None
+    path = (CATALOG_DIR / info["layout"]).resolve()
+    if CATALOG_DIR.resolve() not in path.parents or not path.is_file():
+        return None
+    data = path.read_bytes()
+    if hashlib.sha256(data).hexdigest() != info.get("sha256"):
+        return None
+    return parse_layout(data.decode("utf-8"), links, str(path))
 
 
 def table_top_z(lowest_z: float, gap_m: float) -> float:

@@ -19,6 +19,7 @@ from vint_engines.protocol import BadInput
 
 SEGMENTS = 32
 RINGS = 16
+DISC_SEGMENTS = 10  # sides of a taxel's disc
 
 
 # A rounded box's edges: bevel segments (4 keep the silhouette within 0.1 mm of a true round at
@@ -123,6 +124,34 @@ def _uv_sphere(bm: bmesh.types.BMesh, radius: float, matrix: Matrix) -> None:
         bm.faces.new((rings[-1][j], bottom, rings[-1][k]))
 
 
+def add_discs(
+    bm: bmesh.types.BMesh,
+    centres: np.ndarray,
+    normals: np.ndarray,
+    radius: float,
+    half_height: float,
+    material_index: int,
+) -> None:
+    """One flat disc (a short cylinder of DISC_SEGMENTS sides) per row of `centres`, its axis along
+    the matching unit normal, flat-shaded on material slot `material_index`; vertices and faces
+    made one by one in a fixed order, wound outwards (as `_uv_sphere`, and for its reason)."""
+    turns = [2.0 * math.pi * j / DISC_SEGMENTS for j in range(DISC_SEGMENTS)]
+    for centre, normal in zip(centres, normals, strict=True):
+        matrix = axis_matrix(centre, normal)
+        rings = [
+            [bm.verts.new(matrix @ Vector((radius * math.cos(a), radius * math.sin(a), z))) for a in turns]
+            for z in (-half_height, half_height)
+        ]
+        bottom, top = rings
+        faces = [bm.faces.new(tuple(reversed(bottom))), bm.faces.new(tuple(top))]
+        for j in range(DISC_SEGMENTS):
+            k = (j + 1) % DISC_SEGMENTS
+            faces.append(bm.faces.new((bottom[j], bottom[k], top[k], top[j])))
+        for face in faces:
+            face.material_index = material_index
+            face.smooth = False
+
+
 def geom_matrix(p: Sequence[float], q: Sequence[float]) -> Matrix:
     return Matrix.LocRotScale(Vector(p), Quaternion(q), None)
 
@@ -137,6 +166,7 @@ Primitive = tuple[str, Sequence[float], Matrix]
 
 
 Triangles = tuple[np.ndarray, np.ndarray, Matrix, int]  # vertices, faces, placement, material slot
+Discs = tuple[np.ndarray, np.ndarray, float, float, int]  # centres, normals, radius, half height, slot
 
 # Edges of a triangle mesh geom sharper than this are drawn sharp; the rest are shaded smooth.
 MESH_SHARP_DEG = 30.0
@@ -172,10 +202,11 @@ def new_mesh(
     material_indices: Sequence[int] = (),
     edge_radius: float = 0.0,
     triangles: Sequence[Triangles] = (),
+    discs: Discs | None = None,
 ) -> bpy.types.Mesh:
     """One mesh holding every (kind, size, matrix) primitive, the i-th on material slot
     `material_indices[i]` (0 when not given); boxes get rounded edges of `edge_radius`;
-    `triangles` adds triangle meshes (`add_triangles`)."""
+    `triangles` adds triangle meshes (`add_triangles`), `discs` flat discs (`add_discs`)."""
     bm = bmesh.new()
     try:
         for i, (kind, size, matrix) in enumerate(geoms):
@@ -183,6 +214,8 @@ def new_mesh(
             add_primitive(bm, kind, size, matrix, slot, edge_radius)
         for vertices, faces, matrix, slot in triangles:
             add_triangles(bm, vertices, faces, matrix, slot)
+        if discs is not None:
+            add_discs(bm, *discs)
         mesh = bpy.data.meshes.new(name)
         bm.to_mesh(mesh)
     finally:

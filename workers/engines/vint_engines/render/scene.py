@@ -151,10 +151,12 @@ class BlenderScene:
         self._object: bpy.types.Object | None = None
         self._object_meshes: dict[str, tuple[str, bpy.types.Mesh]] = {}  # name → (content key, mesh)
         self._object_spec: ObjectSpec | None = None
-        # Material slots of a hand link: 0 anodised (links and palm housing), 1 fingertip pad.
+        # Material slots of a hand link: 0 anodised (links and palm housing), 1 fingertip pad,
+        # 2 the taxels of the sensor skin.
         self._hand_materials = (
             materials.principled("vint_hand", dressing.ANODISED_BLACK),
             materials.principled("vint_fingertip_pad", dressing.FINGERTIP_PAD),
+            materials.principled("vint_taxel", dressing.TAXEL_SKIN),
         )
         self._arm_materials = {
             "flange": materials.principled("vint_flange", dressing.FLANGE_ALUMINIUM),
@@ -312,6 +314,7 @@ class BlenderScene:
                 "links": hand.get("links"),
                 "meshes": hand.get("meshes"),
                 "mount": hand.get("mount"),
+                "taxels": hand.get("taxels"),
             },
             sort_keys=True,
         )
@@ -321,6 +324,8 @@ class BlenderScene:
             _remove_object(obj)
         self._links, self._arm, self._hand_key = {}, {}, None
         try:
+            layout = dressing.built_in_taxels(hand, [link["name"] for link in hand["links"]])
+            taxels = layout.indices_by_link() if layout is not None else {}
             for k, link in enumerate(hand["links"]):
                 shown = _drawn(link["geoms"])
                 slots = list(self._hand_materials)
@@ -338,12 +343,19 @@ class BlenderScene:
                         primitives.append((g["type"], g["size"], matrix))
                         indices.append(slot)
                 roles = [dressing.geom_role(link["name"], g) for g in shown if g["type"] != "mesh"]
+                discs = None
+                if layout is not None and link["name"] in taxels:
+                    rows = taxels[link["name"]]
+                    normals = layout.normals[rows]
+                    centres = layout.positions[rows] + normals * dressing.TAXEL_HALF_HEIGHT_M
+                    discs = (centres, normals, dressing.TAXEL_RADIUS_M, dressing.TAXEL_HALF_HEIGHT_M, 2)
                 mesh = meshes.new_mesh(
                     f"link_{link['name']}",
                     primitives,
                     indices,
                     dressing.PALM_EDGE_RADIUS_M if "palm" in roles else 0.0,
                     triangles,
+                    discs,
                 )
                 index = FIRST_LINK_PASS_INDEX + k
                 self._links[link["name"]] = self._add_object(mesh, slots, index)
@@ -529,7 +541,7 @@ class BlenderScene:
         """The scattering lobes of every material in the RGB scene (see `cycles.Bounces.pruned`)."""
         lobes = materials.object_lobes(self._object_material())
         if self._links:
-            for look in (dressing.ANODISED_BLACK, dressing.FINGERTIP_PAD):
+            for look in (dressing.ANODISED_BLACK, dressing.FINGERTIP_PAD, dressing.TAXEL_SKIN):
                 lobes |= materials.lobes(look)
         if self.dressing.flange and self._arm:
             lobes |= materials.lobes(dressing.FLANGE_ALUMINIUM) | materials.lobes(dressing.ARM_PAINT)
