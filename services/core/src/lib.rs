@@ -5,6 +5,7 @@
 //! workers build on these types; none of them redefines what lives here.
 
 pub mod asset;
+pub mod budget;
 pub mod catalog;
 pub mod contract;
 pub mod file_sizes;

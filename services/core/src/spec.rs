@@ -17,11 +17,11 @@ use serde::Serialize;
 use toml::{Table, Value};
 
 use crate::asset::{self, AssetUse};
+use crate::budget::PairBudget;
 use crate::catalog;
 use crate::contract::package::Modality;
 use crate::contract::render::{self as render_contract, Bounces};
 use crate::contract::{Bound, grasp, noise, object};
-use crate::plan::PairBudget;
 use crate::split::{self, SplitSettings};
 
 use crate::suggest;

@@ -8,8 +8,10 @@
 //! This crate is the only place in vint that speaks SQL. One `Store` type serves both backends
 //! through sqlx's `Any` driver: **Postgres** for clusters (many coordinators and workers, leasing
 //! with `FOR UPDATE SKIP LOCKED`) and **SQLite** for the embedded default (one process, one
-//! connection, so every transaction is serialized). The SQL is shared; where the dialects differ
-//! (`Backend::skip_locked`) the difference is one clause. Both run the same test suite.
+//! connection, so every transaction is serialized). The SQL is shared; where the dialects differ —
+//! row locks and reading a JSON array as rows — five `Backend` helpers write the clause
+//! (`skip_locked`, `skip_locked_of`, `lock_row`, `json_text_array`, `json_rows`). Both run the
+//! same test suite.
 //!
 //! Every transition follows `vint_core::state`; completion and failure are fenced on the lease
 //! holder and attempt, so a worker whose lease expired can change nothing. States, stages and
