@@ -121,6 +121,10 @@ pub struct JobPlan {
     /// The noise model, when noisy depth is requested (no noise tasks otherwise).
     pub noise: Option<noise::NoiseModel>,
     pub modalities: Vec<Modality>,
+    /// The job's objects, when its views stand distractors: none may be one of them (absent in
+    /// plans stored before distractors, and when there are none).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub dataset_objects: Vec<String>,
 }
 
 impl JobPlan {
@@ -207,6 +211,7 @@ impl JobPlan {
             render_outputs,
             noise: wants(Modality::DepthNoisy).then(|| spec.noise.model.clone()),
             modalities: spec.outputs.modalities.clone(),
+            dataset_objects: if r.scene.distractors > 0 { spec.objects.clone() } else { Vec::new() },
         })
     }
 
@@ -422,6 +427,7 @@ fn render_params(plan: &JobPlan, object: &str, hand: &str, g: u32) -> render::Pa
             .collect(),
         views,
         outputs: plan.render_outputs.clone(),
+        dataset_objects: plan.dataset_objects.clone(),
     }
 }
 
@@ -470,6 +476,21 @@ mod tests {
         assert_eq!(s.max_samples(), 3 * u64::from(s.render.views_per_grasp()));
         let without = spec("[grasp]\ntrials_per_pair = 12\nchunk_size = 2\n");
         assert!(initial_tasks(&without, &[]).unwrap().iter().all(|t| t.params.get("accept").is_none()));
+    }
+
+    #[test]
+    fn render_tasks_name_the_jobs_objects_only_when_distractors_stand() {
+        let with = DatasetSpec::parse(
+            "objects = [\"mug\", \"tomato_soup_can\"]\n[dataset]\nname = \"t\"\nseed = 1\n\
+             [render]\nscene = { distractors = 2 }\n",
+        )
+        .unwrap();
+        let params = serde_json::to_value(render_params(&plan(&with), "mug", "trx3", 0)).unwrap();
+        assert_eq!(params["dataset_objects"], json!(["mug", "tomato_soup_can"]));
+        assert_eq!(params["render"]["scene"]["distractors"], 2);
+        let params = serde_json::to_value(render_params(&plan(&spec("")), "tomato_soup_can", "trx3", 0)).unwrap();
+        assert!(params.get("dataset_objects").is_none(), "{params}");
+        assert!(params["render"]["scene"].get("distractors").is_none(), "a task without them is unchanged");
     }
 
     #[test]

@@ -69,13 +69,19 @@ def engine(workdir: Path) -> Iterator[EngineProcess]:
 
 
 def render(
-    engine: EngineProcess, grasp: dict[str, Any], out: Path, views: list[dict], **settings: Any
+    engine: EngineProcess,
+    grasp: dict[str, Any],
+    out: Path,
+    views: list[dict],
+    dataset_objects: list[str] | None = None,
+    **settings: Any,
 ) -> None:
     params = {
         "grasp_index": grasp["trial"]["grasp_index"],
         "render": {**RENDER, **settings},
         "views": views,
         "outputs": OUTPUTS,
+        **({"dataset_objects": dataset_objects} if dataset_objects else {}),
     }
     reply = engine.task(out.name, params, out, [grasp["dir"] / "grasps.json", grasp["dir"] / "object.ply"])
     assert reply["ok"] is True, reply
@@ -294,3 +300,17 @@ def test_distractors_stand_on_the_table_clear_of_the_grasp_where_they_are_drawn(
                     np.median(off),
                 )
     assert seen >= 2, "distractors are seen"
+
+
+def test_no_distractor_is_one_of_the_jobs_objects(
+    engine: EngineProcess, grasp: dict[str, Any], workdir: Path
+) -> None:
+    """The dataset annotates its objects; one standing unannotated on the table would be a label's
+    error. With every catalog object but three in the job, the bench holds only those three."""
+    out = new_dir(workdir, f"excluded_{grasp['hand']}")
+    free = ["banana", "foam_brick", "wood_block"]
+    job = sorted(name for name in load_catalog() if name not in free)
+    scene = {"table": True, "table_gap_m": GAP_M, "flange": True, "distractors": 5}
+    render(engine, grasp, out, [{"view_index": 0, "seed": 500}], dataset_objects=job, scene=scene)
+    standing = {stand["name"] for stand in load(out, 0)["camera"]["scene"]["distractors"]}
+    assert standing == set(free), standing

@@ -122,6 +122,10 @@ pub struct Params {
     /// What to render; depth, masks and segmentation are never path traced.
     #[serde(default = "RenderOutput::all")]
     pub outputs: Vec<RenderOutput>,
+    /// The job's objects, which no distractor may be: an unannotated instance of an object the
+    /// dataset annotates would teach a detector that it is background. Only with distractors.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub dataset_objects: Vec<String>,
 }
 
 /// Image size, sampling and camera placement, shared by every view of a task.

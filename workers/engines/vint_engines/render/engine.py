@@ -213,6 +213,7 @@ class RenderTask:
     settings: RenderSettings
     outputs: frozenset[str]
     views: list[RenderView]
+    dataset_objects: frozenset[str]  # no distractor is one of these (the job's objects)
 
     @staticmethod
     def parse(params: Mapping[str, Any]) -> RenderTask:
@@ -223,6 +224,7 @@ class RenderTask:
             settings=settings,
             outputs=frozenset(checked["outputs"]),
             views=RenderView.parse_all(checked, settings.environment),
+            dataset_objects=frozenset(checked.get("dataset_objects", [])),
         )
 
     def check_assets(self, params: Mapping[str, Any], assets: dict[str, StagedAsset]) -> None:
@@ -314,7 +316,9 @@ class RenderEngine:
         object_radius = self.scene.object_radius()
         links = {name: read_pose(pose, f"link_poses.{name}") for name, pose in trial["link_poses"].items()}
         self.scene.pose(object_pose, links)
-        self.scene.set_distractors(self._bench(settings.scene, trial, grasps["object"], object_pose[0]))
+        self.scene.set_distractors(
+            self._bench(settings.scene, trial, grasps["object"], render.dataset_objects, object_pose[0])
+        )
         palm = palm_of(links)
         if settings.viewpoint.palm_side == "front" and palm is None:
             raise BadInput(
@@ -402,15 +406,19 @@ class RenderEngine:
         scene: dressing.SceneDressing,
         trial: Mapping[str, Any],
         grasped: Mapping[str, Any],
+        dataset_objects: frozenset[str],
         centre: np.ndarray,
     ) -> list[tuple[clutter.Placed, ObjectSpec]]:
         """The catalog objects standing on the table around this grasp (`clutter.py`): the
-        layout drawn from the trial's seed, so all its views (from any worker) share it."""
+        layout drawn from the trial's seed, so all its views (from any worker) share it. Never the
+        grasped object nor any object of the job (`dataset_objects`): the dataset annotates those,
+        and an unannotated one in a picture would be a label's error."""
         top = self.scene.table_top_z
         if scene.distractors == 0 or top is None:
             return []
         catalog = load_catalog()
-        names = sorted(name for name in catalog if name != grasped.get("name"))
+        excluded = dataset_objects | {grasped.get("name")}
+        names = sorted(name for name in catalog if name not in excluded)
 
         def footprint(name: str) -> clutter.Footprint:
             if name not in self._footprints:
