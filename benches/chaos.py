@@ -1,7 +1,8 @@
 """Chaos run: a cluster job under random faults must give the undisturbed dataset, and nothing more.
 
 Run: .venv/bin/python benches/chaos.py [--rounds N] [--seed S] [--workers K] [--budget-s T]
-                                       [--out FILE.jsonl] [--bin-dir target/debug]
+                                       [--out FILE.jsonl] [--bin-dir target/debug] [--spec TOML]
+     .venv/bin/python benches/chaos.py --smoke
 
 It owns everything it starts, all on 127.0.0.1: a throwaway Postgres cluster (initdb into a temporary
 directory, fsync off), `moto_server` (S3), a fault-injecting HTTP proxy in front of moto, and per round a
@@ -31,6 +32,11 @@ tally. Exit status: 0 when every round ends identical with the bucket equal to t
 (also past --budget-s: the run fails rather than hangs), 2 for bad arguments. Every process it started
 is killed at exit, also on failure and Ctrl-C. A seed fixes the fault schedule (kinds, moments,
 windows), not the interleaving with the job, which the machine decides.
+
+`--smoke` is one round of benches/smoke.toml with 2 workers and a fault every 1.5 s on average, within
+a budget of 300 s, its work directory removed when the round passes: the test command's check that
+the bench still runs (under a minute, not a tally). `cargo test -p vint-tests --test chaos` runs a
+real round of tiny.toml.
 """
 
 from __future__ import annotations
@@ -57,6 +63,7 @@ from typing import IO, Any
 
 ROOT = Path(__file__).resolve().parent.parent
 SPEC = ROOT / "examples" / "tiny.toml"
+SMOKE_SPEC = ROOT / "benches" / "smoke.toml"
 MAX_ATTEMPTS = 10
 WORKER_LEASE_MS = 3_000
 FAULT_KINDS = ("worker_kill", "engine_kill", "coordinator_restart", "postgres_restart", "s3_window")
@@ -693,7 +700,7 @@ class Round:
         self.run.proxy.close_window()
         self.run.proxy.take_counts()
         self.start_coordinator()
-        submitted = self.vintctl(["submit", str(SPEC)], 120)
+        submitted = self.vintctl(["submit", str(args.spec)], 120)
         if submitted.returncode != 0:
             raise ChaosError(f"vintctl submit: {submitted.stderr.strip()}")
         job = submitted.stdout.strip()
@@ -813,14 +820,14 @@ class Round:
 
 
 def reference_manifest(run_args: argparse.Namespace, work: Path, budget: Budget) -> bytes:
-    """manifest.jsonl of the embedded `vintctl run examples/tiny.toml`: what every round must equal."""
+    """manifest.jsonl of the embedded `vintctl run` of the spec: what every round must equal."""
     out = work / "reference"
     started = time.monotonic()
     done = subprocess.run(
         [
             str(Path(run_args.bin_dir) / "vintctl"),
             "run",
-            str(SPEC),
+            str(run_args.spec),
             "--out",
             str(out / "out"),
             "--state",
@@ -835,7 +842,9 @@ def reference_manifest(run_args: argparse.Namespace, work: Path, budget: Budget)
         env={**os.environ, "VINT_PYTHON": run_args.python},
     )
     if done.returncode != 0:
-        raise ChaosError(f"the reference run (vintctl run {SPEC}) failed: {done.stderr.strip()[-2000:]}")
+        raise ChaosError(
+            f"the reference run (vintctl run {run_args.spec}) failed: {done.stderr.strip()[-2000:]}"
+        )
     manifest = (out / "out" / "manifest.jsonl").read_bytes()
     print(
         f"reference: embedded run in {time.monotonic() - started:.1f} s, "
@@ -891,12 +900,21 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--out", type=Path, help="one JSON line per round (default: WORK_DIR/chaos.jsonl)")
     p.add_argument("--bin-dir", type=Path, default=ROOT / "target" / "debug", help="vint binaries")
     p.add_argument("--python", default=sys.executable, help="the engines' Python (default: this one)")
+    p.add_argument("--spec", type=Path, default=SPEC, help="the job's spec (default examples/tiny.toml)")
+    p.add_argument(
+        "--smoke",
+        action="store_true",
+        help="1 round of benches/smoke.toml, 2 workers, gap 1.5 s, budget 300 s (under a minute)",
+    )
     p.add_argument(
         "--work-dir",
         type=Path,
         help="logs, and failed rounds' datasets (default: a temporary directory, kept)",
     )
     args = p.parse_args(argv)
+    if args.smoke:
+        args.rounds, args.workers, args.gap_s, args.spec = 1, 2, 1.5, SMOKE_SPEC
+        args.budget_s, args.round_timeout_s = 300.0, 120.0
     for name, low in (("rounds", 1), ("workers", 1)):
         if getattr(args, name) < low:
             p.error(f"--{name.replace('_', '-')} {getattr(args, name)}: must be at least {low}")
@@ -912,14 +930,21 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 def main(argv: list[str]) -> int:
     args = parse_args(argv)
     args.bin_dir = args.bin_dir.resolve()
-    budget = Budget(args.budget_s)
     work = args.work_dir or Path(tempfile.mkdtemp(prefix="vint-chaos."))
     work.mkdir(parents=True, exist_ok=True)
     out_path: Path = args.out or work / "chaos.jsonl"
     out_path.parent.mkdir(parents=True, exist_ok=True)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     print(f"chaos: work directory {work}, tally {out_path}", file=sys.stderr, flush=True)
+    status = play_rounds(args, work, out_path)
+    if status == 0 and args.smoke and args.work_dir is None:
+        shutil.rmtree(work, ignore_errors=True)
+    return status
 
+
+def play_rounds(args: argparse.Namespace, work: Path, out_path: Path) -> int:
+    """Every round, on a Postgres, moto and proxy of the run's own; 0 when every round passed."""
+    budget = Budget(args.budget_s)
     processes = Processes()
     postgres: Postgres | None = None
     results: list[dict[str, Any]] = []

@@ -30,6 +30,10 @@
 //! `VINT_BENCH_REPEATS` (runs per case, default 3), `VINT_BENCH_TASKS` (tasks per run, every case;
 //! default: per case, sized for runs of 2 s or more), `VINT_BENCH_WORKERS` (default 4) and
 //! `VINT_BENCH_PREFETCH` (1 = on, the default; 0 = lease only after the last completion returned).
+//!
+//! The smoke, the test command's check that the bench still runs (seconds, no release build, not a
+//! figure): `VINT_BENCH_TASKS=64 VINT_BENCH_REPEATS=1 cargo bench --profile dev -p vint-tests --bench
+//! coordinator`.
 
 use std::net::{Ipv4Addr, SocketAddr};
 use std::process::ExitCode;

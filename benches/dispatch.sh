@@ -6,6 +6,7 @@
 # samples recorded as in a real run.
 #
 #   benches/dispatch.sh
+#   VINT_BENCH_SMOKE=1 benches/dispatch.sh
 #
 # examples/vint-sim.toml (26 objects x 2 hands x 4 environments x 3 views) with its quota raised
 # to 3,206 accepted grasps per (object, hand) out of at most 5,200 trials: 26 x 2 x 3,206 x 12 =
@@ -23,20 +24,41 @@
 # VINT_DISPATCH_ACCEPTED (3206), VINT_DISPATCH_TRIALS (5200), VINT_DISPATCH_WORKERS (worker processes, 2),
 # VINT_DISPATCH_BATCH (tasks per lease and completion, 128), VINT_DISPATCH_CONCURRENCY (loops per worker, 2),
 # VINT_DISPATCH_VERIFY (samples whose lineage is checked, 300), VINT_DISPATCH_OUT.
+#
+# The smoke (VINT_BENCH_SMOKE=1; seconds: the test command's check that the bench and
+# benches/dispatch_report.py still run, not a figure) takes the debug binaries (scripts/test.sh has
+# built them; no release build), 1 accepted grasp of 1 trial per (object, hand) (at most 624
+# samples) and 5 samples' lineage, unless the settings above say otherwise; it writes to a
+# temporary directory (unless VINT_DISPATCH_OUT is set; then the output stays) and to a database of
+# its own, removed at exit.
 set -euo pipefail
 
 repo=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 admin=${VINT_TEST_POSTGRES_URL:-postgres://postgres@127.0.0.1:5432/postgres}
-accepted=${VINT_DISPATCH_ACCEPTED:-3206}
-trials=${VINT_DISPATCH_TRIALS:-5200}
+die() { echo "dispatch bench: $*" >&2; exit 2; }
+smoke=${VINT_BENCH_SMOKE:-0}
+[[ $smoke == 0 || $smoke == 1 ]] || die "VINT_BENCH_SMOKE = '$smoke': must be 0 or 1"
+if ((smoke)); then
+  accepted=${VINT_DISPATCH_ACCEPTED:-1}
+  trials=${VINT_DISPATCH_TRIALS:-1}
+  verify=${VINT_DISPATCH_VERIFY:-5}
+  out=${VINT_DISPATCH_OUT:-}
+  profile=dev
+  # Named as the tests name their databases, so that scripts/test.sh drops it if this run dies
+  # before its own cleanup does.
+  db=vint_test_$$_dispatch_smoke
+else
+  accepted=${VINT_DISPATCH_ACCEPTED:-3206}
+  trials=${VINT_DISPATCH_TRIALS:-5200}
+  verify=${VINT_DISPATCH_VERIFY:-300}
+  out=${VINT_DISPATCH_OUT:-$repo/target/dispatch}
+  profile=release
+  db=vint_dispatch
+fi
 workers=${VINT_DISPATCH_WORKERS:-2}
 batch=${VINT_DISPATCH_BATCH:-128}
 concurrency=${VINT_DISPATCH_CONCURRENCY:-2}
-verify=${VINT_DISPATCH_VERIFY:-300}
-out=${VINT_DISPATCH_OUT:-$repo/target/dispatch}
-db=vint_dispatch
 
-die() { echo "dispatch bench: $*" >&2; exit 2; }
 check_count() {
   [[ $2 =~ ^[0-9]+$ ]] && (($2 >= $3 && $2 <= $4)) || die "$1 = '$2': must be an integer from $3 to $4"
 }
@@ -53,11 +75,29 @@ quiet_psql() { PGOPTIONS="-c client_min_messages=warning" psql -v ON_ERROR_STOP=
 sql() { quiet_psql "$1" -At -c "$2"; }
 sql "$admin" "SELECT 1" >/dev/null || die "cannot reach Postgres at $admin (set VINT_TEST_POSTGRES_URL)"
 db_url="${admin%/*}/$db"
+pids=()
+scratch=""
+cleanup() {
+  for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done
+  wait 2>/dev/null || true
+}
+finish() {
+  cleanup
+  if ((smoke)); then
+    sql "$admin" "DROP DATABASE IF EXISTS $db WITH (FORCE)" || true
+    [[ -z $scratch ]] || rm -rf "$scratch"
+  fi
+}
+trap finish EXIT
 
-echo "== building the release binaries"
-(cd "$repo" && cargo build --release --bin vint-coordinator --bin vint-worker --bin vintctl)
-bin=$repo/target/release
+echo "== building the $profile binaries"
+(cd "$repo" && cargo build --profile "$profile" --bin vint-coordinator --bin vint-worker --bin vintctl)
+bin=$repo/target/$([[ $profile == dev ]] && echo debug || echo release)
 
+if [[ -z $out ]]; then
+  scratch=$(mktemp -d "${TMPDIR:-/tmp}/vint-dispatch-smoke.XXXXXX")
+  out=$scratch
+fi
 rm -rf "$out"
 mkdir -p "$out/logs"
 spec=$out/spec.toml
@@ -74,13 +114,6 @@ sql "$admin" "CREATE DATABASE $db"
 
 port=$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
 url=http://127.0.0.1:$port
-pids=()
-cleanup() {
-  for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done
-  wait 2>/dev/null || true
-}
-trap cleanup EXIT
-
 RUST_LOG=warn "$bin/vint-coordinator" --database "$db_url" --listen "127.0.0.1:$port" 2>"$out/logs/coordinator.log" &
 coordinator=$!
 pids+=("$coordinator")
@@ -94,7 +127,8 @@ job=$("$bin/vintctl" submit "$spec" --coordinator "$url")
 submitted=$(date +%s.%N)
 echo "== job $job submitted in $(python3 -c "print(f'{$submitted - $start:.1f}')") s; dispatching"
 
-# The coordinator's resident memory, every 2 s.
+# The coordinator's resident memory, every 2 s. The samplers' stderr goes to a log: the `sleep` a
+# killed sampler leaves behind must not hold the caller's stderr open after this script ends.
 (
   echo "t_s,rss_kib"
   while kill -0 "$coordinator" 2>/dev/null; do
@@ -102,7 +136,7 @@ echo "== job $job submitted in $(python3 -c "print(f'{$submitted - $start:.1f}')
     [[ -n $rss ]] && echo "$(python3 -c "import time; print(f'{time.time() - $start:.1f}')"),$rss"
     sleep 2
   done
-) >"$out/rss.csv" &
+) >"$out/rss.csv" 2>>"$out/logs/samplers.log" &
 pids+=($!)
 # Tasks by state and samples, every 10 s.
 (
@@ -114,7 +148,7 @@ pids+=($!)
     [[ -n $row ]] && echo "$(python3 -c "import time; print(f'{time.time() - $start:.1f}')"),$row"
     sleep 10
   done
-) >"$out/progress.csv" &
+) >"$out/progress.csv" 2>>"$out/logs/samplers.log" &
 pids+=($!)
 
 store=$out/objects

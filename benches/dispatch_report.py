@@ -8,6 +8,9 @@ A sample passes when its lineage is package <- noise <- render <- grasp, every t
 timing-only mode, its render task is for its grasp and its grasp task ran that trial, each task's
 inputs are its dependency's outputs (by hash), each packaged file is its render's or noise's
 artifact (by hash), and every output on the chain is in the object store at its size.
+
+It has no smoke mode of its own: it reads a dispatch run, and `VINT_BENCH_SMOKE=1 bash
+benches/dispatch.sh`, the smoke the test command runs, ends with this report on its small run.
 """
 
 from __future__ import annotations

@@ -3,6 +3,10 @@
 
 Usage (from the repository root):
     .venv/bin/python benches/grasp_procedure.py --before 0425b54 --trials 6 [--objects a,b] [--hands trx3]
+    .venv/bin/python benches/grasp_procedure.py --smoke
+
+`--smoke`: one trial per hand on the tomato soup can, HEAD's engines against the working tree's
+(seconds: the test command's check that the bench still runs, not a figure; it needs no history).
 
 The engines of revision `--before` (extracted with `git archive` into a temporary directory) and
 of the working tree each run in a worker process; the parent hands them the same trials (same
@@ -130,7 +134,10 @@ def main() -> None:
     parser.add_argument("--objects", default="", help="comma-separated catalog names (default: all)")
     parser.add_argument("--hands", default="trx3,allegro")
     parser.add_argument("--json", type=Path, help="write every trial's result here")
+    parser.add_argument("--smoke", action="store_true", help="1 trial per hand on one object (seconds)")
     args = parser.parse_args()
+    if args.smoke:  # against HEAD's own engines: the check needs no history (a shallow clone)
+        args.trials, args.objects, args.before = 1, "tomato_soup_can", "HEAD"
     catalog = tomllib.loads((ROOT / "catalog" / "objects.toml").read_text())["object"]
     objects = args.objects.split(",") if args.objects else [e["name"] for e in catalog]
     hands = args.hands.split(",")

@@ -2,9 +2,14 @@
 taxel evaluation (goal: < 5 %), for each hand on three catalog objects with the default physics.
 
 Run: PYTHONPATH=workers/engines .venv/bin/python benches/grasp_throughput.py [--trials N] [--reps R]
+     [--smoke]
+
+`--smoke`: one trial per task and one repetition (seconds: the test command's check that the bench
+still runs, not a figure).
 
 Drives `GraspEngine.run` as a worker does (one task of N trials per hand, object and repetition),
-on a warm engine: a one-trial task per pair first builds the scene, outside the timing. CPU time is
+with the trial seeds the planner would give a job seeded 20261122 (`trial_seed`), on a warm engine:
+a one-trial task per pair first builds the scene, outside the timing. CPU time is
 `time.process_time` around each task; the taxel share is the engine's own `touch_ms / trials_ms`
 metrics. Prints a table and, last, one JSON object with every figure (medians over the repetitions).
 """
@@ -12,6 +17,7 @@ metrics. Prints a table and, last, one JSON object with every figure (medians ov
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import statistics
 import sys
@@ -21,8 +27,6 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from vint_engines.grasp.engine import GraspEngine
 from vint_engines.objects import OBJECTS_TOML
 from vint_engines.protocol import TaskRequest
@@ -30,6 +34,21 @@ from vint_engines.protocol import TaskRequest
 HANDS = ("trx3", "allegro")
 OBJECTS = ("tomato_soup_can", "mustard_bottle", "mug")
 SEED = 20261122
+SEED_MASK = (1 << 53) - 1
+
+
+def trial_seed(job_seed: int, obj: str, hand: str, grasp_index: int) -> int:
+    """The seed the planner gives trial `grasp_index` of (obj, hand) in a job seeded `job_seed`, by
+    the product's one rule (services/core/src/seed.rs, `grasp_trial`): SHA-256 over b"vint-seed-v1\0",
+    the job seed (8 bytes little-endian), the stream tag "grasp-trial" and each identity part
+    (object, hand, decimal grasp index) after its UTF-8 length (8 bytes little-endian); the first 8
+    digest bytes little-endian, masked to 53 bits, the contract's bound (every JSON reader holds
+    such a seed exactly)."""
+    digest = hashlib.sha256(b"vint-seed-v1\0" + job_seed.to_bytes(8, "little") + b"grasp-trial")
+    for part in (obj, hand, str(grasp_index)):
+        raw = part.encode("utf-8")
+        digest.update(len(raw).to_bytes(8, "little") + raw)
+    return int.from_bytes(digest.digest()[:8], "little") & SEED_MASK
 
 
 def catalog_entries() -> dict[str, dict[str, Any]]:
@@ -68,15 +87,18 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--trials", type=int, default=16, help="trials per task (default 16)")
     parser.add_argument("--reps", type=int, default=3, help="repetitions; medians are reported")
+    parser.add_argument("--smoke", action="store_true", help="1 trial, 1 repetition (seconds)")
     args = parser.parse_args()
+    if args.smoke:
+        args.trials, args.reps = 1, 1
     entries = catalog_entries()
     engine = GraspEngine()
-    seeds = [int(s) for s in np.random.default_rng(SEED).integers(0, 2**63 - 1, size=args.trials)]
     results = []
     with tempfile.TemporaryDirectory() as scratch:
         root = Path(scratch)
         for hand in HANDS:
             for name in OBJECTS:
+                seeds = [trial_seed(SEED, name, hand, i) for i in range(args.trials)]
                 engine.run(task(hand, entries[name], seeds[:1], root / f"warm-{hand}-{name}"))
                 runs = [
                     measure(engine, task(hand, entries[name], seeds, root / f"{hand}-{name}-{rep}"))

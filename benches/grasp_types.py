@@ -7,10 +7,14 @@ Usage (from the repository root):
     .venv/bin/python benches/grasp_types.py --trials 16 [--type power] [--json out.json]
     .venv/bin/python benches/grasp_types.py --trials 8 --type power --sweep CLOSE_S=0.2,0.4,0.8
     PYTHONPATH=/tmp/before/workers/engines .venv/bin/python benches/grasp_types.py --trials 16
+    .venv/bin/python benches/grasp_types.py --smoke
 
 The second form measures another revision's engines (`git archive <rev> workers/engines catalog |
 tar -x -C /tmp/before`); `--type` is left out then (older engines have no `grasp_type`). Physics
 are `examples/tiny.toml`'s (2 ms, 0.5 s hold). Seeds follow `benches/grasp_procedure.py`.
+
+`--smoke` is one trial per (hand, object) (seconds: the test command's check that the bench still
+runs, not a figure).
 
 `--sweep NAME=v1,v2,...` reruns the same trials once per value of one of the procedure's constants
 in `vint_engines/grasp/trial.py` (`SWEEPABLE`: how long the fingers close, how far the palm presses,
@@ -140,7 +144,10 @@ def main() -> None:
     parser.add_argument("--objects", default="tomato_soup_can,mustard_bottle,mug")
     parser.add_argument("--json", type=Path, default=None, help="write every trial's row here")
     parser.add_argument("--sweep", default=None, help=f"NAME=v1,v2,... (NAME: {', '.join(SWEEPABLE)})")
+    parser.add_argument("--smoke", action="store_true", help="1 trial per (hand, object) (seconds)")
     args = parser.parse_args()
+    if args.smoke:
+        args.trials = 1
     catalog = {e["name"]: e for e in tomllib.loads((ROOT / "catalog/objects.toml").read_text())["object"]}
     engine = GraspEngine()
     if args.sweep is None:

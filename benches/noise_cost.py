@@ -3,8 +3,11 @@ previous model (white Gaussian σ = 0.5 mm + 1 mm/m beyond 0.5 m, 3×3 edge hole
 and the σ curves docs/depth_noise.md shows.
 
     .venv/bin/python benches/noise_cost.py [--repeats 15] [--out docs/depth_noise]
+    .venv/bin/python benches/noise_cost.py --smoke
 
-Writes `cost.md` (the tables) and `sigma.png` into --out. The scene is synthetic but has what
+Writes `cost.md` (the tables) and `sigma.png` into --out. `--smoke`: one repeat at the smallest
+resolution, written into a temporary directory (seconds: the test command's check that the bench
+still runs). The scene is synthetic but has what
 the pieces act on: a wall, a metal sphere, a glass cylinder, rubber fingers touching the sphere
 (concave corners) and no-return background. Variants run interleaved (round-robin per repeat),
 so a slow moment of the machine hits them all alike; times are medians.
@@ -16,6 +19,7 @@ import argparse
 import math
 import platform
 import sys
+import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -107,9 +111,11 @@ def rms_mm(noisy: np.ndarray, depth: np.ndarray, where: np.ndarray) -> float:
     return 1e3 * float(np.sqrt(np.mean((noisy[where] - depth[where]) ** 2))) if where.any() else float("nan")
 
 
-def measure(repeats: int) -> list[tuple[str, str, float, float, float, float]]:
+def measure(
+    repeats: int, resolutions: list[tuple[int, int]]
+) -> list[tuple[str, str, float, float, float, float]]:
     rows = []
-    for width, height in RESOLUTIONS:
+    for width, height in resolutions:
         depth, seg, k = scene(width, height)
         models = variants()
         times: dict[str, list[float]] = {name: [] for name in models}
@@ -169,24 +175,34 @@ def sigma_plot(path: Path) -> None:
     plt.close(fig)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser()
-    parser.add_argument("--repeats", type=int, default=15)
-    parser.add_argument("--out", type=Path, default=Path("docs/depth_noise"))
-    args = parser.parse_args()
-    args.out.mkdir(parents=True, exist_ok=True)
-    sigma_plot(args.out / "sigma.png")
-    rows = measure(args.repeats)
+def report(repeats: int, resolutions: list[tuple[int, int]], out: Path) -> None:
+    """Writes sigma.png and cost.md into `out` and prints the tables."""
+    out.mkdir(parents=True, exist_ok=True)
+    sigma_plot(out / "sigma.png")
+    rows = measure(repeats, resolutions)
     lines = [
         f"Machine: {platform.machine()}, Python {platform.python_version()}, numpy {np.__version__}, "
-        f"OpenCV {cv2.__version__}; {args.repeats} repeats, medians.",
+        f"OpenCV {cv2.__version__}; {repeats} repeats, medians.",
         "",
         "| resolution | variant | ms per view | RMS error (mm) | RMS without glass (mm) | invalid (%) |",
         "|---|---|---|---|---|---|",
     ]
     lines += [f"| {r} | {n} | {t:.1f} | {e:.2f} | {o:.2f} | {i:.1f} |" for r, n, t, e, o, i in rows]
-    (args.out / "cost.md").write_text("\n".join(lines) + "\n")
+    (out / "cost.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--repeats", type=int, default=15)
+    parser.add_argument("--out", type=Path, default=None, help="default docs/depth_noise")
+    parser.add_argument("--smoke", action="store_true", help="1 repeat, 128×128 only, into a temp dir")
+    args = parser.parse_args()
+    if args.smoke:
+        with tempfile.TemporaryDirectory(prefix="vint-noise-cost-") as scratch:
+            report(1, RESOLUTIONS[:1], args.out or Path(scratch))
+    else:
+        report(args.repeats, RESOLUTIONS, args.out or Path("docs/depth_noise"))
 
 
 if __name__ == "__main__":

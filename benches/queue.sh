@@ -11,6 +11,7 @@
 #                built from a copy under target/peers so nothing of it lands in the repository)
 #
 #   benches/queue.sh [COORDINATOR_FILTER...]      e.g. benches/queue.sh postgres/batch64
+#   VINT_BENCH_SMOKE=1 benches/queue.sh
 #
 # Prints each round as it goes, then every case's median, min and max over the rounds, the ratios
 # coordinator / ceiling and coordinator / awa, and one JSON line per case. Every run's JSON line is
@@ -20,12 +21,28 @@
 # VINT_PEERS_DIR (default: the repository's ../shared/peers), VINT_QUEUE_ROUNDS (3), VINT_QUEUE_CEILING_S
 # (pgbench duration, 15), VINT_QUEUE_AWA_JOBS (100000); the coordinator's own knobs (VINT_BENCH_TASKS,
 # VINT_BENCH_WORKERS, VINT_BENCH_PREFETCH) pass through to it. CARGO_BUILD_JOBS applies to both builds.
+#
+# The smoke (VINT_BENCH_SMOKE=1; seconds: the test command's check that the bench still runs, not a
+# figure) runs what needs neither the peers nor a release build, which the test command cannot
+# assume: one round (VINT_QUEUE_ROUNDS) of the coordinator cases alone, from the dev build of
+# benches/coordinator.rs with 64 tasks per run (VINT_BENCH_TASKS), then the summary and ratios as
+# always (n/a for the missing ceiling and awa). It checks the settings, the coordinator's JSON lines
+# against this script's jq and the summary; not pgbench, the peers' scripts or awa. Its JSON lines go
+# to a temporary directory, removed at exit. It needs psql, jq, cargo and Postgres.
 set -euo pipefail
 
 repo=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 admin=${VINT_TEST_POSTGRES_URL:-postgres://postgres@127.0.0.1:5432/postgres}
 peers=${VINT_PEERS_DIR:-$(dirname "$repo")/shared/peers}
-rounds=${VINT_QUEUE_ROUNDS:-3}
+smoke=${VINT_BENCH_SMOKE:-0}
+if [[ $smoke == 1 ]]; then
+  rounds=${VINT_QUEUE_ROUNDS:-1}
+  export VINT_BENCH_TASKS=${VINT_BENCH_TASKS:-64}
+  bench_profile=dev
+else
+  rounds=${VINT_QUEUE_ROUNDS:-3}
+  bench_profile=bench
+fi
 ceiling_s=${VINT_QUEUE_CEILING_S:-15}
 awa_jobs=${VINT_QUEUE_AWA_JOBS:-100000}
 awa_workers=1024          # awa-bench's best configuration on this machine kind (its README)
@@ -44,16 +61,20 @@ die() { echo "queue bench: $*" >&2; exit 2; }
 check_count() {
   [[ $2 =~ ^[0-9]+$ ]] && (($2 >= $3 && $2 <= $4)) || die "$1 = '$2': must be an integer from $3 to $4"
 }
+[[ $smoke == 0 || $smoke == 1 ]] || die "VINT_BENCH_SMOKE = '$smoke': must be 0 or 1"
 check_count VINT_QUEUE_ROUNDS "$rounds" 1 100
 check_count VINT_QUEUE_CEILING_S "$ceiling_s" 1 600
 check_count VINT_QUEUE_AWA_JOBS "$awa_jobs" 1000 10000000
 
-[[ -f $peers/pg-ceiling/lease_batch64.pgb && -f $peers/pg-ceiling/schema.sql && -f $peers/pg-ceiling/load_n.sql ]] ||
-  die "the raw SQL ceiling's scripts are missing: expected $peers/pg-ceiling/{schema.sql,load_n.sql,lease_batch64.pgb} (the repository's ../shared/peers; set VINT_PEERS_DIR to point elsewhere)"
-[[ -f $peers/awa-bench/Cargo.toml && -d $peers/awa-bench/src ]] ||
-  die "the awa harness is missing: expected $peers/awa-bench/{Cargo.toml,src/} (the repository's ../shared/peers; set VINT_PEERS_DIR to point elsewhere)"
-for tool in pgbench psql jq cargo; do
-  command -v "$tool" >/dev/null || die "'$tool' is not on PATH (pgbench and psql: Debian's postgresql-client-15; jq: jq)"
+if ((!smoke)); then
+  [[ -f $peers/pg-ceiling/lease_batch64.pgb && -f $peers/pg-ceiling/schema.sql && -f $peers/pg-ceiling/load_n.sql ]] ||
+    die "the raw SQL ceiling's scripts are missing: expected $peers/pg-ceiling/{schema.sql,load_n.sql,lease_batch64.pgb} (the repository's ../shared/peers; set VINT_PEERS_DIR to point elsewhere)"
+  [[ -f $peers/awa-bench/Cargo.toml && -d $peers/awa-bench/src ]] ||
+    die "the awa harness is missing: expected $peers/awa-bench/{Cargo.toml,src/} (the repository's ../shared/peers; set VINT_PEERS_DIR to point elsewhere)"
+  command -v pgbench >/dev/null || die "'pgbench' is not on PATH (Debian's postgresql-client-15)"
+fi
+for tool in psql jq cargo; do
+  command -v "$tool" >/dev/null || die "'$tool' is not on PATH (psql: Debian's postgresql-client-15; jq: jq)"
 done
 
 # The admin URL with another database in its path.
@@ -63,7 +84,12 @@ quiet_psql() { PGOPTIONS="-c client_min_messages=warning" psql -v ON_ERROR_STOP=
 sql() { quiet_psql "$1" -At -c "$2"; }
 sql "$admin" "SELECT 1" >/dev/null || die "cannot reach Postgres at $admin (set VINT_TEST_POSTGRES_URL)"
 
-out_dir=$repo/target/queue-bench
+if ((smoke)); then
+  out_dir=$(mktemp -d "${TMPDIR:-/tmp}/vint-queue-smoke.XXXXXX")
+  trap 'rm -rf "$out_dir"' EXIT
+else
+  out_dir=$repo/target/queue-bench
+fi
 mkdir -p "$out_dir"
 results=$out_dir/$(date -u +%Y%m%dT%H%M%SZ).jsonl
 
@@ -81,20 +107,24 @@ env_json=$(jq -cn \
 echo "$env_json" | tee -a "$results"
 
 # --- Build everything first, so no build lands inside a timed round.
-echo "building the coordinator bench (release) ..."
-(cd "$repo" && cargo bench -q -p vint-tests --bench coordinator --no-run)
+echo "building the coordinator bench (profile $bench_profile) ..."
+(cd "$repo" && cargo bench -q --profile "$bench_profile" -p vint-tests --bench coordinator --no-run)
 
-echo "building awa-bench from a copy under target/peers/awa-bench ..."
-awa_src=$repo/target/peers/awa-bench
-mkdir -p "$awa_src"
-rm -rf "$awa_src/src"
-cp -a "$peers/awa-bench/Cargo.toml" "$peers/awa-bench/src" "$awa_src/"
-[[ -f $peers/awa-bench/Cargo.lock ]] && cp -a "$peers/awa-bench/Cargo.lock" "$awa_src/"
-# Inside this repository's tree cargo would take the copy for a stray member of vint's workspace:
-# an empty [workspace] table makes the copy a workspace of its own.
-printf '\n[workspace]\n' >>"$awa_src/Cargo.toml"
-(cd "$awa_src" && CARGO_TARGET_DIR="$awa_src/target" cargo build -q --release)
-awabench=$awa_src/target/release/awabench
+build_awa() {
+  echo "building awa-bench from a copy under target/peers/awa-bench ..."
+  local awa_src=$repo/target/peers/awa-bench
+  mkdir -p "$awa_src"
+  rm -rf "$awa_src/src"
+  cp -a "$peers/awa-bench/Cargo.toml" "$peers/awa-bench/src" "$awa_src/"
+  [[ -f $peers/awa-bench/Cargo.lock ]] && cp -a "$peers/awa-bench/Cargo.lock" "$awa_src/"
+  # Inside this repository's tree cargo would take the copy for a stray member of vint's workspace:
+  # an empty [workspace] table makes the copy a workspace of its own.
+  printf '\n[workspace]\n' >>"$awa_src/Cargo.toml"
+  (cd "$awa_src" && CARGO_TARGET_DIR="$awa_src/target" cargo build -q --release)
+  awabench=$awa_src/target/release/awabench
+}
+# Not in an `||` list: errexit would be off inside the function.
+if ((!smoke)); then build_awa; fi
 
 # --- One run of each kind; each appends one JSON line to $results and prints a line.
 
@@ -127,7 +157,7 @@ run_ceiling() { # round
 run_coordinator() { # round, filters...
   local round=$1 log
   shift
-  log=$(cd "$repo" && VINT_BENCH_REPEATS=1 cargo bench -q -p vint-tests --bench coordinator -- "$@" 2>&1) ||
+  log=$(cd "$repo" && VINT_BENCH_REPEATS=1 cargo bench -q --profile "$bench_profile" -p vint-tests --bench coordinator -- "$@" 2>&1) ||
     { echo "$log" >&2; die "the coordinator bench failed"; }
   grep '^  ' <<<"$log" || true
   grep '"bench":"coordinator_lease_complete"' <<<"$log" |
@@ -149,11 +179,11 @@ run_awa() { # round
 
 for ((round = 1; round <= rounds; round++)); do
   echo "round $round of $rounds (load average $(cut -d' ' -f1-3 /proc/loadavg))"
-  run_ceiling "$round"
+  if ((!smoke)); then run_ceiling "$round"; fi
   run_coordinator "$round" "$@"
-  run_awa "$round"
+  if ((!smoke)); then run_awa "$round"; fi
 done
-sql "$admin" "DROP DATABASE IF EXISTS $awa_db WITH (FORCE)"
+if ((!smoke)); then sql "$admin" "DROP DATABASE IF EXISTS $awa_db WITH (FORCE)"; fi
 echo "load average at end: $(cut -d' ' -f1-3 /proc/loadavg)"
 
 # --- Summary: per case over the rounds; ratios of medians.
@@ -183,4 +213,4 @@ jq -r '
 echo
 echo "$env_json"
 jq -c '.[]' <<<"$summary" | tee -a "$results"
-echo "every run: $results"
+if ((!smoke)); then echo "every run: $results"; fi

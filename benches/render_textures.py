@@ -3,7 +3,10 @@ texture and with a plain material, measured alternately view by view (so machine
 alike), in one warm render scene (`vint_engines.render.scene.BlenderScene`, as the engine keeps it).
 
 Run: PYTHONPATH=workers/engines .venv/bin/python benches/render_textures.py [--views N] [--size PX]
-     [--samples S]
+     [--samples S] [--smoke]
+
+`--smoke`: one view per object, 16×16 px, 1 sample (seconds: the test command's check that the
+bench still runs, not a figure).
 
 Per object: N views from cameras around it (the object alone, studio HDRI, one CPU thread); the time
 of a view is `render_rgb` (path tracing, including the shader compile the first time a material is
@@ -55,7 +58,10 @@ def main() -> None:
     parser.add_argument("--views", type=int, default=7)
     parser.add_argument("--size", type=int, default=128)
     parser.add_argument("--samples", type=int, default=32)
+    parser.add_argument("--smoke", action="store_true", help="1 view, 16×16 px, 1 sample (seconds)")
     args = parser.parse_args()
+    if args.smoke:
+        args.views, args.size, args.samples = 1, 16, 1
     tracing = PathTracing(args.samples, False, Bounces(12, 4, 4, 12, 8))
     catalog = load_catalog()
     figures = {}

@@ -2,6 +2,7 @@
 each "leave out what the scene does not need" pruning saves; and resident memory over many views.
 
 Run: PYTHONPATH=workers/engines .venv/bin/python benches/render_warm_cold.py [--views N] [--memory-views M]
+     PYTHONPATH=workers/engines .venv/bin/python benches/render_warm_cold.py --smoke
 
 Every render goes through the engine protocol exactly as a worker drives it (`python -m vint_engines
 serve --stage render`, framed JSON over pipes), on grasps made by the real grasp engine (trx3 on
@@ -16,6 +17,8 @@ pruned bounce caps against the same can with the caps a glass needs (`prune_boun
 Memory: M consecutive small views on one warm engine, its RSS (from /proc) after every task;
 growth is the last RSS against the RSS after the first 5 % of the views.
 Prints one line per setting and, last, one JSON object with every figure (medians).
+`--smoke`: one view at 32x24 px and 1 sample per mode, 2 memory views (seconds, mostly engine
+start-ups: the test command's check that the bench still runs, not a figure).
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ from vint_engines.study.grasped import GraspedScene, grasp
 
 ENGINES_DIR = Path(__file__).resolve().parents[1] / "workers" / "engines"
 SETTINGS = {"128x128/16spp": (128, 128, 16), "640x480/64spp": (640, 480, 64)}
+SMOKE_SETTINGS = {"32x24/1spp": (32, 24, 1)}
 ALL_OUTPUTS = ["rgb", "depth", "mask", "segmentation"]
 DEPTH_ONLY = ["depth", "mask", "segmentation"]
 _LENGTH = struct.Struct(">I")
@@ -222,14 +226,17 @@ def main() -> int:
         help="views in the memory run (0: skip)",
     )
     parser.add_argument("--settings", default=",".join(SETTINGS), help="comma-separated settings")
+    parser.add_argument("--smoke", action="store_true", help="1 view at 32x24/1spp, 2 memory views")
     args = parser.parse_args()
+    if args.smoke:
+        args.views, args.memory_views = 1, 2
+    settings = SMOKE_SETTINGS if args.smoke else {name: SETTINGS[name] for name in args.settings.split(",")}
     figures: dict[str, Any] = {"machine": {"cpus": os.cpu_count()}}
     with tempfile.TemporaryDirectory(prefix="vint-render-bench-") as tmp:
         work = Path(tmp)
         can = grasp("trx3", "tomato_soup_can", work / "can", list(range(101, 105)))
         glass = grasp("trx3", "wine_glass", work / "glass", list(range(201, 209)))
-        for name in args.settings.split(","):
-            size = SETTINGS[name]
+        for name, size in settings.items():
             figures[name] = {
                 **warm_vs_cold(can, size, args.views, work / name),
                 **pruning(can, glass, size, args.views, work / name),

@@ -4,6 +4,7 @@ one CPU thread) with no scene, the table alone, the arm flange alone, both (the 
 plus the sensor model.
 
     .venv/bin/python benches/scene_cost.py [--size 640x480] [--samples 32] [--views 2] [--repeats 2]
+    .venv/bin/python benches/scene_cost.py --smoke     # 32×24, 1 sample, 1 view, 1 repeat (seconds)
 
 Variants run interleaved (round-robin per repeat, each view of each variant once per repeat), so a
 slow moment of the machine hits them all alike; the table is medians per view and the ratio to
@@ -52,7 +53,10 @@ def main() -> int:
     parser.add_argument("--samples", type=int, default=32)
     parser.add_argument("--views", type=int, default=2)
     parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--smoke", action="store_true", help="32x24, 1 sample, 1 view, 1 repeat (seconds)")
     args = parser.parse_args()
+    if args.smoke:
+        args.size, args.samples, args.views, args.repeats = "32x24", 1, 1, 1
     width, height = (int(v) for v in args.size.split("x"))
 
     from vint_engines.render.engine import RenderEngine

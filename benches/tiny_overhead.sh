@@ -3,6 +3,10 @@
 # the engines account for, with 1 worker and with 2.
 #
 #   benches/tiny_overhead.sh [RUNS]        RUNS per worker count, default 3
+#   VINT_BENCH_SMOKE=1 benches/tiny_overhead.sh
+#
+# The smoke (VINT_BENCH_SMOKE=1; seconds: the test command's check that the bench still runs, not a
+# figure) runs benches/smoke.toml instead of tiny.toml, once per worker count unless RUNS is given.
 #
 # Builds the binaries (dev profile, as scripts/setup.sh does), then runs tiny.toml RUNS times with
 # --workers 1 and RUNS times with --workers 2, each in a fresh state directory, timing the whole
@@ -26,7 +30,12 @@ set -euo pipefail
 
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 cd "$ROOT"
+SPEC=examples/tiny.toml
 RUNS="${1:-3}"
+if [[ "${VINT_BENCH_SMOKE:-0}" == 1 ]]; then
+    SPEC=benches/smoke.toml
+    RUNS="${1:-1}"
+fi
 export VINT_PYTHON="${VINT_PYTHON:-$ROOT/.venv/bin/python}"
 [[ -x "$VINT_PYTHON" ]] || {
     echo "tiny_overhead: engine Python $VINT_PYTHON is missing: run scripts/setup-python.sh" >&2
@@ -45,7 +54,7 @@ for workers in 1 2; do
         dir="$TMP/w$workers-r$run"
         mkdir -p "$dir"
         started=$(now_ms)
-        if ! "$VINTCTL" run examples/tiny.toml --out "$dir/out" --state "$dir/state" \
+        if ! "$VINTCTL" run "$SPEC" --out "$dir/out" --state "$dir/state" \
             --workers "$workers" --json >"$dir/stdout.json" 2>"$dir/stderr.log"; then
             cat "$dir/stderr.log" >&2
             echo "tiny_overhead: vintctl run failed (workers=$workers, run $run)" >&2

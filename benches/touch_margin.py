@@ -6,6 +6,7 @@ CPU time per accepted grasp from the grasp tasks' own metrics (`touch_ms` in the
 
 Usage (from the repository root, after `scripts/setup.sh`):
     .venv/bin/python benches/touch_margin.py [--margins-mm 0.1,0.2,0.3,0.5,1,2] [--trials 4] [--out DIR]
+    .venv/bin/python benches/touch_margin.py --smoke      # one margin (0.5 mm), one trial (seconds)
 
 Each value runs `vintctl run` on examples/tiny.toml with that margin, `trials_per_pair` trials per
 (hand, object), the pose modality only and one view (the renders are not what is measured), on one
@@ -98,7 +99,10 @@ def main() -> None:
     parser.add_argument("--margins-mm", default="0.1,0.2,0.3,0.5,1,2")
     parser.add_argument("--trials", type=int, default=4, help="trials per (hand, object)")
     parser.add_argument("--out", type=Path, default=None, help="keep the datasets here (default: a temp dir)")
+    parser.add_argument("--smoke", action="store_true", help="one margin (0.5 mm), one trial (seconds)")
     args = parser.parse_args()
+    if args.smoke:
+        args.margins_mm, args.trials = "0.5", 1
     if not VINTCTL.exists():
         raise SystemExit(f"touch_margin: {VINTCTL} not built (scripts/setup.sh)")
     margins = [1e-3 * float(v) for v in args.margins_mm.split(",")]

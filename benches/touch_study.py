@@ -2,6 +2,10 @@
 and how its output moves with its resolution knob (averaged contact steps).
 
 Run: PYTHONPATH=workers/engines .venv/bin/python benches/touch_study.py --out docs [--seeds N] [--reps R]
+     PYTHONPATH=workers/engines .venv/bin/python benches/touch_study.py --smoke
+
+`--smoke`: 2 seeds, 1 repetition, written into a temporary directory (seconds: the test command's
+check that the bench still runs).
 
 Writes OUT/touch_response.png (reading against force for several gains and aging values) and
 OUT/studies/touch_readout/{cost,resolution}.csv, and prints the tables docs/touch.md quotes, then one JSON
@@ -71,14 +75,15 @@ def load_baseline(commit: str) -> Any:
         capture_output=True,
         text=True,
     ).stdout
-    path = Path(tempfile.mkdtemp()) / "proximity_touch.py"
-    path.write_text(source)
-    spec = importlib.util.spec_from_file_location("proximity_touch", path)
-    if spec is None or spec.loader is None:
-        raise RuntimeError("cannot load the baseline touch model")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up there
-    spec.loader.exec_module(module)
+    with tempfile.TemporaryDirectory(prefix="vint-touch-baseline-") as scratch:
+        path = Path(scratch) / "proximity_touch.py"
+        path.write_text(source)
+        spec = importlib.util.spec_from_file_location("proximity_touch", path)
+        if spec is None or spec.loader is None:
+            raise RuntimeError("cannot load the baseline touch model")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[spec.name] = module  # dataclasses look their module up there
+        spec.loader.exec_module(module)
     return module
 
 
@@ -276,21 +281,33 @@ def print_tables(summary: dict[str, Any]) -> None:
         )
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--out", type=Path, required=True)
-    parser.add_argument("--seeds", type=int, default=4)
-    parser.add_argument("--reps", type=int, default=15)
-    parser.add_argument("--baseline", default=BASELINE)
-    args = parser.parse_args()
-    args.out.mkdir(parents=True, exist_ok=True)
-    plot_response(args.out / "touch_response.png")
-    cost, resolution = study(args.seeds, args.reps, args.baseline)
-    write_csv(args.out / "studies" / "touch_readout" / "cost.csv", cost)
-    write_csv(args.out / "studies" / "touch_readout" / "resolution.csv", resolution)
+def run(out: Path, seeds: int, reps: int, baseline: str) -> None:
+    """The study into `out`: the figure, the CSV files, the tables and the JSON line."""
+    out.mkdir(parents=True, exist_ok=True)
+    plot_response(out / "touch_response.png")
+    cost, resolution = study(seeds, reps, baseline)
+    write_csv(out / "studies" / "touch_readout" / "cost.csv", cost)
+    write_csv(out / "studies" / "touch_readout" / "resolution.csv", resolution)
     summary = summarise(cost, resolution)
     print_tables(summary)
     print(json.dumps(summary))
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--out", type=Path, help="required unless --smoke")
+    parser.add_argument("--seeds", type=int, default=4)
+    parser.add_argument("--reps", type=int, default=15)
+    parser.add_argument("--baseline", default=BASELINE)
+    parser.add_argument("--smoke", action="store_true", help="2 seeds, 1 repetition, into a temp dir")
+    args = parser.parse_args()
+    if args.smoke:
+        with tempfile.TemporaryDirectory(prefix="vint-touch-study-") as scratch:
+            run(args.out or Path(scratch), 2, 1, args.baseline)
+    elif args.out is None:
+        parser.error("--out is required (without it only --smoke runs, into a temporary directory)")
+    else:
+        run(args.out, args.seeds, args.reps, args.baseline)
     return 0
 
 

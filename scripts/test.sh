@@ -5,9 +5,10 @@
 #
 # Sets up the engines' Python environment (scripts/setup-python.sh), finds a Postgres, then runs
 # cargo fmt, ruff, the deploy manifests' checks, clippy, cargo build (the end-to-end tests start the
-# built binaries), cargo test and pytest, stopping at the first failure. Nothing is skipped: a missing
-# Postgres, Rust tool, kustomize (kubectl), Chromium or engine library is a failure (Postgres and
-# Chromium are apt-installed when absent, as root).
+# built binaries), cargo test, pytest and every bench's smoke (tests/python/test_bench_smoke.py),
+# stopping at the first failure. Nothing is skipped: a missing Postgres, Rust tool, kustomize
+# (kubectl), Chromium, jq or engine library is a failure (Postgres, Chromium and jq are apt-installed
+# when absent, as root).
 #
 # Postgres, first that applies:
 #   1. $VINT_TEST_POSTGRES_URL, if set (an admin URL: the tests create databases through it);
@@ -214,26 +215,34 @@ drop_stale_test_databases() {
     [[ "$dropped" -eq 0 ]] || log "dropped $dropped stale test database(s)"
 }
 
-# --- headless Chromium (the web dashboard's browser test) ----------------------------------------
+# --- tools from Debian's packages: headless Chromium, jq ----------------------------------------
+
+# Command TOOL on PATH, else Debian's PACKAGE installed with apt-get (as root), else a failure whose
+# message ends with HINT.
+require_debian_tool() {
+    local tool="$1" package="$2" hint="$3"
+    command -v "$tool" >/dev/null && return 0
+    if [[ "$(id -u)" -ne 0 ]] || ! command -v apt-get >/dev/null; then
+        die "$tool not found and it cannot be installed here (needs root and apt-get).
+  $hint"
+    fi
+    log "!!! $tool not found: INSTALLING the Debian package '$package' (apt-get) !!!"
+    if ! DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "$package" >/dev/null 2>&1; then
+        apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "$package" >/dev/null ||
+            die "apt-get install $package failed"
+    fi
+    command -v "$tool" >/dev/null || die "apt-get installed $package but $tool is not on PATH"
+}
 
 # Chromium for tests/tests/dashboard.rs: $VINT_CHROMIUM, else `chromium` on PATH, else Debian's
-# package installed with apt-get (as root), else a failure.
+# package.
 require_chromium() {
     if [[ -n "${VINT_CHROMIUM:-}" ]]; then
         [[ -x "$VINT_CHROMIUM" ]] || die "VINT_CHROMIUM=$VINT_CHROMIUM is not an executable"
         return 0
     fi
-    command -v chromium >/dev/null && return 0
-    if [[ "$(id -u)" -ne 0 ]] || ! command -v apt-get >/dev/null; then
-        die "chromium not found and it cannot be installed here (needs root and apt-get).
-  Install Debian's chromium package, or set VINT_CHROMIUM to a Chromium or Chrome binary."
-    fi
-    log "!!! chromium not found: INSTALLING the Debian package 'chromium' (apt-get) !!!"
-    if ! DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null 2>&1; then
-        apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null ||
-            die "apt-get install chromium failed"
-    fi
-    command -v chromium >/dev/null || die "apt-get installed chromium but it is not on PATH"
+    require_debian_tool chromium chromium \
+        "Install Debian's chromium package, or set VINT_CHROMIUM to a Chromium or Chrome binary."
 }
 
 # --- steps ---------------------------------------------------------------------------------------
@@ -246,7 +255,7 @@ deploy_checks() {
 }
 
 STEP=0
-STEPS=8
+STEPS=9
 
 # Runs one check with a banner and its elapsed time; the first failure ends the script.
 step() {
@@ -272,6 +281,8 @@ log "Python environment ready ($((SECONDS - started))s)"
 choose_postgres
 drop_stale_test_databases
 require_chromium
+# jq for benches/queue.sh's smoke (the bench smokes step).
+require_debian_tool jq jq "Install Debian's jq package."
 export VINT_TEST_POSTGRES_URL
 export VINT_PYTHON="$ROOT/.venv/bin/python"
 export VINT_REQUIRE_ENGINES=1
@@ -286,4 +297,5 @@ step "cargo clippy" cargo clippy --workspace --all-targets -- -D warnings
 step "cargo build --bins" cargo build --workspace --bins
 step "cargo test" cargo test --workspace "$@"
 step "pytest (engines)" .venv/bin/python -m pytest workers/engines/tests -q
+step "bench smokes" .venv/bin/python -m pytest tests/python/test_bench_smoke.py -q --durations=0
 printf '\ntest.sh: all %d checks passed in %ds\n' "$STEPS" $((SECONDS - total)) >&2
