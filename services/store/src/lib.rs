@@ -109,6 +109,32 @@ impl Backend {
     }
 }
 
+/// The URL the pool connects with: `url`, plus `sslmode=disable` when it names a loopback host
+/// (127.0.0.0/8, ::1, localhost) and says nothing of TLS itself (no `sslmode` in it, no
+/// `PGSSLMODE` in the environment: `pgsslmode`). libpq's and sqlx's default, `prefer`, encrypts
+/// whenever the server offers TLS — Debian's Postgres does, with its snakeoil certificate — and
+/// on loopback that protects nothing but costs: measured with `benches/coordinator.rs`, TLS to a
+/// local Postgres took batch-256 completion from 39 to 60 ms p50 and 19,200 to 14,100 tasks/s
+/// (docs/benchmarks.md). Any other host keeps `prefer`, and an explicit `sslmode` always wins.
+fn postgres_url(url: &str, pgsslmode: Option<&str>) -> String {
+    let Ok(parsed) = url::Url::parse(url) else { return url.to_string() };
+    let loopback = match parsed.host() {
+        Some(url::Host::Ipv4(ip)) => ip.is_loopback(),
+        Some(url::Host::Ipv6(ip)) => ip.is_loopback(),
+        // A postgres:// URL's host is opaque to the url crate: an address arrives as a name.
+        Some(url::Host::Domain(name)) => {
+            name.eq_ignore_ascii_case("localhost") || name.parse::<std::net::IpAddr>().is_ok_and(|ip| ip.is_loopback())
+        }
+        None => false,
+    };
+    let says_tls = pgsslmode.is_some() || parsed.query_pairs().any(|(key, _)| key == "sslmode");
+    if !loopback || says_tls {
+        return url.to_string();
+    }
+    let separator = if parsed.query().is_some() { '&' } else { '?' };
+    format!("{url}{separator}sslmode=disable")
+}
+
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {
     #[error("database error: {0}")]
@@ -194,7 +220,7 @@ impl Store {
                             Ok(())
                         })
                     })
-                    .connect(url)
+                    .connect(&postgres_url(url, std::env::var("PGSSLMODE").ok().as_deref()))
                     .await?
             }
             Backend::Sqlite => {
@@ -314,4 +340,31 @@ fn parse<T: FromStr>(what: &str, s: &str) -> Result<T> {
 
 fn to_u32(what: &str, v: i64) -> Result<u32> {
     u32::try_from(v).map_err(|_| StoreError::Corrupt(format!("{what} {v}")))
+}
+
+#[cfg(test)]
+mod url_tests {
+    use super::postgres_url;
+
+    #[test]
+    fn loopback_without_a_word_on_tls_connects_in_clear() {
+        let local = "postgres://postgres@127.0.0.1:5432/vint";
+        assert_eq!(postgres_url(local, None), format!("{local}?sslmode=disable"));
+        let with_query = "postgres://u:p@localhost/vint?application_name=x";
+        assert_eq!(postgres_url(with_query, None), format!("{with_query}&sslmode=disable"));
+        assert_eq!(postgres_url("postgres://[::1]:5432/vint", None), "postgres://[::1]:5432/vint?sslmode=disable");
+    }
+
+    #[test]
+    fn an_explicit_choice_or_another_host_is_left_alone() {
+        for url in [
+            "postgres://postgres@127.0.0.1:5432/vint?sslmode=require",
+            "postgres://vint@db.example.org:5432/vint",
+            "postgres://vint@10.0.0.5/vint",
+            "postgres:///vint?host=/var/run/postgresql",
+        ] {
+            assert_eq!(postgres_url(url, None), url);
+        }
+        assert_eq!(postgres_url("postgres://127.0.0.1/vint", Some("prefer")), "postgres://127.0.0.1/vint");
+    }
 }
