@@ -371,7 +371,7 @@ class BlenderScene:
                 self._arm[name] = (piece, mount.link)
         self._table.pass_index = self._table_pass_index()
         for i, obj in enumerate(self._distractors):
-            obj.pass_index = self._table_pass_index() + 1 + i
+            obj.pass_index = self._distractor_pass_index(i)
         self._hand_key = key
 
     def set_object(
@@ -448,11 +448,8 @@ class BlenderScene:
         centre (m): the radius of the grasp's footprint."""
         assert self._object is not None
         centre = np.asarray(self._object.matrix_world, dtype=np.float64)[:2, 3]
-        shown = [self._object, *self._links.values()]
-        if self.dressing.flange:
-            shown += [piece for piece, _ in self._arm.values()]
         reach = 0.0
-        for obj in shown:
+        for obj in self._grasp_objects():
             points = _world_vertices(obj)
             if len(points):
                 reach = max(reach, float(np.linalg.norm(points[:, :2] - centre, axis=1).max()))
@@ -463,7 +460,7 @@ class BlenderScene:
         keeps its mesh by name, its material made when an RGB view first shows it."""
         while len(self._distractors) < len(standing):
             mesh = bpy.data.meshes.new(f"distractor_{len(self._distractors)}_empty")
-            obj = self._add_object(mesh, (), self._table_pass_index() + 1 + len(self._distractors))
+            obj = self._add_object(mesh, (), self._distractor_pass_index(len(self._distractors)))
             self._distractors.append(obj)
         for i, obj in enumerate(self._distractors):
             if i >= len(standing):
@@ -484,17 +481,22 @@ class BlenderScene:
         """The distractors the placed camera sees stand (none when it does not see the table)."""
         return [placed for placed, _ in self._standing] if self.table_shown() else []
 
+    def _grasp_objects(self) -> list[bpy.types.Object]:
+        """What the grasp shows: the object, the hand's links and, with the flange, the arm's
+        pieces (the table stands under them, distractors around them)."""
+        shown = [obj for obj in (self._object, *self._links.values()) if obj is not None]
+        if self.dressing.flange:
+            shown += [piece for piece, _ in self._arm.values()]
+        return shown
+
     def _place_table(self, object_position: np.ndarray) -> None:
         """The table top level under the object, `table_gap_m` below the lowest shown point."""
         if not self.dressing.table:
             self.table_top_z = None
             self._table.hide_render = True
             return
-        shown = [self._object, *self._links.values()]
-        if self.dressing.flange:
-            shown += [piece for piece, _ in self._arm.values()]
         # A user's link may show nothing (a body with no geom of its own).
-        lowest = min(_lowest_z(obj) for obj in shown if obj is not None and len(obj.data.vertices))
+        lowest = min(_lowest_z(obj) for obj in self._grasp_objects() if len(obj.data.vertices))
         top = dressing.table_top_z(lowest, self.dressing.table_gap_m)
         thickness = dressing.TABLE_SIZE_M[2]
         self._table.location = (float(object_position[0]), float(object_position[1]), top - thickness / 2)
@@ -514,11 +516,14 @@ class BlenderScene:
         if self.dressing.table:
             labels[self._table_pass_index()] = "scene/table"
         for i, (placed, _) in enumerate(self._standing):
-            labels[self._table_pass_index() + 1 + i] = f"distractor/{placed.name}"
+            labels[self._distractor_pass_index(i)] = f"distractor/{placed.name}"
         return labels
 
     def _table_pass_index(self) -> int:
         return FIRST_LINK_PASS_INDEX + len(self._links) + len(dressing.ARM_PIECES)
+
+    def _distractor_pass_index(self, i: int) -> int:
+        return self._table_pass_index() + 1 + i
 
     def _object_material(self) -> str:
         """The shown object's material tag (plastic before any object is set)."""
@@ -534,7 +539,7 @@ class BlenderScene:
             if label.startswith(("arm/", "scene/")):
                 tags[index] = dressing.MATERIAL_TAGS[label]
         for i, (_, spec) in enumerate(self._standing):
-            tags[self._table_pass_index() + 1 + i] = spec.material
+            tags[self._distractor_pass_index(i)] = spec.material
         return tags
 
     def lobes(self) -> frozenset[str]:
