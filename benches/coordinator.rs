@@ -466,6 +466,7 @@ impl NoopWorker {
                     stages: vec![Stage::Grasp.as_str().to_string()],
                     capacity: self.batch,
                     lease_ms: LEASE_MS,
+                    engines: Default::default(),
                 })
                 .await
                 .expect("LeaseTasks")

@@ -299,6 +299,7 @@ async fn a_worker_whose_lease_expired_cannot_complete_its_task() {
         stages: vec!["grasp".into()],
         capacity: 1,
         lease_ms: 1_000,
+        engines: Default::default(),
     };
     let stale = client.lease_tasks(lease("stale")).await.unwrap().into_inner().tasks.remove(0);
     tokio::time::sleep(Duration::from_millis(1_300)).await;

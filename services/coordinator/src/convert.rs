@@ -39,6 +39,7 @@ pub fn progress(job: &JobRecord, p: &Progress) -> pb::JobProgress {
                     total: counts.values().sum(),
                     succeeded: get(S::Succeeded),
                     failed: get(S::Failed),
+                    reused: p.reused.get(stage).copied().unwrap_or(0),
                 },
             )
         })

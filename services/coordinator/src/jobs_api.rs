@@ -168,6 +168,7 @@ impl JobApi {
             inputs: e.inputs.iter().map(convert::artifact).collect(),
             outputs: e.outputs.iter().map(convert::artifact).collect(),
             depends_on: e.depends_on,
+            reused_from: e.task.reused_from.unwrap_or_default(),
         })
     }
 }

@@ -16,11 +16,13 @@
 pub mod auth;
 mod convert;
 mod dashboard;
+pub mod forecast;
 mod health;
 mod http;
 mod jobs_api;
 mod metrics;
 mod planner;
+mod reuse;
 pub mod tls;
 mod work_api;
 

@@ -110,6 +110,7 @@ pub struct Metrics {
     registry: Arc<Registry>,
     tasks_leased: Family<StageLabels, Counter>,
     tasks_completed: Family<StageLabels, Counter>,
+    tasks_reused: Family<StageLabels, Counter>,
     tasks_failed: Family<FailureLabels, Counter>,
     completions_refused: Family<RefusalLabels, Counter>,
     leases_expired: Counter,
@@ -136,6 +137,12 @@ impl Metrics {
             "vint_tasks_completed",
             "Task completions recorded, by stage",
             Family::clone(&tasks_completed),
+        );
+        let tasks_reused = Family::default();
+        registry.register(
+            "vint_tasks_reused",
+            "Tasks completed from a finished task's result with the same reuse key instead of running, by stage",
+            Family::clone(&tasks_reused),
         );
         let tasks_failed = Family::default();
         registry.register(
@@ -183,6 +190,7 @@ impl Metrics {
             registry: Arc::new(registry),
             tasks_leased,
             tasks_completed,
+            tasks_reused,
             tasks_failed,
             completions_refused,
             leases_expired,
@@ -197,6 +205,7 @@ impl Metrics {
             let s = stage.as_str();
             let _ = metrics.tasks_leased.get_or_create(&StageLabels { stage: s });
             let _ = metrics.tasks_completed.get_or_create(&StageLabels { stage: s });
+            let _ = metrics.tasks_reused.get_or_create(&StageLabels { stage: s });
             for outcome in [AttemptOutcome::Retry, AttemptOutcome::Failed] {
                 let _ = metrics.tasks_failed.get_or_create(&FailureLabels { stage: s, outcome: outcome.as_str() });
             }
@@ -222,6 +231,10 @@ impl Metrics {
 
     pub(crate) fn task_completed(&self, stage: Stage) {
         self.tasks_completed.get_or_create(&StageLabels { stage: stage.as_str() }).inc();
+    }
+
+    pub(crate) fn task_reused(&self, stage: Stage) {
+        self.tasks_reused.get_or_create(&StageLabels { stage: stage.as_str() }).inc();
     }
 
     /// A reported failure, by what became of the task.

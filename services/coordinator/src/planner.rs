@@ -189,6 +189,8 @@ mod tests {
             last_error: None,
             engine_json: None,
             result_json: None,
+            content_key: None,
+            reused_from: None,
         }
     }
 

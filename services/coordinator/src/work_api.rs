@@ -18,12 +18,13 @@ use vint_store::{Completion, Fence, NewArtifact, Store, TaskRecord};
 use crate::convert::{self, status};
 use crate::metrics::{Refusal, Rpc};
 use crate::planner;
+use crate::reuse;
 use crate::{CoordinatorConfig, now_ms};
 
 #[derive(Clone)]
 pub struct WorkApi {
-    store: Store,
-    config: CoordinatorConfig,
+    pub(crate) store: Store,
+    pub(crate) config: CoordinatorConfig,
     plans: Arc<Mutex<HashMap<String, Arc<JobPlan>>>>,
 }
 
@@ -37,7 +38,7 @@ impl WorkApi {
     }
 
     /// A job's plan, read once per coordinator: plans are fixed at submit.
-    async fn plan_of(&self, job_id: &str) -> Result<Arc<JobPlan>, Status> {
+    pub(crate) async fn plan_of(&self, job_id: &str) -> Result<Arc<JobPlan>, Status> {
         if let Some(plan) = self.plans.lock().map_err(|_| Status::internal("plan cache poisoned"))?.get(job_id) {
             return Ok(plan.clone());
         }
@@ -145,6 +146,7 @@ impl WorkApi {
             timings_json: serde_json::to_string(&timings).unwrap_or_default(),
             result_json: req.result_json,
             samples: unlocked.samples,
+            reused_from: None,
         };
         Ok((completion, unlocked.children))
     }
@@ -195,12 +197,26 @@ impl WorkService for WorkApi {
             .iter()
             .map(|s| s.parse::<Stage>().map_err(|e| Status::invalid_argument(e.to_string())))
             .collect::<Result<Vec<_>, _>>()?;
-        let capacity = req.capacity.clamp(1, 256);
-        let leased = self
-            .store
-            .lease(&req.worker_id, &stages, capacity, self.lease_ms(req.lease_ms), now_ms())
-            .await
-            .map_err(status)?;
+        let identities = reuse::identities(&req.engines, &stages)?;
+        let capacity = req.capacity.clamp(1, 256) as usize;
+        let started = std::time::Instant::now();
+        let mut leased = Vec::new();
+        loop {
+            let batch = self
+                .store
+                .lease(&req.worker_id, &stages, (capacity - leased.len()) as u32, self.lease_ms(req.lease_ms), now_ms())
+                .await
+                .map_err(status)?;
+            if batch.is_empty() {
+                break;
+            }
+            let (hand_out, reused) = self.reuse_leased(&req.worker_id, batch, &identities).await?;
+            leased.extend(hand_out);
+            // What a reuse unlocked may be leasable at once: lease again while there is room.
+            if reused == 0 || leased.len() >= capacity || started.elapsed() >= reuse::REUSE_BUDGET {
+                break;
+            }
+        }
         let tasks = leased
             .into_iter()
             .map(|t| {

@@ -49,8 +49,13 @@ async fn leases_completions_failures_and_refusals_are_counted_by_stage() {
     tokio::spawn(vint_telemetry::serve_http(http_listener, router, std::future::pending()));
 
     let mut client = WorkServiceClient::connect(format!("http://{addr}")).await.unwrap();
-    let lease =
-        pb::LeaseTasksRequest { worker_id: "w".into(), stages: vec!["noise".into()], capacity: 2, lease_ms: 60_000 };
+    let lease = pb::LeaseTasksRequest {
+        worker_id: "w".into(),
+        stages: vec!["noise".into()],
+        capacity: 2,
+        lease_ms: 60_000,
+        ..Default::default()
+    };
     let tasks = client.lease_tasks(lease).await.unwrap().into_inner().tasks;
     assert_eq!(tasks.len(), 2);
 

@@ -39,8 +39,13 @@ async fn an_output_whose_key_is_not_its_content_key_is_refused_and_changes_nothi
     store.submit_job(&job, &[noise], vint_coordinator::now_ms()).await.unwrap();
     let (url, _stop) = start_coordinator(store.clone()).await;
     let mut client = WorkServiceClient::connect(url).await.unwrap();
-    let lease =
-        pb::LeaseTasksRequest { worker_id: "w".into(), stages: vec!["noise".into()], capacity: 1, lease_ms: 60_000 };
+    let lease = pb::LeaseTasksRequest {
+        worker_id: "w".into(),
+        stages: vec!["noise".into()],
+        capacity: 1,
+        lease_ms: 60_000,
+        ..Default::default()
+    };
     let task = client.lease_tasks(lease).await.unwrap().into_inner().tasks.remove(0);
 
     let content = b"depth noise";

@@ -10,6 +10,7 @@ pub mod catalog;
 pub mod contract;
 pub mod file_sizes;
 pub mod plan;
+pub mod reuse;
 pub mod sample;
 pub mod seed;
 pub mod spec;

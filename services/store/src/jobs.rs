@@ -12,7 +12,7 @@ use crate::{JobAsset, JobRecord, NewJob, Progress, Result, Store, StoreError, Ta
 
 const JOB_COLUMNS: &str = "id, name, seed, spec_toml, plan_json, state, created_ms, finished_ms";
 pub(crate) const TASK_COLUMNS: &str = "id, job_id, key, stage, state, params_json, attempt, max_attempts, \
-     not_before_ms, lease_owner, lease_deadline_ms, last_error, engine_json, result_json";
+     not_before_ms, lease_owner, lease_deadline_ms, last_error, engine_json, result_json, content_key, reused_from";
 
 fn job_from_row(row: &AnyRow) -> Result<JobRecord> {
     Ok(JobRecord {
@@ -43,6 +43,8 @@ pub(crate) fn task_from_row(row: &AnyRow) -> Result<TaskRecord> {
         last_error: row.try_get("last_error")?,
         engine_json: row.try_get("engine_json")?,
         result_json: row.try_get("result_json")?,
+        content_key: row.try_get("content_key")?,
+        reused_from: row.try_get("reused_from")?,
     })
 }
 
@@ -144,16 +146,23 @@ impl Store {
     }
 
     pub async fn progress(&self, job_id: &str) -> Result<Progress> {
-        let rows = sqlx::query("SELECT stage, state, COUNT(*) AS n FROM tasks WHERE job_id = $1 GROUP BY stage, state")
-            .bind(job_id)
-            .fetch_all(&self.pool)
-            .await?;
+        let rows = sqlx::query(
+            "SELECT stage, state, COUNT(*) AS n, COUNT(reused_from) AS reused FROM tasks WHERE job_id = $1 \
+             GROUP BY stage, state",
+        )
+        .bind(job_id)
+        .fetch_all(&self.pool)
+        .await?;
         let mut p = Progress::default();
         for row in rows {
             let stage = parse("stage", &row.try_get::<String, _>("stage")?)?;
             let state = parse("task state", &row.try_get::<String, _>("state")?)?;
             let n: i64 = row.try_get("n")?;
+            let reused: i64 = row.try_get("reused")?;
             p.by_stage.entry(stage).or_default().insert(state, n as u64);
+            if reused > 0 {
+                *p.reused.entry(stage).or_default() += reused as u64;
+            }
         }
         let samples: i64 = sqlx::query("SELECT COUNT(*) AS n FROM samples WHERE job_id = $1")
             .bind(job_id)

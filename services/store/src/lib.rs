@@ -37,6 +37,7 @@ mod jobs;
 mod lineage;
 mod queue;
 mod records;
+mod reuse;
 
 use std::str::FromStr;
 use std::time::Duration;
@@ -49,6 +50,7 @@ pub use depth::{LIVE_TASK_STATES, QueueDepth};
 pub use failures::FailedTask;
 pub use lineage::ASSET_TASK_KEY;
 pub use records::*;
+pub use reuse::StoredResult;
 
 /// Which database a `Store` talks to.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

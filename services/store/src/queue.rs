@@ -579,6 +579,7 @@ fn fence_rows(candidates: &[&(Completion, Vec<NewTask>)]) -> Result<String> {
             serde_json::json!({
                 "id": c.fence.task_id, "worker": c.fence.worker_id, "attempt": c.fence.attempt,
                 "engine": c.engine_json, "result": c.result_json, "timings": c.timings_json,
+                "reused": c.reused_from,
             })
         })
         .collect();
@@ -607,6 +608,7 @@ const FENCE_COLUMNS: &[(&str, &str)] = &[
     ("engine", "text"),
     ("result", "text"),
     ("timings", "text"),
+    ("reused", "text"),
 ];
 const OUTPUT_COLUMNS: &[(&str, &str)] =
     &[("task", "text"), ("name", "text"), ("sha", "text"), ("size", "bigint"), ("media", "text"), ("key", "text")];
@@ -645,12 +647,13 @@ async fn record_completions_pg(
     let sql = format!(
         "WITH c AS (SELECT * FROM {fences}), \
          done AS (UPDATE tasks SET state = $1, lease_owner = NULL, lease_deadline_ms = NULL, engine_json = c.engine, \
-           result_json = c.result, updated_ms = $3 FROM c WHERE tasks.id = c.id AND tasks.state = $2 \
+           result_json = c.result, reused_from = c.reused, \
+           attempt = CASE WHEN c.reused IS NULL THEN tasks.attempt ELSE tasks.attempt - 1 END, updated_ms = $3 FROM c WHERE tasks.id = c.id AND tasks.state = $2 \
            AND tasks.lease_owner = c.worker AND tasks.attempt = c.attempt AND tasks.lease_deadline_ms >= $3 \
            RETURNING tasks.id, tasks.job_id, tasks.attempt, tasks.leased_ms), \
          ended AS (INSERT INTO attempts (task_id, attempt, worker_id, started_ms, ended_ms, outcome, engine_json, \
            timings_json) SELECT done.id, done.attempt, c.worker, COALESCE(done.leased_ms, $3), $3, $5, c.engine, \
-           c.timings FROM done JOIN c ON c.id = done.id), \
+           c.timings FROM done JOIN c ON c.id = done.id WHERE c.reused IS NULL), \
          outputs AS (INSERT INTO artifacts (task_id, name, sha256, size, media_type, object_key, created_ms) \
            SELECT o.task, o.name, o.sha, o.size, o.media, o.key, $3 FROM {outputs} JOIN done ON done.id = o.task), \
          finished AS (SELECT d.task_id, COUNT(*) AS n FROM done JOIN task_deps d ON d.depends_on = done.id \
@@ -693,7 +696,8 @@ async fn record_completions(
     // The fence: only running tasks leased to the caller, at this attempt, before the deadline.
     let sql = format!(
         "UPDATE tasks SET state = $1, lease_owner = NULL, lease_deadline_ms = NULL, engine_json = c.engine, \
-         result_json = c.result, updated_ms = $3 FROM {rows} WHERE tasks.id = c.id AND tasks.state = $2 \
+         result_json = c.result, reused_from = c.reused, \
+         attempt = CASE WHEN c.reused IS NULL THEN tasks.attempt ELSE tasks.attempt - 1 END, updated_ms = $3 FROM {rows} WHERE tasks.id = c.id AND tasks.state = $2 \
          AND tasks.lease_owner = c.worker AND tasks.attempt = c.attempt AND tasks.lease_deadline_ms >= $3 \
          RETURNING tasks.id, tasks.job_id",
         rows = backend.json_rows("$4", "c", FENCE_COLUMNS),
@@ -728,7 +732,7 @@ async fn record_completions(
     let sql = format!(
         "INSERT INTO attempts (task_id, attempt, worker_id, started_ms, ended_ms, outcome, engine_json, \
          timings_json) SELECT e.id, e.attempt, e.worker, COALESCE(t.leased_ms, $1), $1, $2, e.engine, e.timings \
-         FROM {} JOIN tasks t ON t.id = e.id",
+         FROM {} JOIN tasks t ON t.id = e.id WHERE e.reused IS NULL",
         backend.json_rows("$3", "e", FENCE_COLUMNS),
     );
     sqlx::query(trusted(sql))

@@ -58,6 +58,10 @@ pub struct TaskRecord {
     pub last_error: Option<String>,
     pub engine_json: Option<String>,
     pub result_json: Option<String>,
+    /// Its reuse key (`vint_core::reuse`), set when a worker that declares its engine leased it.
+    pub content_key: Option<String>,
+    /// The task whose result it took instead of running (`None`: it ran, or has not finished).
+    pub reused_from: Option<String>,
 }
 
 /// An artifact as recorded: content hash, where it lives and which task made it.
@@ -112,12 +116,16 @@ pub struct Completion {
     pub result_json: String,
     /// Samples this (package) task made; their files are its outputs named `<sample>/<file>`.
     pub samples: Vec<String>,
+    /// The task whose result and outputs these are (task reuse): no attempt ran, none is recorded.
+    pub reused_from: Option<String>,
 }
 
 /// Counts of a job's tasks by stage and state.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Progress {
     pub by_stage: BTreeMap<Stage, BTreeMap<TaskState, u64>>,
+    /// Succeeded tasks by stage that took a finished task's result instead of running.
+    pub reused: BTreeMap<Stage, u64>,
     pub samples: u64,
 }
 

@@ -26,7 +26,17 @@ use crate::{CliResult, Failure, bad_input, commands, export};
 /// Lease used by local workers: short, so a crashed worker's task is retried within seconds.
 const LOCAL_LEASE_MS: u32 = 10_000;
 
-pub async fn run(spec_path: &Path, out: &Path, target: Target, state: &Path, workers: u32, json: bool) -> CliResult {
+/// Where `vintctl run` keeps its state and how it runs its workers.
+pub struct Local<'a> {
+    /// The state directory: database, artifacts, logs.
+    pub state: &'a Path,
+    pub workers: u32,
+    /// Whether workers reuse finished tasks' results (their `--no-reuse` when not).
+    pub reuse: bool,
+}
+
+pub async fn run(spec_path: &Path, out: &Path, target: Target, local: &Local<'_>, json: bool) -> CliResult {
+    let Local { state, workers, reuse } = *local;
     let LoadedSpec { text, spec, assets } = load_spec(spec_path)?;
     export::check_destination(out)?;
     if workers == 0 || workers > 64 {
@@ -68,7 +78,7 @@ pub async fn run(spec_path: &Path, out: &Path, target: Target, state: &Path, wor
                 state.display()
             );
         }
-        let mut pool = WorkerPool::start(&url, &store_url, &state, workers)?;
+        let mut pool = WorkerPool::start(&url, &store_url, &state, workers, reuse)?;
         let view = ProgressView::new(json.then_some(JsonProgress::Stderr));
         let followed = tokio::select! {
             r = coordinator.follow(&job.job_id, &view) => r,
@@ -81,6 +91,7 @@ pub async fn run(spec_path: &Path, out: &Path, target: Target, state: &Path, wor
         let summary = export::export(&artifacts, &job.job_id, &info, &listed, out, target).await?;
         let outcome = commands::job_outcome(&last);
         if !json {
+            println!("{}", report::work_line(&last));
             report::export_text(&summary);
             return outcome;
         }
@@ -89,6 +100,7 @@ pub async fn run(spec_path: &Path, out: &Path, target: Target, state: &Path, wor
         doc["state"] = last.state.clone().into();
         doc["tasks_failed"] = last.tasks_failed.into();
         doc["failed_tasks"] = report::failed_tasks_json(&last.failed_tasks);
+        doc["stages"] = report::progress_json(&last)["stages"].clone();
         match outcome {
             Ok(()) => {
                 report::print_json(&doc);
@@ -111,16 +123,18 @@ struct WorkerPool {
     coordinator: String,
     store_url: String,
     state: PathBuf,
+    reuse: bool,
     restarts: u32,
 }
 
 impl WorkerPool {
-    fn start(coordinator: &str, store_url: &str, state: &Path, n: u32) -> Result<WorkerPool, Failure> {
+    fn start(coordinator: &str, store_url: &str, state: &Path, n: u32, reuse: bool) -> Result<WorkerPool, Failure> {
         let mut pool = WorkerPool {
             children: Vec::new(),
             coordinator: coordinator.to_string(),
             store_url: store_url.to_string(),
             state: state.to_path_buf(),
+            reuse,
             restarts: 0,
         };
         for i in 0..n {
@@ -138,7 +152,11 @@ impl WorkerPool {
             .append(true)
             .open(&log_path)
             .with_context(|| format!("opening {}", log_path.display()))?;
-        let child = Command::new(&bin)
+        let mut command = Command::new(&bin);
+        if !self.reuse {
+            command.arg("--no-reuse");
+        }
+        let child = command
             .arg("--coordinator")
             .arg(&self.coordinator)
             .arg("--store")

@@ -6,6 +6,7 @@
 //! (an invalid spec, an unknown job or sample, a bad argument). With `--json`, a failure is JSON
 //! on stdout too (`{"error": {"message", "code", …}}`), with the same exit code.
 
+mod against;
 mod bop_objects;
 mod client;
 mod commands;
@@ -77,10 +78,17 @@ enum Command {
         spec: PathBuf,
     },
     /// What a spec will cost before anything runs: tasks per stage, database rows and bytes, object
-    /// store bytes and CPU-hours per stage (no server needed).
+    /// store bytes and CPU-hours per stage (no server needed). With --against JOB: per stage, how
+    /// many tasks a run would reuse from finished results and why the others would run.
     Plan {
         /// The spec file (TOML; see examples/vint-sim.toml).
         spec: PathBuf,
+        /// A job in the state directory to forecast against (its id, as `vintctl run` prints it).
+        #[arg(long)]
+        against: Option<String>,
+        /// The state directory of `vintctl run` (with --against).
+        #[arg(long, default_value = ".vint", requires = "against")]
+        state: PathBuf,
     },
     /// Run a spec on this machine: embedded coordinator, SQLite, local object store and workers.
     Run {
@@ -96,6 +104,10 @@ enum Command {
         /// Worker processes to start.
         #[arg(long, default_value_t = 2)]
         workers: u32,
+        /// Run every task, even one whose result (same stage, engine, parameters and input
+        /// contents) is already in the state directory; by default such tasks are reused.
+        #[arg(long)]
+        no_reuse: bool,
         #[command(flatten)]
         format: FormatArgs,
     },
@@ -328,9 +340,11 @@ fn getting_started(json: bool) -> ExitCode {
 async fn dispatch(command: Command, json: bool, coordinator: &vint_connect::Remote) -> CliResult {
     match command {
         Command::Validate { spec } => commands::validate(&spec, json),
-        Command::Plan { spec } => commands::plan(&spec, json),
-        Command::Run { spec, out, state, workers, format } => {
-            embedded::run(&spec, &out, format.target(), &state, workers, json).await
+        Command::Plan { spec, against: None, .. } => commands::plan(&spec, json),
+        Command::Plan { spec, against: Some(job), state } => against::plan_against(&spec, &job, &state, json).await,
+        Command::Run { spec, out, state, workers, no_reuse, format } => {
+            let local = embedded::Local { state: &state, workers, reuse: !no_reuse };
+            embedded::run(&spec, &out, format.target(), &local, json).await
         }
         Command::Submit { spec, idempotency_key } => commands::submit(coordinator, &spec, idempotency_key, json).await,
         Command::Status { job } => commands::status(coordinator, &job, json).await,

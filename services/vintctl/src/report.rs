@@ -85,7 +85,9 @@ pub fn progress_json(p: &pb::JobProgress) -> Value {
     let stages: serde_json::Map<String, Value> = p
         .stages
         .iter()
-        .map(|(k, s)| (k.clone(), json!({"total": s.total, "succeeded": s.succeeded, "failed": s.failed})))
+        .map(|(k, s)| {
+            (k.clone(), json!({"total": s.total, "succeeded": s.succeeded, "failed": s.failed, "reused": s.reused}))
+        })
         .collect();
     json!({
         "job_id": p.job_id, "state": p.state, "tasks_total": p.tasks_total, "tasks_succeeded": p.tasks_succeeded,
@@ -107,7 +109,12 @@ pub fn failed_tasks_json(tasks: &[pb::FailedTask]) -> Value {
 fn progress_line(p: &pb::JobProgress) -> String {
     let stages: Vec<String> = ["grasp", "render", "noise", "package"]
         .iter()
-        .filter_map(|s| p.stages.get(*s).map(|st| format!("{s} {}/{}", st.succeeded, st.total)))
+        .filter_map(|s| {
+            p.stages.get(*s).map(|st| match st.reused {
+                0 => format!("{s} {}/{}", st.succeeded, st.total),
+                r => format!("{s} {}/{} ({r} reused)", st.succeeded, st.total),
+            })
+        })
         .collect();
     format!(
         "{} samples · {} · running {} · failed {}",
@@ -294,6 +301,7 @@ pub fn lineage(l: &pb::Lineage, json: bool) {
                     "params": serde_json::from_str::<Value>(&t.params_json).unwrap_or(Value::Null),
                     "engine": serde_json::from_str::<Value>(&t.engine_json).unwrap_or(Value::Null),
                     "depends_on": t.depends_on,
+                    "reused_from": (!t.reused_from.is_empty()).then_some(&t.reused_from),
                     "inputs": t.inputs.iter().map(art).collect::<Vec<_>>(),
                     "outputs": t.outputs.iter().map(art).collect::<Vec<_>>(),
                 })
@@ -314,7 +322,10 @@ pub fn lineage(l: &pb::Lineage, json: bool) {
     for t in &l.tasks {
         let engine: Value = serde_json::from_str(&t.engine_json).unwrap_or(Value::Null);
         let libs = engine.get("libs").map(|v| v.to_string()).unwrap_or_default();
-        println!("\n● {} [{}] {} — {} attempt(s)", t.key, t.stage, t.state, t.attempts);
+        match t.reused_from.as_str() {
+            "" => println!("\n● {} [{}] {} — {} attempt(s)", t.key, t.stage, t.state, t.attempts),
+            from => println!("\n● {} [{}] {} — reused from {from}, not run", t.key, t.stage, t.state),
+        }
         println!(
             "  engine: {} {} {}",
             engine.get("name").and_then(Value::as_str).unwrap_or("?"),
@@ -340,6 +351,21 @@ pub fn export_json(s: &ExportSummary) -> Value {
 }
 
 /// What an export wrote (text); `--json` callers print `export_json` inside their own report.
+/// What ran and what was reused, per stage: `grasp 4 (4 reused) · render 12 (12 reused) · …`.
+pub fn work_line(p: &pb::JobProgress) -> String {
+    let stages: Vec<String> = ["grasp", "render", "noise", "package"]
+        .iter()
+        .filter_map(|s| {
+            p.stages.get(*s).map(|st| match st.reused {
+                0 => format!("{s} {} ran", st.succeeded),
+                r if r == st.succeeded => format!("{s} {r} reused"),
+                r => format!("{s} {} ran, {r} reused", st.succeeded - r),
+            })
+        })
+        .collect();
+    format!("tasks: {}", stages.join(" · "))
+}
+
 pub fn export_text(s: &ExportSummary) {
     println!(
         "wrote {} samples ({} layout: {} files, {} bytes) to {}\nmanifest.jsonl sha256 {}",

@@ -2,6 +2,8 @@
 `python -m vint_engines study {grasp|render|touch} --out DIR` (the studies, `vint_engines/study/`),
 `python -m vint_engines stats --dataset DIR --out OUT` (a dataset's statistics, `vint_engines/stats/`),
 `python -m vint_engines preview --dataset DIR --out SHEET.png` (a contact sheet, `vint_engines/preview/`), and
+`python -m vint_engines identity` (each stage's engine identity as JSON, the code and library
+versions a task's reuse key names: `vint_engines/identity.py`), and
 `python -m vint_engines check-params` (parse planned task parameters with each engine's own
 parser, without running anything: a JSON array of `{"stage", "params"}` on stdin, a JSON array of
 `{"ok", "error"}` on stdout).
@@ -132,6 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     preview_cmd.add_argument("--json", action="store_true", help="print a JSON summary")
     commands.add_parser("check-params", help="parse task parameters (JSON on stdin) as the engines do")
+    commands.add_parser("identity", help="each stage's engine identity (code and pinned libraries) as JSON")
     args = parser.parse_args(argv)  # exits 2 on a bad command or stage
     if args.command == "study":
         return run_study(args)
@@ -145,6 +148,12 @@ def main(argv: list[str] | None = None) -> int:
         return preview.main(args.dataset, args.out, args.samples, args.json)
     if args.command == "check-params":
         return check_params()
+    if args.command == "identity":
+        from vint_engines import identity
+
+        json.dump(identity.identities(), sys.stdout, indent=1, sort_keys=True)
+        sys.stdout.write("\n")
+        return 0
 
     logging.basicConfig(
         stream=sys.stderr,

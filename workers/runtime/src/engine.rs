@@ -33,6 +33,54 @@ pub enum EngineError {
     Protocol { stage: Stage, detail: String },
 }
 
+/// Why the engines' identities could not be read.
+#[derive(Debug, thiserror::Error)]
+pub enum IdentityError {
+    #[error("could not run {python} -m vint_engines identity: {source}")]
+    Spawn { python: String, source: std::io::Error },
+    #[error("python -m vint_engines identity: {0}")]
+    Failed(String),
+}
+
+/// Longest `python -m vint_engines identity` may take (it imports no engine library).
+const IDENTITY_TIMEOUT: Duration = Duration::from_secs(60);
+
+/// The identity of each Python stage's engine in `cmd`'s environment (`vint_engines/identity.py`:
+/// the hash of the code the stage can import and of the pinned libraries' installed versions),
+/// the part of a task's reuse key that says which code made its outputs.
+pub async fn identities(cmd: &EngineCommand) -> Result<std::collections::HashMap<Stage, String>, IdentityError> {
+    let run = Command::new(&cmd.python)
+        .args(["-m", "vint_engines", "identity"])
+        .env("PYTHONPATH", &cmd.engines_dir)
+        .stdin(Stdio::null())
+        .kill_on_drop(true)
+        .output();
+    let output = tokio::time::timeout(IDENTITY_TIMEOUT, run)
+        .await
+        .map_err(|_| IdentityError::Failed(format!("no answer within {IDENTITY_TIMEOUT:?}")))?
+        .map_err(|source| IdentityError::Spawn { python: cmd.python.display().to_string(), source })?;
+    if !output.status.success() {
+        return Err(IdentityError::Failed(format!(
+            "{}: {}",
+            output.status,
+            String::from_utf8_lossy(&output.stderr).trim()
+        )));
+    }
+    let doc: std::collections::BTreeMap<String, Value> =
+        serde_json::from_slice(&output.stdout).map_err(|e| IdentityError::Failed(format!("not JSON: {e}")))?;
+    let mut out = std::collections::HashMap::new();
+    for (name, entry) in doc {
+        let stage: Stage = name.parse().map_err(|e| IdentityError::Failed(format!("{e}")))?;
+        let identity = entry
+            .get("identity")
+            .and_then(Value::as_str)
+            .filter(|id| vint_core::reuse::valid_identity(id))
+            .ok_or_else(|| IdentityError::Failed(format!("{name}: no valid \"identity\"")))?;
+        out.insert(stage, identity.to_string());
+    }
+    Ok(out)
+}
+
 /// How to start engines.
 #[derive(Clone, Debug)]
 pub struct EngineCommand {

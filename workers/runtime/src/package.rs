@@ -19,6 +19,12 @@ use vint_core::contract::render::ViewFile;
 use vint_core::plan::{GraspChunk, noise_key, render_key};
 use vint_core::{GraspId, SampleId};
 
+/// The package stage's engine identity (`vint_core::reuse`): a package task whose key matches a
+/// finished one takes its files instead of running. Bump its number (in the contract) whenever the
+/// files this module writes change for the same inputs; `tests::the_package_format_is_pinned`
+/// fails until you do.
+pub use vint_core::contract::package::ENGINE_IDENTITY as IDENTITY;
+
 /// An input of the package task: an artifact of one of its dependencies.
 #[derive(Clone, Debug)]
 pub struct PackageInput {
@@ -357,6 +363,26 @@ mod tests {
 
     fn grasp() -> GraspId {
         "mug.trx3.g000003".parse().expect("a valid grasp id")
+    }
+
+    /// The bytes this module writes for a fixed input, pinned with `IDENTITY`: finished package
+    /// tasks are reused by that identity, so output that changes under it would mix formats in a
+    /// dataset. Changed the output on purpose? Bump `IDENTITY`'s number and pin the new digest.
+    #[test]
+    fn the_package_format_is_pinned() {
+        let record = to_json_bytes(&grasp_record(&grasp(), &grasps(), &touch()).expect("record")).expect("bytes");
+        let camera = json!({"K": [[600.5, 0, 320], [0, 600.5, 240], [0, 0, 1]], "visible_px": 5, "full_px": 10});
+        let id: SampleId = "mug.trx3.g000003.v01".parse().expect("a valid sample id");
+        let meta = to_json_bytes(&sample_meta(&id, &grasps(), &camera, "ab").expect("meta")).expect("bytes");
+        use sha2::Digest;
+        let digest = |b: &[u8]| hex::encode(sha2::Sha256::digest(b));
+        let pinned = (IDENTITY, digest(&record), digest(&meta));
+        let expected = (
+            "vint-package-format-1",
+            "9aa3352c29e474d87ab06a223e658422c057d1a9afff93343af9a3c5a632e0c8".to_string(),
+            "b528b1c588c493442623f74c859b75d7d253339acea9b1046ffb33d516b99bff".to_string(),
+        );
+        assert_eq!(pinned, expected, "the package output changed: see this test's doc comment");
     }
 
     #[test]

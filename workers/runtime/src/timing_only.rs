@@ -371,6 +371,8 @@ async fn lease_batch(shared: &Shared) -> Vec<pb::LeasedTask> {
         stages: shared.config.stages.iter().map(|s| s.as_str().to_string()).collect(),
         capacity: shared.config.batch,
         lease_ms: shared.config.lease_ms,
+        // Constant bytes are no engine's outputs: never reused into a job, nor reusable.
+        engines: Default::default(),
     };
     match shared.client.clone().lease_tasks(request).await {
         Ok(resp) => {

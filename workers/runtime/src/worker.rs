@@ -41,6 +41,10 @@ pub struct WorkerConfig {
     pub max_idle_poll: Duration,
     /// Where the worker records what it does (`--metrics-listen` serves it).
     pub metrics: WorkerMetrics,
+    /// Whether the worker declares its engines' identities when it leases, so that tasks whose
+    /// result is already in the store are reused instead of run (`vint_core::reuse`). Off, every
+    /// task it leases runs, and what it makes is not reusable.
+    pub reuse: bool,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -88,13 +92,39 @@ pub struct Worker {
     client: WorkServiceClient<AuthChannel>,
     store: ArtifactStore,
     engines: HashMap<Stage, Engine>,
+    /// The identity of the engine of each stage it declares (empty without reuse).
+    identities: HashMap<Stage, String>,
 }
 
 impl Worker {
     pub fn new(config: WorkerConfig, store: ArtifactStore) -> Result<Worker, WorkerError> {
         let endpoint = config.coordinator.endpoint()?.connect_timeout(Duration::from_secs(5));
         let client = WorkServiceClient::new(config.coordinator.lazy_channel(endpoint)?);
-        Ok(Worker { config, client, store, engines: HashMap::new() })
+        Ok(Worker { config, client, store, engines: HashMap::new(), identities: HashMap::new() })
+    }
+
+    /// The identities to declare: the package stage's constant and the Python engines' (read
+    /// once, at start). An environment whose identities cannot be read declares none for its
+    /// Python stages: their tasks then run, and are not reusable.
+    async fn read_identities(&self) -> HashMap<Stage, String> {
+        let mut out = HashMap::new();
+        if !self.config.reuse {
+            return out;
+        }
+        if self.config.stages.contains(&Stage::Package) {
+            out.insert(Stage::Package, package::IDENTITY.to_string());
+        }
+        if self.config.stages.iter().any(|s| *s != Stage::Package) {
+            match crate::engine::identities(&self.config.engine).await {
+                Ok(found) => {
+                    out.extend(found.into_iter().filter(|(s, _)| self.config.stages.contains(s)));
+                }
+                Err(e) => {
+                    tracing::warn!(error = %e, "engine identities unknown: this worker's tasks run and are not reusable")
+                }
+            }
+        }
+        out
     }
 
     /// Serves tasks until `shutdown` resolves. A task still running then is stopped (its engine
@@ -102,6 +132,10 @@ impl Worker {
     pub async fn run(mut self, shutdown: impl Future<Output = ()>) {
         tokio::pin!(shutdown);
         let stages: Vec<String> = self.config.stages.iter().map(|s| s.as_str().to_string()).collect();
+        self.identities = self.read_identities().await;
+        let engines: HashMap<String, String> =
+            self.identities.iter().map(|(s, id)| (s.as_str().to_string(), id.clone())).collect();
+        tracing::info!(worker = %self.config.worker_id, engines = ?engines, "engine identities");
         let mut idle = Duration::from_millis(50);
         loop {
             self.config.metrics.beat();
@@ -110,6 +144,7 @@ impl Worker {
                 stages: stages.clone(),
                 capacity: 1,
                 lease_ms: self.config.lease_ms,
+                engines: engines.clone(),
             };
             let mut client = self.client.clone();
             let lease = client.lease_tasks(request);
@@ -234,7 +269,9 @@ impl Worker {
                     task_key: task.key.clone(),
                 })
                 .collect();
-            let engine = serde_json::json!({"name": "vint-package", "version": env!("CARGO_PKG_VERSION")});
+            let engine = serde_json::json!({
+                "name": "vint-package", "version": env!("CARGO_PKG_VERSION"), "identity": package::IDENTITY,
+            });
             return Ok(Finished {
                 outputs,
                 engine_json: engine.to_string(),
@@ -315,6 +352,9 @@ impl Worker {
         let mut engine_json: Value = serde_json::from_str(&identity).unwrap_or(Value::Null);
         if let Value::Object(map) = &mut engine_json {
             map.insert("metrics".into(), Value::Object(result.metrics.clone()));
+            if let Some(id) = self.identities.get(&stage) {
+                map.insert("identity".into(), Value::String(id.clone()));
+            }
         }
         Ok(Finished {
             outputs,

@@ -11,6 +11,11 @@ use serde::{Deserialize, Serialize};
 
 use super::render::{RenderOutput, ViewFile};
 
+/// The package stage's engine identity (`crate::reuse`): the format of the files the package
+/// stage (in `vint-runtime`) writes. Its number goes up whenever those files change for the same
+/// inputs; the runtime's `the_package_format_is_pinned` test holds the two together.
+pub const ENGINE_IDENTITY: &str = "vint-package-format-1";
+
 /// A sample's metadata file.
 pub const META_FILE: &str = "meta.json";
 /// A grasp's record, shared by the samples of its views.

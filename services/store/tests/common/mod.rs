@@ -134,6 +134,7 @@ pub fn completion(fence: Fence, outputs: &[&str]) -> Completion {
         timings_json: "{}".into(),
         result_json: "{}".into(),
         samples: vec![],
+        reused_from: None,
     }
 }
 

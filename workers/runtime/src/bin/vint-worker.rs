@@ -54,6 +54,11 @@ struct Args {
     /// (0: never). Blender and MuJoCo hold their scenes between tasks; this bounds any slow leak.
     #[arg(long, env = "VINT_ENGINE_MAX_RSS_MIB", default_value_t = 8_192)]
     engine_max_rss_mib: u64,
+    /// Run every task leased, even one whose result (same stage, engine identity, parameters and
+    /// input contents) is already in the store; what this worker makes is then not reusable.
+    /// By default the worker declares its engines' identities and such tasks are reused.
+    #[arg(long, env = "VINT_NO_REUSE")]
+    no_reuse: bool,
     /// Worker id (default: host name, process id and a random suffix).
     #[arg(long)]
     worker_id: Option<String>,
@@ -157,6 +162,7 @@ async fn main() -> anyhow::Result<()> {
         },
         max_idle_poll,
         metrics,
+        reuse: !args.no_reuse,
     };
     tracing::info!(worker = %config.worker_id, stages = ?config.stages, "worker starting");
     let worker = Worker::new(config, store)?;

@@ -1,0 +1,107 @@
+//! Task reuse by content (`vint_core::reuse`): the reuse keys of leased tasks, and the finished
+//! results already stored under a key.
+//!
+//! A key is written on the task's row when a worker that declares its engine leases it (before the
+//! worker runs anything), so a task that later succeeds is findable by its key from any job. A
+//! reused task carries the key too, so its result serves later jobs even when the job it was
+//! first made in is gone.
+
+use std::collections::HashMap;
+
+use sqlx::Row;
+use vint_core::TaskState;
+
+use crate::jobs::json_text;
+use crate::{NewArtifact, Result, Store, trusted};
+
+/// A finished task's result under a reuse key: what a task with the same key takes instead of
+/// running.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StoredResult {
+    /// The succeeded task that made (or itself reused) the result.
+    pub task_id: String,
+    pub result_json: String,
+    pub engine_json: String,
+    pub outputs: Vec<NewArtifact>,
+}
+
+impl Store {
+    /// Records the reuse key of each leased task `(id, attempt, key)`; a row no longer at that
+    /// attempt or no longer running is left alone.
+    pub async fn set_content_keys(&self, keys: &[(String, u32, String)]) -> Result<()> {
+        if keys.is_empty() {
+            return Ok(());
+        }
+        let rows: Vec<serde_json::Value> = keys
+            .iter()
+            .map(|(id, attempt, key)| serde_json::json!({"id": id, "attempt": attempt, "key": key}))
+            .collect();
+        let sql = format!(
+            "UPDATE tasks SET content_key = k.key FROM {} WHERE tasks.id = k.id AND tasks.attempt = k.attempt \
+             AND tasks.state = $2",
+            self.backend.json_rows("$1", "k", &[("id", "text"), ("attempt", "bigint"), ("key", "text")]),
+        );
+        sqlx::query(trusted(sql)).bind(json_text(&rows)?).bind(TaskState::Running.as_str()).execute(&self.pool).await?;
+        Ok(())
+    }
+
+    /// For each of `keys` that a succeeded task holds, that task's result and outputs (of several
+    /// such tasks, the one with the smallest id, so every caller picks the same).
+    pub async fn stored_results(&self, keys: &[String]) -> Result<HashMap<String, StoredResult>> {
+        if keys.is_empty() {
+            return Ok(HashMap::new());
+        }
+        let sql = format!(
+            "SELECT id, content_key, result_json, engine_json FROM tasks WHERE content_key IN ({}) AND state = $2 \
+             ORDER BY id",
+            self.backend.json_text_array("$1"),
+        );
+        let rows = sqlx::query(trusted(sql))
+            .bind(json_text(keys)?)
+            .bind(TaskState::Succeeded.as_str())
+            .fetch_all(&self.pool)
+            .await?;
+        let mut by_key: HashMap<String, StoredResult> = HashMap::new();
+        for row in &rows {
+            let key: String = row.try_get("content_key")?;
+            if by_key.contains_key(&key) {
+                continue;
+            }
+            let result_json: Option<String> = row.try_get("result_json")?;
+            let engine_json: Option<String> = row.try_get("engine_json")?;
+            by_key.insert(
+                key,
+                StoredResult {
+                    task_id: row.try_get("id")?,
+                    result_json: result_json.unwrap_or_default(),
+                    engine_json: engine_json.unwrap_or_default(),
+                    outputs: Vec::new(),
+                },
+            );
+        }
+        if by_key.is_empty() {
+            return Ok(by_key);
+        }
+        let ids: Vec<&str> = by_key.values().map(|r| r.task_id.as_str()).collect();
+        let sql = format!(
+            "SELECT task_id, name, sha256, size, media_type, object_key FROM artifacts WHERE task_id IN ({}) \
+             ORDER BY task_id, name",
+            self.backend.json_text_array("$1"),
+        );
+        let rows = sqlx::query(trusted(sql)).bind(json_text(&ids)?).fetch_all(&self.pool).await?;
+        let mut outputs: HashMap<String, Vec<NewArtifact>> = HashMap::new();
+        for row in &rows {
+            outputs.entry(row.try_get("task_id")?).or_default().push(NewArtifact {
+                name: row.try_get("name")?,
+                sha256: row.try_get("sha256")?,
+                size: row.try_get::<i64, _>("size")? as u64,
+                media_type: row.try_get("media_type")?,
+                object_key: row.try_get("object_key")?,
+            });
+        }
+        for result in by_key.values_mut() {
+            result.outputs = outputs.remove(&result.task_id).unwrap_or_default();
+        }
+        Ok(by_key)
+    }
+}
