@@ -57,6 +57,13 @@ awa_db=vint_bench_awa
 
 die() { echo "queue bench: $*" >&2; exit 2; }
 
+# All three speak to Postgres in clear. The server here has ssl = on, and libpq's and sqlx's default
+# (sslmode=prefer) would encrypt pgbench's and awa's loopback connections while the coordinator, on
+# a loopback URL naming no sslmode, connects in clear (vint_store::postgres_url): TLS cost the
+# coordinator a quarter of its batch-256 rate (docs/benchmarks.md), so the same handicap on one side
+# only would skew the ratios. PGSSLMODE is read by psql, pgbench, sqlx and vint_store alike.
+export PGSSLMODE=${PGSSLMODE:-disable}
+
 # A setting must be a whole number within bounds: name, value, min, max.
 check_count() {
   [[ $2 =~ ^[0-9]+$ ]] && (($2 >= $3 && $2 <= $4)) || die "$1 = '$2': must be an integer from $3 to $4"
@@ -98,11 +105,11 @@ git -C "$repo" diff --quiet HEAD -- . || commit="$commit+dirty"
 env_json=$(jq -cn \
   --arg commit "$commit" --arg rustc "$(rustc --version)" \
   --arg postgres "$(sql "$admin" "SHOW server_version")" \
-  --arg synchronous_commit "$(sql "$admin" "SHOW synchronous_commit")" \
+  --arg synchronous_commit "$(sql "$admin" "SHOW synchronous_commit")" --arg sslmode "$PGSSLMODE" \
   --arg loadavg "$(cut -d' ' -f1-3 /proc/loadavg)" --arg cores "$(nproc)" \
   --argjson rounds "$rounds" --argjson ceiling_s "$ceiling_s" --argjson awa_jobs "$awa_jobs" \
   '{bench: "queue_env", commit: $commit, rustc: $rustc, postgres: $postgres,
-    synchronous_commit: $synchronous_commit, loadavg_start: $loadavg, cores: ($cores | tonumber),
+    synchronous_commit: $synchronous_commit, sslmode: $sslmode, loadavg_start: $loadavg, cores: ($cores | tonumber),
     rounds: $rounds, ceiling_s: $ceiling_s, awa_jobs: $awa_jobs}')
 echo "$env_json" | tee -a "$results"
 

@@ -75,6 +75,7 @@ SMOKES: dict[str, Smoke] = {
     "queue.sh": shell_smoke("queue.sh", "coordinator/postgres/batch64: / ceiling = n/a"),
     "render_textures.py": python_smoke("render_textures.py", '{"size": 16, "samples": 1, "views": 1,'),
     "render_warm_cold.py": python_smoke("render_warm_cold.py", 'memory: {"views": 2,'),
+    "reuse_rerun.py": python_smoke("reuse_rerun.py", "| re-run, noise changed |"),
     "scene_cost.py": python_smoke("scene_cost.py", "| variant | median s / view | × bare |"),
     "tiny_overhead.sh": shell_smoke("tiny_overhead.sh", '{"bench": "tiny_overhead", "runs": 1,'),
     "touch_margin.py": python_smoke("touch_margin.py", "| 0.5 |"),

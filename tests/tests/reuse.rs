@@ -180,3 +180,36 @@ async fn one_changed_knob_reruns_only_what_depends_on_it() {
     assert_eq!(ran(work3, Stage::Grasp) + ran(work3, Stage::Render) + ran(work3, Stage::Package), 0, "{work3:?}");
     assert_eq!(manifest_sha256(&tmp.path().join("out3")), manifest_sha256(&tmp.path().join("out2")));
 }
+
+#[tokio::test(flavor = "multi_thread")]
+async fn gc_deletes_only_what_no_job_references() {
+    let tmp = tempfile::tempdir().unwrap();
+    let state = tmp.path().join("state");
+    let spec = repo_root().join("benches/smoke.toml");
+    run(&spec, &tmp.path().join("out"), &state, &[]);
+    let objects = vint_artifacts::ArtifactStore::open(&format!("file://{}", state.join("objects").display())).unwrap();
+    let before = objects.count_objects().await.unwrap();
+    // An upload whose completion never landed: in the store, in no job.
+    let orphan = objects.put_bytes(bytes::Bytes::from_static(b"outputs of a lost lease")).await.unwrap();
+
+    let gc = |extra: &[&str]| {
+        let mut args = vec!["--json", "gc", "--state", s(&state)];
+        args.extend_from_slice(extra);
+        let o = vintctl(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        serde_json::from_str::<serde_json::Value>(&stdout(&o)).unwrap()
+    };
+    // A fresh object may be a completion in flight: kept by default.
+    let young = gc(&[]);
+    assert_eq!((young["collected"].as_u64(), young["kept_young"].as_u64()), (Some(0), Some(1)), "{young}");
+    let dry = gc(&["--min-age-s", "0", "--dry-run"]);
+    assert_eq!(dry["collected"], 1, "{dry}");
+    assert_eq!(objects.count_objects().await.unwrap(), before + 1, "a dry run deletes nothing");
+    let done = gc(&["--min-age-s", "0"]);
+    assert_eq!((done["collected"].as_u64(), done["referenced"].as_u64()), (Some(1), Some(before as u64)), "{done}");
+    assert!(objects.get(&orphan.sha256).await.is_err(), "the orphan is gone");
+    assert_eq!(objects.count_objects().await.unwrap(), before);
+    // Everything a job references is still there: the finished job exports again, file by file.
+    run(&spec, &tmp.path().join("again"), &state, &[]);
+    verify_dataset(&tmp.path().join("again"));
+}

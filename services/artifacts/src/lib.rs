@@ -100,6 +100,14 @@ pub fn sha256_hex(bytes: &[u8]) -> String {
     hex::encode(Sha256::digest(bytes))
 }
 
+/// An object as the store lists it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ListedObject {
+    pub key: String,
+    pub size: u64,
+    pub modified_ms: i64,
+}
+
 impl ArtifactStore {
     /// Opens `file:///abs/dir` (created if missing) or `s3://bucket[/prefix]`; S3 credentials,
     /// region and endpoint come from the usual `AWS_*` environment variables
@@ -192,6 +200,32 @@ impl ArtifactStore {
         tokio::fs::write(&tmp, &bytes).await.map_err(io)?;
         tokio::fs::rename(&tmp, dest).await.map_err(io)?;
         Ok(())
+    }
+
+    /// Every stored object's key (relative to the store's prefix), size and last-modified time
+    /// (Unix ms); lists the whole store.
+    pub async fn list_objects(&self) -> Result<Vec<ListedObject>> {
+        use futures::TryStreamExt;
+        let prefix = if self.prefix.is_empty() { None } else { Some(ObjectPath::from(self.prefix.as_str())) };
+        let objects: Vec<_> = self.inner.list(prefix.as_ref()).try_collect().await?;
+        let strip = if self.prefix.is_empty() { String::new() } else { format!("{}/", self.prefix) };
+        Ok(objects
+            .into_iter()
+            .map(|m| ListedObject {
+                key: m.location.as_ref().strip_prefix(strip.as_str()).unwrap_or(m.location.as_ref()).to_string(),
+                size: m.size,
+                modified_ms: m.last_modified.timestamp_millis(),
+            })
+            .collect())
+    }
+
+    /// Deletes the object under `key` (a content key: any other shape is refused). Deleting an
+    /// object that is not there is not an error.
+    pub async fn delete(&self, key: &str) -> Result<()> {
+        match self.inner.delete(&self.location(key)?).await {
+            Ok(()) | Err(object_store::Error::NotFound { .. }) => Ok(()),
+            Err(e) => Err(e.into()),
+        }
     }
 
     /// Number of stored objects (for tests and stats; lists the whole store).

@@ -258,7 +258,6 @@ fn record(task: &NewTask) -> TaskRecord {
         last_error: None,
         engine_json: None,
         result_json: None,
-        content_key: None,
         reused_from: None,
     }
 }

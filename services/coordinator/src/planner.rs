@@ -189,7 +189,6 @@ mod tests {
             last_error: None,
             engine_json: None,
             result_json: None,
-            content_key: None,
             reused_from: None,
         }
     }

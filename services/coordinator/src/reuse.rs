@@ -2,7 +2,7 @@
 //!
 //! A worker names the engine identity of each stage it runs. When it leases tasks of such a
 //! stage, the coordinator keys each task by content — stage, identity, parameters, and the content
-//! hashes of the inputs the lease statement has just read — and writes the key on the task's row.
+//! hashes of the inputs the lease statement has just read — and records the key (`task_keys`).
 //! A task whose key a succeeded task already holds (this job's or any earlier one's) is completed
 //! at once from that task's result and outputs, through the same fenced completion and planner as
 //! a worker's report, and is not handed out; the worker gets the rest. The coordinator keeps
@@ -84,7 +84,6 @@ fn record(task: &LeasedTask, worker_id: &str) -> TaskRecord {
         last_error: None,
         engine_json: None,
         result_json: None,
-        content_key: None,
         reused_from: None,
     }
 }

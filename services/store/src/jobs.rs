@@ -12,7 +12,7 @@ use crate::{JobAsset, JobRecord, NewJob, Progress, Result, Store, StoreError, Ta
 
 const JOB_COLUMNS: &str = "id, name, seed, spec_toml, plan_json, state, created_ms, finished_ms";
 pub(crate) const TASK_COLUMNS: &str = "id, job_id, key, stage, state, params_json, attempt, max_attempts, \
-     not_before_ms, lease_owner, lease_deadline_ms, last_error, engine_json, result_json, content_key, reused_from";
+     not_before_ms, lease_owner, lease_deadline_ms, last_error, engine_json, result_json, reused_from";
 
 fn job_from_row(row: &AnyRow) -> Result<JobRecord> {
     Ok(JobRecord {
@@ -43,7 +43,6 @@ pub(crate) fn task_from_row(row: &AnyRow) -> Result<TaskRecord> {
         last_error: row.try_get("last_error")?,
         engine_json: row.try_get("engine_json")?,
         result_json: row.try_get("result_json")?,
-        content_key: row.try_get("content_key")?,
         reused_from: row.try_get("reused_from")?,
     })
 }

@@ -58,8 +58,6 @@ pub struct TaskRecord {
     pub last_error: Option<String>,
     pub engine_json: Option<String>,
     pub result_json: Option<String>,
-    /// Its reuse key (`vint_core::reuse`), set when a worker that declares its engine leased it.
-    pub content_key: Option<String>,
     /// The task whose result it took instead of running (`None`: it ran, or has not finished).
     pub reused_from: Option<String>,
 }

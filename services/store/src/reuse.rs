@@ -1,10 +1,10 @@
 //! Task reuse by content (`vint_core::reuse`): the reuse keys of leased tasks, and the finished
 //! results already stored under a key.
 //!
-//! A key is written on the task's row when a worker that declares its engine leases it (before the
-//! worker runs anything), so a task that later succeeds is findable by its key from any job. A
-//! reused task carries the key too, so its result serves later jobs even when the job it was
-//! first made in is gone.
+//! A key is written (table `task_keys`, migration 0011) when a worker that declares its engine
+//! leases the task, before the worker runs anything, so a task that later succeeds is findable by
+//! its key from any job. A reused task gets the key too, so its result serves later jobs even when
+//! the job it was first made in is gone.
 
 use std::collections::HashMap;
 
@@ -26,8 +26,9 @@ pub struct StoredResult {
 }
 
 impl Store {
-    /// Records the reuse key of each leased task `(id, attempt, key)`; a row no longer at that
-    /// attempt or no longer running is left alone.
+    /// Records the reuse key of each leased task `(id, attempt, key)`, replacing the key of an
+    /// earlier attempt (another worker's engine); a task no longer running at that attempt is left
+    /// alone.
     pub async fn set_content_keys(&self, keys: &[(String, u32, String)]) -> Result<()> {
         if keys.is_empty() {
             return Ok(());
@@ -37,8 +38,9 @@ impl Store {
             .map(|(id, attempt, key)| serde_json::json!({"id": id, "attempt": attempt, "key": key}))
             .collect();
         let sql = format!(
-            "UPDATE tasks SET content_key = k.key FROM {} WHERE tasks.id = k.id AND tasks.attempt = k.attempt \
-             AND tasks.state = $2",
+            "INSERT INTO task_keys (task_id, content_key) SELECT k.id, k.key FROM {} JOIN tasks t ON t.id = k.id \
+             WHERE t.attempt = k.attempt AND t.state = $2 \
+             ON CONFLICT (task_id) DO UPDATE SET content_key = excluded.content_key",
             self.backend.json_rows("$1", "k", &[("id", "text"), ("attempt", "bigint"), ("key", "text")]),
         );
         sqlx::query(trusted(sql)).bind(json_text(&rows)?).bind(TaskState::Running.as_str()).execute(&self.pool).await?;
@@ -52,8 +54,8 @@ impl Store {
             return Ok(HashMap::new());
         }
         let sql = format!(
-            "SELECT id, content_key, result_json, engine_json FROM tasks WHERE content_key IN ({}) AND state = $2 \
-             ORDER BY id",
+            "SELECT t.id, k.content_key, t.result_json, t.engine_json FROM task_keys k JOIN tasks t ON t.id = k.task_id \
+             WHERE k.content_key IN ({}) AND t.state = $2 ORDER BY t.id",
             self.backend.json_text_array("$1"),
         );
         let rows = sqlx::query(trusted(sql))
@@ -103,5 +105,24 @@ impl Store {
             result.outputs = outputs.remove(&result.task_id).unwrap_or_default();
         }
         Ok(by_key)
+    }
+
+    /// The object keys some job still references: its tasks' outputs and its submitted files.
+    /// An object of the store outside this set belongs to no job (an upload whose completion was
+    /// refused, a crashed attempt's outputs) and may be collected.
+    pub async fn referenced_object_keys(&self) -> Result<std::collections::HashSet<String>> {
+        let rows = sqlx::query("SELECT object_key FROM artifacts UNION SELECT object_key FROM job_assets")
+            .fetch_all(&self.pool)
+            .await?;
+        rows.iter().map(|row| Ok(row.try_get::<String, _>("object_key")?)).collect()
+    }
+
+    /// A task's reuse key, if a lease wrote one.
+    pub async fn content_key(&self, task_id: &str) -> Result<Option<String>> {
+        let row = sqlx::query("SELECT content_key FROM task_keys WHERE task_id = $1")
+            .bind(task_id)
+            .fetch_optional(&self.pool)
+            .await?;
+        row.map(|r| r.try_get::<String, _>("content_key")).transpose().map_err(Into::into)
     }
 }

@@ -30,9 +30,12 @@ store_test!(a_key_is_written_only_on_the_lease_it_names, |store: Store| async mo
     store.submit_job(&job("a"), &[task("grasp/x", Stage::Grasp, &[])], 0).await.unwrap();
     let leased = store.lease("w", &ALL, 1, 1_000, 1).await.unwrap();
     store.set_content_keys(&[(leased[0].id.clone(), leased[0].attempt + 1, "stale".into())]).await.unwrap();
-    assert_eq!(store.task("a/grasp/x").await.unwrap().unwrap().content_key, None);
+    assert_eq!(store.content_key("a/grasp/x").await.unwrap(), None);
     store.set_content_keys(&[(leased[0].id.clone(), leased[0].attempt, "k".into())]).await.unwrap();
-    assert_eq!(store.task("a/grasp/x").await.unwrap().unwrap().content_key.as_deref(), Some("k"));
+    assert_eq!(store.content_key("a/grasp/x").await.unwrap().as_deref(), Some("k"));
+    // Written again (as a later attempt's lease, by another engine, would), the key is replaced.
+    store.set_content_keys(&[(leased[0].id.clone(), leased[0].attempt, "k2".into())]).await.unwrap();
+    assert_eq!(store.content_key("a/grasp/x").await.unwrap().as_deref(), Some("k2"));
 });
 
 store_test!(a_reused_completion_records_its_source_and_no_attempt, |store: Store| async move {

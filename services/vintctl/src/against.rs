@@ -1,8 +1,8 @@
 //! `vintctl plan SPEC --against JOB`: per stage, how many of the spec's tasks a run would reuse
 //! from the store's finished results and why the others would run (`vint_coordinator::forecast`).
 //!
-//! It reads the state directory `vintctl run` keeps (its SQLite database) and keys tasks with the
-//! engines of this machine: the Python engines' identities (`python -m vint_engines identity`)
+//! It reads the state directory `vintctl run` keeps (its SQLite database), or a cluster's database
+//! (`--database`), and keys tasks with the engines of this machine: the Python engines' identities (`python -m vint_engines identity`)
 //! and the package stage's format.
 
 use std::collections::HashMap;
@@ -17,17 +17,12 @@ use vint_core::asset::Asset;
 use vint_store::{RetryPolicy, Store};
 
 use crate::spec_file::{LoadedSpec, load_spec};
+use crate::state_dir::Records;
 use crate::{CliResult, bad_input, handover, report};
 
-pub async fn plan_against(spec_path: &Path, job: &str, state: &Path, json: bool) -> CliResult {
+pub async fn plan_against(spec_path: &Path, job: &str, records: &Records<'_>, json: bool) -> CliResult {
     let LoadedSpec { spec, assets, .. } = load_spec(spec_path)?;
-    let db = state.join("vint.db");
-    if !db.is_file() {
-        return Err(bad_input(anyhow!(
-            "--state: {} holds no vint.db (the state directory of `vintctl run`)",
-            state.display()
-        )));
-    }
+    let (url, _) = records.urls()?;
     let assets: Vec<Asset> = assets
         .iter()
         .map(|a| Asset {
@@ -37,8 +32,9 @@ pub async fn plan_against(spec_path: &Path, job: &str, state: &Path, json: bool)
         })
         .collect();
     let identities = identities(json).await;
-    let url = format!("sqlite://{}", db.display());
-    let store = Store::open(&url, RetryPolicy::default()).await.with_context(|| format!("opening {url}"))?;
+    let store = Store::open(&url, RetryPolicy::default())
+        .await
+        .with_context(|| format!("opening {}", vint_telemetry::redact_url(&url)))?;
     let result = forecast::forecast(&store, &spec, &assets, &identities, job).await;
     store.close().await;
     let f = match result {

@@ -17,12 +17,14 @@ mod eval;
 mod export;
 mod failure;
 mod formats;
+mod gc;
 mod handover;
 mod mjcf;
 mod plan;
 mod preview;
 mod report;
 mod spec_file;
+mod state_dir;
 mod stats;
 mod study;
 
@@ -89,6 +91,9 @@ enum Command {
         /// The state directory of `vintctl run` (with --against).
         #[arg(long, default_value = ".vint", requires = "against")]
         state: PathBuf,
+        /// A cluster's database URL, instead of --state (with --against).
+        #[arg(long, requires = "against")]
+        database: Option<String>,
     },
     /// Run a spec on this machine: embedded coordinator, SQLite, local object store and workers.
     Run {
@@ -118,6 +123,26 @@ enum Command {
         /// Retrying with the same key returns the same job (default: the spec's content hash).
         #[arg(long)]
         idempotency_key: Option<String>,
+    },
+    /// Delete the stored objects no job references (outputs of attempts whose completion never
+    /// landed), from a `vintctl run` state directory or a cluster's database and object store.
+    Gc {
+        /// The state directory of `vintctl run`.
+        #[arg(long, default_value = ".vint", conflicts_with = "database")]
+        state: PathBuf,
+        /// A cluster's database URL (with --store instead of --state).
+        #[arg(long, requires = "store")]
+        database: Option<String>,
+        /// A cluster's object store URL (file:///abs/dir or s3://bucket[/prefix]).
+        #[arg(long, requires = "database")]
+        store: Option<String>,
+        /// Keep objects younger than this many seconds: a task's outputs are uploaded before its
+        /// completion is recorded.
+        #[arg(long, default_value_t = 3_600)]
+        min_age_s: u64,
+        /// Count what would be deleted, delete nothing.
+        #[arg(long)]
+        dry_run: bool,
     },
     /// Show a job's state and progress, and why its tasks failed.
     Status {
@@ -341,10 +366,23 @@ async fn dispatch(command: Command, json: bool, coordinator: &vint_connect::Remo
     match command {
         Command::Validate { spec } => commands::validate(&spec, json),
         Command::Plan { spec, against: None, .. } => commands::plan(&spec, json),
-        Command::Plan { spec, against: Some(job), state } => against::plan_against(&spec, &job, &state, json).await,
+        Command::Plan { spec, against: Some(job), state, database } => {
+            let records = match &database {
+                Some(database) => state_dir::Records::Urls { database, store: "" },
+                None => state_dir::Records::State(&state),
+            };
+            against::plan_against(&spec, &job, &records, json).await
+        }
         Command::Run { spec, out, state, workers, no_reuse, format } => {
             let local = embedded::Local { state: &state, workers, reuse: !no_reuse };
             embedded::run(&spec, &out, format.target(), &local, json).await
+        }
+        Command::Gc { state, database, store, min_age_s, dry_run } => {
+            let records = match (&database, &store) {
+                (Some(database), Some(store)) => state_dir::Records::Urls { database, store },
+                _ => state_dir::Records::State(&state),
+            };
+            gc::gc(&records, min_age_s, dry_run, json).await
         }
         Command::Submit { spec, idempotency_key } => commands::submit(coordinator, &spec, idempotency_key, json).await,
         Command::Status { job } => commands::status(coordinator, &job, json).await,

@@ -1,0 +1,38 @@
+//! Where a command that reads a job's records finds them: the state directory of `vintctl run`
+//! (`vint.db`, `objects/`), or a cluster's database and object store by URL.
+
+use std::path::Path;
+
+use anyhow::{Context, anyhow};
+
+use crate::{Failure, bad_input};
+
+pub enum Records<'a> {
+    /// A `vintctl run` state directory.
+    State(&'a Path),
+    /// A database URL and an object store URL (`--database`, `--store`).
+    Urls { database: &'a str, store: &'a str },
+}
+
+impl Records<'_> {
+    /// The database URL and the object store URL; a state directory must hold a database.
+    pub fn urls(&self) -> Result<(String, String), Failure> {
+        match self {
+            Records::State(state) => {
+                let db = state.join("vint.db");
+                if !db.is_file() {
+                    return Err(bad_input(anyhow!(
+                        "--state: {} holds no vint.db (the state directory of `vintctl run`)",
+                        state.display()
+                    )));
+                }
+                let state = state.canonicalize().with_context(|| format!("resolving {}", state.display()))?;
+                Ok((
+                    format!("sqlite://{}", state.join("vint.db").display()),
+                    format!("file://{}", state.join("objects").display()),
+                ))
+            }
+            Records::Urls { database, store } => Ok((database.to_string(), store.to_string())),
+        }
+    }
+}
