@@ -26,7 +26,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-TABLES = ["jobs", "job_assets", "tasks", "task_deps", "attempts", "artifacts", "samples"]
+TABLES = ["jobs", "job_assets", "tasks", "task_deps", "attempts", "artifacts", "samples", "task_keys"]
 ROOT = Path(__file__).resolve().parent.parent
 
 

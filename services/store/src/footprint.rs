@@ -26,12 +26,13 @@ pub struct TableRows {
     pub attempts: u64,
     pub artifacts: u64,
     pub samples: u64,
+    pub task_keys: u64,
 }
 
 impl TableRows {
     /// The tables in schema order, with their names.
-    pub const TABLES: [&'static str; 7] =
-        ["jobs", "job_assets", "tasks", "task_deps", "attempts", "artifacts", "samples"];
+    pub const TABLES: [&'static str; 8] =
+        ["jobs", "job_assets", "tasks", "task_deps", "attempts", "artifacts", "samples", "task_keys"];
 
     /// What a submission writes besides its tasks: the job and the user files its spec names.
     pub fn submit(user_files: u64) -> TableRows {
@@ -39,8 +40,9 @@ impl TableRows {
     }
 
     /// What one task writes over its life, succeeding at its first attempt: its row and one
-    /// `task_deps` row per dependency (inserted by the completion that planned it), its attempt,
-    /// its `outputs` artifacts and the `samples` it packaged. Its inputs are derived (its
+    /// `task_deps` row per dependency (inserted by the completion that planned it), its reuse key
+    /// (written when a worker that declares its engine leases it: every production worker, not the
+    /// timing-only one), its attempt, its `outputs` artifacts and the `samples` it packaged. Its inputs are derived (its
     /// dependencies' outputs), not stored: `dependency_outputs[i]` is dependency `i`'s artifact
     /// count, which only the number of dependencies matters for.
     pub fn task(dependency_outputs: &[u64], outputs: u64, samples: u64) -> TableRows {
@@ -50,13 +52,23 @@ impl TableRows {
             attempts: 1,
             artifacts: outputs,
             samples,
+            task_keys: 1,
             ..TableRows::default()
         }
     }
 
     /// Every table's count, in `TABLES` order.
-    pub fn counts(&self) -> [u64; 7] {
-        [self.jobs, self.job_assets, self.tasks, self.task_deps, self.attempts, self.artifacts, self.samples]
+    pub fn counts(&self) -> [u64; 8] {
+        [
+            self.jobs,
+            self.job_assets,
+            self.tasks,
+            self.task_deps,
+            self.attempts,
+            self.artifacts,
+            self.samples,
+            self.task_keys,
+        ]
     }
 
     pub fn total(&self) -> u64 {
@@ -69,7 +81,7 @@ impl TableRows {
         TableRows::from_counts(c)
     }
 
-    fn from_counts(c: [u64; 7]) -> TableRows {
+    fn from_counts(c: [u64; 8]) -> TableRows {
         TableRows {
             jobs: c[0],
             job_assets: c[1],
@@ -78,6 +90,7 @@ impl TableRows {
             attempts: c[4],
             artifacts: c[5],
             samples: c[6],
+            task_keys: c[7],
         }
     }
 }
@@ -146,6 +159,9 @@ pub fn chunk_rows(plan: &JobPlan, grasps: u32) -> TableRows {
 /// it as `POSTGRES_TASK_BYTES_BEYOND_PARAMS` plus the parameters the planner makes for the spec.
 /// `job_assets` is not measured (tiny names no user file): an artifact row's figure stands in
 /// (the same columns). Re-measure when the schema changes; the script prints this table.
+/// `task_keys` (migration 0011, after that measurement): 200,000 rows of its real shape (a
+/// render task's id, a 64-hex key) in a scratch table with its two indexes, after `VACUUM
+/// ANALYZE` (2026-11-28): heap 149, primary key 100, key index 125 bytes a row.
 pub const POSTGRES_BYTES_PER_ROW: PerRow = PerRow {
     jobs: 2_990.0,
     job_assets: 446.0,
@@ -154,6 +170,7 @@ pub const POSTGRES_BYTES_PER_ROW: PerRow = PerRow {
     attempts: 532.0,
     artifacts: 446.0,
     samples: 203.0,
+    task_keys: 374.0,
 };
 
 /// A `tasks` row on Postgres beyond its `params_json`: 1 539 bytes per row less tiny's 839-byte
@@ -170,16 +187,26 @@ pub struct PerRow {
     pub attempts: f64,
     pub artifacts: f64,
     pub samples: f64,
+    pub task_keys: f64,
 }
 
 impl PerRow {
     /// Every table's figure, in `TableRows::TABLES` order.
-    pub fn figures(&self) -> [f64; 7] {
-        [self.jobs, self.job_assets, self.tasks, self.task_deps, self.attempts, self.artifacts, self.samples]
+    pub fn figures(&self) -> [f64; 8] {
+        [
+            self.jobs,
+            self.job_assets,
+            self.tasks,
+            self.task_deps,
+            self.attempts,
+            self.artifacts,
+            self.samples,
+            self.task_keys,
+        ]
     }
 
     /// Bytes of `rows`, table by table, in `TableRows::TABLES` order.
-    pub fn bytes(&self, rows: &TableRows) -> [f64; 7] {
+    pub fn bytes(&self, rows: &TableRows) -> [f64; 8] {
         let (per_row, counts) = (self.figures(), rows.counts());
         std::array::from_fn(|i| per_row[i] * counts[i] as f64)
     }
@@ -188,7 +215,7 @@ impl PerRow {
 impl Store {
     /// Rows in each table, over every job: what `TableRows::submit` and `TableRows::task` predict.
     pub async fn table_rows(&self) -> Result<TableRows> {
-        let mut counts = [0u64; 7];
+        let mut counts = [0u64; 8];
         for (count, table) in counts.iter_mut().zip(TableRows::TABLES) {
             let n: i64 = sqlx::query(trusted(format!("SELECT COUNT(*) AS n FROM {table}")))
                 .fetch_one(&self.pool)
@@ -209,11 +236,19 @@ mod tests {
         let package = TableRows::task(&[3, 12, 2], 15, 2);
         assert_eq!(
             package,
-            TableRows { tasks: 1, task_deps: 3, attempts: 1, artifacts: 15, samples: 2, ..TableRows::default() }
+            TableRows {
+                tasks: 1,
+                task_deps: 3,
+                attempts: 1,
+                artifacts: 15,
+                samples: 2,
+                task_keys: 1,
+                ..TableRows::default()
+            }
         );
         let job = TableRows::submit(2) + package.times(3);
         assert_eq!((job.jobs, job.job_assets, job.tasks, job.artifacts), (1, 2, 3, 45));
-        assert_eq!(job.total(), 1 + 2 + 3 * (1 + 3 + 1 + 15 + 2));
+        assert_eq!(job.total(), 1 + 2 + 3 * (1 + 3 + 1 + 15 + 2 + 1));
     }
 
     #[test]
@@ -226,8 +261,9 @@ mod tests {
             attempts: 5.0,
             artifacts: 6.0,
             samples: 8.0,
+            task_keys: 9.0,
         };
         let rows = TableRows::task(&[1, 1], 2, 1);
-        assert_eq!(per_row.bytes(&rows), [0.0, 0.0, 3.0, 8.0, 5.0, 12.0, 8.0]);
+        assert_eq!(per_row.bytes(&rows), [0.0, 0.0, 3.0, 8.0, 5.0, 12.0, 8.0, 9.0]);
     }
 }

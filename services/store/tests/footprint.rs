@@ -72,6 +72,10 @@ async fn run_to_the_end(store: &Store, spec: &DatasetSpec) -> TableRows {
         if leased.is_empty() {
             break;
         }
+        // Keyed as the coordinator keys what a production worker leases (`vint_core::reuse`).
+        let keys: Vec<(String, u32, String)> =
+            leased.iter().map(|t| (t.id.clone(), t.attempt, format!("key of {}", t.id))).collect();
+        store.set_content_keys(&keys).await.unwrap();
         for t in leased {
             let (files, samples) = outputs_of(&plan, &t);
             let mut c = completion(fence(&t, "w"), &files.iter().map(String::as_str).collect::<Vec<_>>());
