@@ -16,24 +16,48 @@ use vint_core::plan::JobPlan;
 
 use crate::{Result, Store, trusted};
 
-/// Rows per table (or bytes per table, in `TableBytes`).
+/// One value per table: rows (`TableRows`) or bytes per row (`PerRow`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
-pub struct TableRows {
-    pub jobs: u64,
-    pub job_assets: u64,
-    pub tasks: u64,
-    pub task_deps: u64,
-    pub attempts: u64,
-    pub artifacts: u64,
-    pub samples: u64,
-    pub task_keys: u64,
+pub struct Tables<T> {
+    pub jobs: T,
+    pub job_assets: T,
+    pub tasks: T,
+    pub task_deps: T,
+    pub attempts: T,
+    pub artifacts: T,
+    pub samples: T,
+    pub task_keys: T,
 }
 
-impl TableRows {
+/// Rows per table.
+pub type TableRows = Tables<u64>;
+
+impl<T: Copy> Tables<T> {
     /// The tables in schema order, with their names.
     pub const TABLES: [&'static str; 8] =
         ["jobs", "job_assets", "tasks", "task_deps", "attempts", "artifacts", "samples", "task_keys"];
 
+    /// Every table's value, in `TABLES` order.
+    pub fn values(&self) -> [T; 8] {
+        [
+            self.jobs,
+            self.job_assets,
+            self.tasks,
+            self.task_deps,
+            self.attempts,
+            self.artifacts,
+            self.samples,
+            self.task_keys,
+        ]
+    }
+
+    fn from_values(v: [T; 8]) -> Tables<T> {
+        let [jobs, job_assets, tasks, task_deps, attempts, artifacts, samples, task_keys] = v;
+        Tables { jobs, job_assets, tasks, task_deps, attempts, artifacts, samples, task_keys }
+    }
+}
+
+impl TableRows {
     /// What a submission writes besides its tasks: the job and the user files its spec names.
     pub fn submit(user_files: u64) -> TableRows {
         TableRows { jobs: 1, job_assets: user_files, ..TableRows::default() }
@@ -41,10 +65,10 @@ impl TableRows {
 
     /// What one task writes over its life, succeeding at its first attempt: its row and one
     /// `task_deps` row per dependency (inserted by the completion that planned it), its reuse key
-    /// (written when a worker that declares its engine leases it: every production worker, not the
-    /// timing-only one), its attempt, its `outputs` artifacts and the `samples` it packaged. Its inputs are derived (its
-    /// dependencies' outputs), not stored: `dependency_outputs[i]` is dependency `i`'s artifact
-    /// count, which only the number of dependencies matters for.
+    /// (written when a worker that declares its engine leases it: every production worker, not
+    /// the timing-only one), its attempt, its `outputs` artifacts and the `samples` it packaged.
+    /// Its inputs are derived (its dependencies' outputs), not stored: `dependency_outputs[i]` is
+    /// dependency `i`'s artifact count, which only the number of dependencies matters for.
     pub fn task(dependency_outputs: &[u64], outputs: u64, samples: u64) -> TableRows {
         TableRows {
             tasks: 1,
@@ -59,16 +83,7 @@ impl TableRows {
 
     /// Every table's count, in `TABLES` order.
     pub fn counts(&self) -> [u64; 8] {
-        [
-            self.jobs,
-            self.job_assets,
-            self.tasks,
-            self.task_deps,
-            self.attempts,
-            self.artifacts,
-            self.samples,
-            self.task_keys,
-        ]
+        self.values()
     }
 
     pub fn total(&self) -> u64 {
@@ -78,20 +93,7 @@ impl TableRows {
     /// `n` times these rows.
     pub fn times(&self, n: u64) -> TableRows {
         let c = self.counts().map(|v| v.saturating_mul(n));
-        TableRows::from_counts(c)
-    }
-
-    fn from_counts(c: [u64; 8]) -> TableRows {
-        TableRows {
-            jobs: c[0],
-            job_assets: c[1],
-            tasks: c[2],
-            task_deps: c[3],
-            attempts: c[4],
-            artifacts: c[5],
-            samples: c[6],
-            task_keys: c[7],
-        }
+        TableRows::from_values(c)
     }
 }
 
@@ -100,7 +102,7 @@ impl Add for TableRows {
 
     fn add(self, other: TableRows) -> TableRows {
         let (a, b) = (self.counts(), other.counts());
-        TableRows::from_counts(std::array::from_fn(|i| a[i].saturating_add(b[i])))
+        TableRows::from_values(std::array::from_fn(|i| a[i].saturating_add(b[i])))
     }
 }
 
@@ -178,31 +180,12 @@ pub const POSTGRES_BYTES_PER_ROW: PerRow = PerRow {
 pub const POSTGRES_TASK_BYTES_BEYOND_PARAMS: f64 = 700.0;
 
 /// A figure per table (bytes per row).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct PerRow {
-    pub jobs: f64,
-    pub job_assets: f64,
-    pub tasks: f64,
-    pub task_deps: f64,
-    pub attempts: f64,
-    pub artifacts: f64,
-    pub samples: f64,
-    pub task_keys: f64,
-}
+pub type PerRow = Tables<f64>;
 
 impl PerRow {
     /// Every table's figure, in `TableRows::TABLES` order.
     pub fn figures(&self) -> [f64; 8] {
-        [
-            self.jobs,
-            self.job_assets,
-            self.tasks,
-            self.task_deps,
-            self.attempts,
-            self.artifacts,
-            self.samples,
-            self.task_keys,
-        ]
+        self.values()
     }
 
     /// Bytes of `rows`, table by table, in `TableRows::TABLES` order.
@@ -223,7 +206,7 @@ impl Store {
                 .try_get("n")?;
             *count = n.max(0) as u64;
         }
-        Ok(TableRows::from_counts(counts))
+        Ok(TableRows::from_values(counts))
     }
 }
 
