@@ -175,6 +175,39 @@ async fn postgres_cluster_matches_embedded_and_lineage_shows_the_full_chain() {
 
     let unknown = vintctl(&["status", "jnope", "--coordinator", &c.coordinator]);
     assert_eq!(unknown.status.code(), Some(2));
+
+    // The same spec once more, as a new job: the forecast over the cluster's database says every
+    // task will be reused, and none runs; lineage names the task each one took its result from.
+    let spec = tiny_spec();
+    let o = vintctl(&["--json", "plan", spec.to_str().unwrap(), "--against", &job, "--database", &c.database]);
+    assert!(o.status.success(), "plan --against: {}", stderr(&o));
+    let forecast: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    for (stage, f) in forecast["stages"].as_object().unwrap() {
+        assert!(f["planned"].as_u64().unwrap() > 0 && f["run"] == 0, "{stage}: {forecast:#}");
+    }
+    let o = vintctl(&["submit", spec.to_str().unwrap(), "--idempotency-key", "again", "--coordinator", &c.coordinator]);
+    assert!(o.status.success(), "submit: {}", stderr(&o));
+    let again = stdout(&o).trim().to_string();
+    assert_ne!(again, job);
+    c.watch(&again);
+    let status = vintctl(&["status", &again, "--coordinator", &c.coordinator, "--json"]);
+    let status: serde_json::Value = serde_json::from_str(&stdout(&status)).unwrap();
+    for (stage, s) in status["progress"]["stages"].as_object().unwrap() {
+        assert_eq!(s["reused"], s["total"], "{stage}: every task reused: {status:#}");
+    }
+    let o = vintctl(&["lineage", sample, "--job", &again, "--coordinator", &c.coordinator, "--json"]);
+    assert!(o.status.success(), "lineage: {}", stderr(&o));
+    let lineage: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    for t in lineage["tasks"].as_array().unwrap() {
+        let from = t["reused_from"].as_str().unwrap_or_else(|| panic!("not reused: {t:#}"));
+        assert_eq!(from, format!("{job}/{}", t["key"].as_str().unwrap()), "{t:#}");
+        assert_eq!(t["attempts"], 0, "{t:#}");
+    }
+    let store = c.store().await;
+    for task in store.tasks_of_job(&again).await.unwrap() {
+        assert_eq!(store.attempt_count(&task.id).await.unwrap(), 0, "{} ran", task.id);
+    }
+    store.close().await;
 }
 
 #[tokio::test(flavor = "multi_thread")]
