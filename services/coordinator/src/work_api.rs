@@ -127,6 +127,11 @@ impl WorkApi {
             return Err(format!("at most {MAX_OUTPUTS} outputs per task"));
         }
         let outputs = req.outputs.iter().map(validate_output).collect::<Result<Vec<_>, _>>()?;
+        // A task names each output once (the database no longer checks it: migration 0012).
+        let mut names = std::collections::HashSet::with_capacity(outputs.len());
+        if let Some(twice) = outputs.iter().find(|o| !names.insert(o.name.as_str())) {
+            return Err(format!("output {:?}: named twice", twice.name));
+        }
         // Only a grasp chunk unlocks tasks, planned from the job's plan: no other completion
         // reads the job.
         let plan = if task.stage == Stage::Grasp {

@@ -91,6 +91,14 @@ async fn an_output_whose_key_is_not_its_content_key_is_refused_and_changes_nothi
         assert_eq!(store.attempts(&task.task_id).await.unwrap()[0].outcome, None, "the attempt still runs");
     }
 
+    // An output named twice is refused too, and records nothing.
+    let mut twice = complete(&content_key);
+    twice.outputs.push(twice.outputs[0].clone());
+    let refused = client.complete_task(twice).await.unwrap_err();
+    assert_eq!(refused.code(), tonic::Code::InvalidArgument, "{refused}");
+    assert!(refused.message().contains("\"v00_depth_noisy.npy\": named twice"), "{refused}");
+    assert!(store.artifacts_of_task(&task.task_id).await.unwrap().is_empty());
+
     // The same completion naming the content key is accepted: the key alone was refused.
     client.complete_task(complete(&content_key)).await.unwrap();
     assert_eq!(store.task(&task.task_id).await.unwrap().unwrap().state, TaskState::Succeeded);

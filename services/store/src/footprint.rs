@@ -163,14 +163,16 @@ pub fn chunk_rows(plan: &JobPlan, grasps: u32) -> TableRows {
 /// (the same columns). Re-measure when the schema changes; the script prints this table.
 /// `task_keys` (migration 0011, after that measurement): 200,000 rows of its real shape (a
 /// render task's id, a 64-hex key) in a scratch table with its two indexes, after `VACUUM
-/// ANALYZE` (2026-11-28): heap 149, primary key 100, key index 125 bytes a row.
+/// ANALYZE` (2026-11-28): heap 149, primary key 100, key index 125 bytes a row. `artifacts`
+/// re-measured by the script on 2026-11-28 (commit `d986db5` plus migration 0012, which replaced
+/// its primary key by a plain index on `task_id`): 312 bytes a row, 446 before.
 pub const POSTGRES_BYTES_PER_ROW: PerRow = PerRow {
     jobs: 2_990.0,
     job_assets: 446.0,
     tasks: 1_539.0,
     task_deps: 296.0,
     attempts: 532.0,
-    artifacts: 446.0,
+    artifacts: 312.0,
     samples: 203.0,
     task_keys: 374.0,
 };
