@@ -159,11 +159,7 @@ fn key_of(
     let identity = identities.get(&task.stage)?;
     let mut inputs = Vec::new();
     for dep in &task.deps {
-        for a in outputs.get(dep)? {
-            if reuse::keyed_input(task.stage, &a.name) {
-                inputs.push(Input { task_key: dep, name: &a.name, sha256: &a.sha256 });
-            }
-        }
+        inputs.extend(outputs.get(dep)?.iter().map(|a| Input { task_key: dep, name: &a.name, sha256: &a.sha256 }));
     }
     Some(reuse::task_key(task.stage, identity, &task.params.to_string(), &inputs))
 }

@@ -58,12 +58,8 @@ pub(crate) fn identities(
 
 /// The reuse key of a leased task run by an engine of `identity`.
 pub(crate) fn key_of(task: &LeasedTask, identity: &str) -> String {
-    let inputs: Vec<Input<'_>> = task
-        .inputs
-        .iter()
-        .filter(|a| reuse::keyed_input(task.stage, &a.name))
-        .map(|a| Input { task_key: &a.task_key, name: &a.name, sha256: &a.sha256 })
-        .collect();
+    let inputs: Vec<Input<'_>> =
+        task.inputs.iter().map(|a| Input { task_key: &a.task_key, name: &a.name, sha256: &a.sha256 }).collect();
     reuse::task_key(task.stage, identity, &task.params_json, &inputs)
 }
 

@@ -37,9 +37,10 @@ pub struct Input<'a> {
     pub sha256: &'a str,
 }
 
-/// The reuse key of a task (64 hex digits). The inputs may come in any order.
+/// The reuse key of a task (64 hex digits), given all its dependencies' outputs in any order:
+/// only those `keyed_input` names enter it.
 pub fn task_key(stage: Stage, identity: &str, params_json: &str, inputs: &[Input<'_>]) -> String {
-    let mut sorted: Vec<Input<'_>> = inputs.to_vec();
+    let mut sorted: Vec<Input<'_>> = inputs.iter().copied().filter(|i| keyed_input(stage, i.name)).collect();
     sorted.sort();
     let mut h = Sha256::new();
     // Every variable-length part is framed by its length, so no two different tuples hash alike.
@@ -80,7 +81,7 @@ mod tests {
     use super::*;
 
     const RENDER: Input<'static> = Input { task_key: "grasp/mug/trx3/c0000", name: "grasps.json", sha256: "aa" };
-    const TOUCH: Input<'static> = Input { task_key: "grasp/mug/trx3/c0000", name: "touch.json", sha256: "bb" };
+    const TOUCH: Input<'static> = Input { task_key: "grasp/mug/trx3/c0000", name: "object.ply", sha256: "bb" };
 
     #[test]
     fn a_key_depends_on_every_part_and_not_on_input_order() {
@@ -93,9 +94,12 @@ mod tests {
             task_key(Stage::Render, "id1", r#"{"a":2}"#, &[RENDER, TOUCH]),
             task_key(Stage::Render, "id1", r#"{"a":1}"#, &[RENDER]),
             task_key(Stage::Render, "id1", r#"{"a":1}"#, &[RENDER, Input { sha256: "bc", ..TOUCH }]),
-            task_key(Stage::Render, "id1", r#"{"a":1}"#, &[RENDER, Input { name: "touch2.json", ..TOUCH }]),
+            task_key(Stage::Render, "id1", r#"{"a":1}"#, &[RENDER, Input { name: "object2.ply", ..TOUCH }]),
             task_key(Stage::Render, "id1", r#"{"a":1}"#, &[RENDER, Input { task_key: "grasp/x", ..TOUCH }]),
         ];
+        // A file the stage's engine is never given (render is not given touch.json) is not in it.
+        let unread = Input { task_key: "grasp/mug/trx3/c0000", name: "touch.json", sha256: "cc" };
+        assert_eq!(base, task_key(Stage::Render, "id1", r#"{"a":1}"#, &[RENDER, TOUCH, unread]));
         for (i, other) in changed.iter().enumerate() {
             assert_ne!(&base, other, "change {i} left the key unchanged");
         }
