@@ -62,6 +62,9 @@ from pathlib import Path
 from typing import IO, Any
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "scripts"))
+from packed_outputs import unpack  # noqa: E402  (the store's packed outputs, read from SQL)
+
 SPEC = ROOT / "examples" / "tiny.toml"
 SMOKE_SPEC = ROOT / "benches" / "smoke.toml"
 MAX_ATTEMPTS = 10
@@ -782,13 +785,16 @@ class Round:
 
     def bucket_against_lineage(self, job: str) -> dict[str, Any]:
         """Objects in the bucket outside the job's lineage (orphans), and lineage objects missing."""
-        rows = self.run.postgres.query(
+        outputs = self.run.postgres.query(
             self.database,
-            "SELECT a.object_key FROM artifacts a JOIN tasks t ON t.id = a.task_id "
-            f"WHERE t.job_id = {sql_text(job)} "
-            f"UNION SELECT object_key FROM job_assets WHERE job_id = {sql_text(job)}",
+            "SELECT encode(o.files, 'hex') FROM outputs o JOIN tasks t ON t.id = o.task_id "
+            f"WHERE t.job_id = {sql_text(job)}",
         )
-        lineage = {row[0] for row in rows}
+        assets = self.run.postgres.query(
+            self.database, f"SELECT object_key FROM job_assets WHERE job_id = {sql_text(job)}"
+        )
+        lineage = {f.object_key for row in outputs for f in unpack(bytes.fromhex(row[0]))}
+        lineage |= {row[0] for row in assets}
         stored = self.run.s3.keys(self.bucket)
         orphans, missing = sorted(stored - lineage), sorted(lineage - stored)
         if orphans or missing:

@@ -143,7 +143,7 @@ pids+=($!)
   echo "t_s,queued,running,succeeded,failed,samples"
   while kill -0 "$coordinator" 2>/dev/null; do
     row=$(sql "$db_url" "SELECT count(*) FILTER (WHERE state IN ('queued', 'blocked')), count(*) FILTER (WHERE state = 'running'), \
-      count(*) FILTER (WHERE state = 'succeeded'), count(*) FILTER (WHERE state = 'failed'), (SELECT count(*) FROM samples) FROM tasks" \
+      count(*) FILTER (WHERE state = 'succeeded'), count(*) FILTER (WHERE state = 'failed'), (SELECT COALESCE(sum(samples), 0) FROM outputs) FROM tasks" \
       2>/dev/null | tr '|' ',' || true)
     [[ -n $row ]] && echo "$(python3 -c "import time; print(f'{time.time() - $start:.1f}')"),$row"
     sleep 10
@@ -171,7 +171,7 @@ pids=()
 db_state() {
   sql "$db_url" "SELECT json_build_object(
       'database_bytes', pg_database_size(current_database()),
-      'samples', (SELECT count(*) FROM samples),
+      'samples', (SELECT COALESCE(sum(samples), 0) FROM outputs),
       'tasks', (SELECT count(*) FROM tasks),
       'tables', (SELECT json_agg(json_build_object('name', relname, 'total_bytes', pg_total_relation_size(relid),
                   'heap_bytes', pg_relation_size(relid), 'live_rows', n_live_tup, 'dead_rows', n_dead_tup) ORDER BY relname)

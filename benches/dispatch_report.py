@@ -17,12 +17,16 @@ from __future__ import annotations
 
 import argparse
 import csv
+import hashlib
 import json
 import statistics
 import subprocess
 import sys
 from pathlib import Path
 from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+from packed_outputs import unpack  # the store's packed outputs, read from SQL
 
 LATENCY_FIELDS = ["unix_ms", "slot", "tasks", "lease_ms", "complete_ms"]  # vint-worker --latency-log
 
@@ -37,12 +41,22 @@ def read_csv(path: Path, fields: list[str] | None = None) -> list[dict[str, floa
 
 
 def sample_ids(database: str, job: str, n: int) -> list[str]:
+    """`n` samples of `job` in a fixed pseudo-random order: one of each of `n` package tasks (a
+    package task's files are named `<sample id>/<file>`)."""
     query = (
-        f"SELECT sample_id FROM samples WHERE job_id = '{job}' "
-        f"ORDER BY md5(sample_id || 'dispatch-check') LIMIT {n}"
+        "SELECT t.id, encode(o.files, 'hex') FROM tasks t JOIN outputs o ON o.task_id = t.id "
+        f"WHERE t.job_id = '{job}' AND t.stage = 'package' ORDER BY md5(t.id || 'dispatch-check') LIMIT {n}"
     )
     out = subprocess.run(["psql", database, "-At", "-c", query], check=True, capture_output=True, text=True)
-    return out.stdout.split()
+    picked = []
+    for line in out.stdout.split():
+        task_id, files = line.split("|")
+        # Sample ids are OBJECT.HAND.gNNNNNN.vNN; the grasp records' directories have no view.
+        samples = sorted({f.name.split("/")[0] for f in unpack(bytes.fromhex(files))})
+        samples = [s for s in samples if len(s.split(".")) == 4]
+        if samples:
+            picked.append(min(samples, key=lambda s: hashlib.md5((s + task_id).encode()).hexdigest()))
+    return picked
 
 
 def check_sample(sample: str, lineage: dict[str, Any], store: Path) -> list[str]:

@@ -9,7 +9,9 @@ of one half-empty 8 KiB page per table) into a scratch Postgres database with
 `migrations/postgres/*.sql` applied, runs `VACUUM ANALYZE`, and prints per table: rows,
 `pg_total_relation_size` (heap + indexes + TOAST) and its parts, and bytes per row — the figures
 `vint_store::footprint::POSTGRES_BYTES_PER_ROW` holds. It also prints what the job's tasks wrote
-(artifacts and dependencies per task by stage) and the artifact sizes by file kind, which
+(files and dependencies per task by stage), how an `outputs` row's bytes split into the row and
+its packed files (`POSTGRES_BYTES_PER_ROW.outputs` and `.output_files`), and the file sizes by
+kind, which
 `services/vintctl/src/estimate.rs` uses for the object store. The scratch database
 (`measure_db_bytes_<pid>`) is dropped at the end unless `--keep`.
 
@@ -26,7 +28,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-TABLES = ["jobs", "job_assets", "tasks", "task_deps", "attempts", "artifacts", "samples", "task_keys"]
+from packed_outputs import unpack
+
+TABLES = ["jobs", "job_assets", "tasks", "task_deps", "attempts", "outputs", "task_keys"]
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -44,6 +48,8 @@ def copy_text(value):
         return "\\N"
     if isinstance(value, (int, float)):
         return str(value)
+    if isinstance(value, bytes):
+        return "\\\\x" + value.hex()  # bytea's hex input, its backslash escaped for COPY
     return value.replace("\\", "\\\\").replace("\t", "\\t").replace("\n", "\\n").replace("\r", "\\r")
 
 
@@ -146,6 +152,17 @@ def main():
         ):
             print(f"  {stage:<8} {n:>4} tasks, params_json {mean:.0f} B")
 
+    # An outputs row = the row (header, key, index entry, TOAST pointer) + its packed files: the
+    # files' share is their encoded bytes, the rest is the row's.
+    packed = {task_id: unpack(files) for task_id, files in src.execute("SELECT task_id, files FROM outputs")}
+    encoded = src.execute("SELECT COALESCE(SUM(length(files)), 0) FROM outputs").fetchone()[0]
+    files_total = sum(len(v) for v in packed.values())
+    if files_total and sizes["outputs"]["rows"]:
+        per_file = encoded / files_total
+        outputs = sizes["outputs"]
+        per_row = (outputs["total_bytes"] - per_file * files_total * args.copies) / outputs["rows"]
+        print(f"\noutputs: {per_row:.0f} B per row beyond its files, {per_file:.1f} B per packed file")
+
     # What each task wrote, by stage: the footprint model's inputs, checked against a real run.
     stage_of = {r[0]: r[1] for r in src.execute("SELECT id, stage FROM tasks")}
     trials_of = {
@@ -154,19 +171,19 @@ def main():
     }
     per_stage = {}
     for task_id, stage in stage_of.items():
-        a = src.execute("SELECT COUNT(*) FROM artifacts WHERE task_id = ?", (task_id,)).fetchone()[0]
+        a = len(packed.get(task_id, []))
         d = src.execute("SELECT COUNT(*) FROM task_deps WHERE task_id = ?", (task_id,)).fetchone()[0]
         per_stage.setdefault(stage, []).append((a, d))
-    print("\nper task, by stage: tasks; artifacts, dependencies (min–max)")
+    print("\nper task, by stage: tasks; files, dependencies (min–max)")
     for stage, v in sorted(per_stage.items()):
         artifacts = f"{min(x[0] for x in v)}–{max(x[0] for x in v)}"
         deps = f"{min(x[1] for x in v)}–{max(x[1] for x in v)}"
-        print(f"  {stage:<8} {len(v):>4} tasks; artifacts {artifacts}, deps {deps}")
+        print(f"  {stage:<8} {len(v):>4} tasks; files {artifacts}, deps {deps}")
 
     # Object store: sizes by file kind (the name past the sample, grasp or view prefix).
     kinds = {}
     grasp_per_trial = {}
-    for task_id, name, size in src.execute("SELECT task_id, name, size FROM artifacts"):
+    for task_id, name, size in ((t, f.name, f.size) for t, fs in packed.items() for f in fs):
         kind = re.sub(r"^v\d\d_", "", name.rsplit("/", 1)[-1])
         kinds.setdefault((stage_of[task_id], kind), []).append(size)
         if stage_of[task_id] == "grasp" and trials_of.get(task_id):

@@ -24,8 +24,10 @@ pub struct Tables<T> {
     pub tasks: T,
     pub task_deps: T,
     pub attempts: T,
-    pub artifacts: T,
-    pub samples: T,
+    /// `outputs` rows: one a task that made files.
+    pub outputs: T,
+    /// The files packed in `outputs` rows (bytes a file, beyond its row's).
+    pub output_files: T,
     pub task_keys: T,
 }
 
@@ -35,7 +37,7 @@ pub type TableRows = Tables<u64>;
 impl<T: Copy> Tables<T> {
     /// The tables in schema order, with their names.
     pub const TABLES: [&'static str; 8] =
-        ["jobs", "job_assets", "tasks", "task_deps", "attempts", "artifacts", "samples", "task_keys"];
+        ["jobs", "job_assets", "tasks", "task_deps", "attempts", "outputs", "outputs.files", "task_keys"];
 
     /// Every table's value, in `TABLES` order.
     pub fn values(&self) -> [T; 8] {
@@ -45,15 +47,15 @@ impl<T: Copy> Tables<T> {
             self.tasks,
             self.task_deps,
             self.attempts,
-            self.artifacts,
-            self.samples,
+            self.outputs,
+            self.output_files,
             self.task_keys,
         ]
     }
 
     fn from_values(v: [T; 8]) -> Tables<T> {
-        let [jobs, job_assets, tasks, task_deps, attempts, artifacts, samples, task_keys] = v;
-        Tables { jobs, job_assets, tasks, task_deps, attempts, artifacts, samples, task_keys }
+        let [jobs, job_assets, tasks, task_deps, attempts, outputs, output_files, task_keys] = v;
+        Tables { jobs, job_assets, tasks, task_deps, attempts, outputs, output_files, task_keys }
     }
 }
 
@@ -66,16 +68,17 @@ impl TableRows {
     /// What one task writes over its life, succeeding at its first attempt: its row and one
     /// `task_deps` row per dependency (inserted by the completion that planned it), its reuse key
     /// (written when a worker that declares its engine leases it: every production worker, not
-    /// the timing-only one), its attempt, its `outputs` artifacts and the `samples` it packaged.
+    /// the timing-only one), its attempt, its `outputs` files packed in one row (none when it made
+    /// none). Its samples are named by its files (migration 0013), not rows of their own.
     /// Its inputs are derived (its dependencies' outputs), not stored: `dependency_outputs[i]` is
     /// dependency `i`'s artifact count, which only the number of dependencies matters for.
-    pub fn task(dependency_outputs: &[u64], outputs: u64, samples: u64) -> TableRows {
+    pub fn task(dependency_outputs: &[u64], outputs: u64) -> TableRows {
         TableRows {
             tasks: 1,
             task_deps: dependency_outputs.len() as u64,
             attempts: 1,
-            artifacts: outputs,
-            samples,
+            outputs: u64::from(outputs > 0),
+            output_files: outputs,
             task_keys: 1,
             ..TableRows::default()
         }
@@ -131,55 +134,55 @@ pub fn package_files_per_sample(plan: &JobPlan) -> u64 {
 /// depth) a noise task, and one package task waiting for all of them that packages every view
 /// of every grasp and one record per grasp.
 pub fn chunk_rows(plan: &JobPlan, grasps: u32) -> TableRows {
-    let mut rows = TableRows::task(&[], GRASP_TASK_OUTPUTS, 0);
+    let mut rows = TableRows::task(&[], GRASP_TASK_OUTPUTS);
     if grasps == 0 {
         return rows;
     }
     let g = u64::from(grasps);
     let views = u64::from(plan.views_per_grasp());
     let render_outputs = render_task_outputs(plan);
-    rows += TableRows::task(&[GRASP_TASK_OUTPUTS], render_outputs, 0).times(g);
+    rows += TableRows::task(&[GRASP_TASK_OUTPUTS], render_outputs).times(g);
     let mut package_deps = vec![GRASP_TASK_OUTPUTS];
     package_deps.extend(std::iter::repeat_n(render_outputs, grasps as usize));
     if plan.noise.is_some() {
-        rows += TableRows::task(&[render_outputs], views, 0).times(g);
+        rows += TableRows::task(&[render_outputs], views).times(g);
         package_deps.extend(std::iter::repeat_n(views, grasps as usize));
     }
-    let samples = g * views;
-    rows += TableRows::task(&package_deps, samples * package_files_per_sample(plan) + g, samples);
+    rows += TableRows::task(&package_deps, g * views * package_files_per_sample(plan) + g);
     rows
 }
 
 /// Bytes one row of each table takes on Postgres with its indexes and TOAST
 /// (`pg_total_relation_size` over the row count), measured by `scripts/measure_db_bytes.py` on
-/// the rows of a real `vintctl run examples/tiny.toml` job (32 tasks, 60 samples) copied 400
+/// the rows of a real `vintctl run examples/tiny.toml` job (21 tasks, 30 samples) copied 400
 /// times under fresh job ids into a scratch database with `migrations/postgres` applied, after
-/// `VACUUM ANALYZE` (2026-11-25, commit `687edb3`'s schema, Postgres 15.20, this machine; `lineage_edges`, 450 bytes
-/// a row then, is gone since migration 0006; the other tables' rows are unchanged but for the
-/// `tasks` index it dropped, so `tasks` is slightly over).
+/// `VACUUM ANALYZE` (2026-11-28, migration 0013's schema, Postgres 15.20, this machine).
+/// `outputs` splits into the row (366 bytes: heap tuple, primary key entry, TOAST pointer and
+/// chunk overhead) and its packed files (50 bytes a file: the encoded bytes over the file count),
+/// so that a spec whose tasks make more or fewer files is sized by its own count.
 /// `tasks` is tiny's mix of stages; a task row is mostly its parameters, so `vintctl plan` sizes
 /// it as `POSTGRES_TASK_BYTES_BEYOND_PARAMS` plus the parameters the planner makes for the spec.
-/// `job_assets` is not measured (tiny names no user file): an artifact row's figure stands in
-/// (the same columns). Re-measure when the schema changes; the script prints this table.
-/// `task_keys` (migration 0011, after that measurement): 200,000 rows of its real shape (a
-/// render task's id, a 64-hex key) in a scratch table with its two indexes, after `VACUUM
-/// ANALYZE` (2026-11-28): heap 149, primary key 100, key index 125 bytes a row. `artifacts`
-/// re-measured by the script on 2026-11-28 (commit `d986db5` plus migration 0012, which replaced
-/// its primary key by a plain index on `task_id`): 312 bytes a row, 446 before.
+/// `job_assets` is not measured (tiny names no user file): the figure of an `artifacts` row
+/// (the same columns; 2026-11-25, before migration 0013 packed them) stands in.
+/// `task_keys`: the tiny run's copies share their keys, which the key index then stores once
+/// (231 bytes a row); taken instead from 200,000 rows of its real shape (a render task's id, a
+/// 64-hex key) in a scratch table with its two indexes, after `VACUUM ANALYZE` (2026-11-28):
+/// heap 149, primary key 100, key index 125 bytes a row.
+/// Re-measure when the schema changes; the script prints this table.
 pub const POSTGRES_BYTES_PER_ROW: PerRow = PerRow {
-    jobs: 2_990.0,
+    jobs: 3_666.0,
     job_assets: 446.0,
-    tasks: 1_539.0,
-    task_deps: 296.0,
-    attempts: 532.0,
-    artifacts: 312.0,
-    samples: 203.0,
+    tasks: 1_661.0,
+    task_deps: 304.0,
+    attempts: 632.0,
+    outputs: 366.0,
+    output_files: 50.0,
     task_keys: 374.0,
 };
 
-/// A `tasks` row on Postgres beyond its `params_json`: 1 539 bytes per row less tiny's 839-byte
+/// A `tasks` row on Postgres beyond its `params_json`: 1 661 bytes per row less tiny's 982-byte
 /// mean parameters (`scripts/measure_db_bytes.py`, as above).
-pub const POSTGRES_TASK_BYTES_BEYOND_PARAMS: f64 = 700.0;
+pub const POSTGRES_TASK_BYTES_BEYOND_PARAMS: f64 = 679.0;
 
 /// A figure per table (bytes per row).
 pub type PerRow = Tables<f64>;
@@ -202,10 +205,11 @@ impl Store {
     pub async fn table_rows(&self) -> Result<TableRows> {
         let mut counts = [0u64; 8];
         for (count, table) in counts.iter_mut().zip(TableRows::TABLES) {
-            let n: i64 = sqlx::query(trusted(format!("SELECT COUNT(*) AS n FROM {table}")))
-                .fetch_one(&self.pool)
-                .await?
-                .try_get("n")?;
+            let sql = match table {
+                "outputs.files" => "SELECT CAST(COALESCE(SUM(count), 0) AS BIGINT) AS n FROM outputs".to_string(),
+                table => format!("SELECT COUNT(*) AS n FROM {table}"),
+            };
+            let n: i64 = sqlx::query(trusted(sql)).fetch_one(&self.pool).await?.try_get("n")?;
             *count = n.max(0) as u64;
         }
         Ok(TableRows::from_values(counts))
@@ -217,23 +221,24 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_task_writes_its_row_deps_attempt_outputs_and_samples() {
-        let package = TableRows::task(&[3, 12, 2], 15, 2);
+    fn a_task_writes_its_row_deps_attempt_and_packed_outputs() {
+        let package = TableRows::task(&[3, 12, 2], 15);
         assert_eq!(
             package,
             TableRows {
                 tasks: 1,
                 task_deps: 3,
                 attempts: 1,
-                artifacts: 15,
-                samples: 2,
+                outputs: 1,
+                output_files: 15,
                 task_keys: 1,
                 ..TableRows::default()
             }
         );
         let job = TableRows::submit(2) + package.times(3);
-        assert_eq!((job.jobs, job.job_assets, job.tasks, job.artifacts), (1, 2, 3, 45));
-        assert_eq!(job.total(), 1 + 2 + 3 * (1 + 3 + 1 + 15 + 2 + 1));
+        assert_eq!((job.jobs, job.job_assets, job.tasks, job.outputs, job.output_files), (1, 2, 3, 3, 45));
+        assert_eq!(job.total(), 1 + 2 + 3 * (1 + 3 + 1 + 1 + 15 + 1));
+        assert_eq!(TableRows::task(&[], 0).outputs, 0, "a task that made no file has no outputs row");
     }
 
     #[test]
@@ -244,11 +249,11 @@ mod tests {
             tasks: 3.0,
             task_deps: 4.0,
             attempts: 5.0,
-            artifacts: 6.0,
-            samples: 8.0,
+            outputs: 6.0,
+            output_files: 7.0,
             task_keys: 9.0,
         };
-        let rows = TableRows::task(&[1, 1], 2, 1);
-        assert_eq!(per_row.bytes(&rows), [0.0, 0.0, 3.0, 8.0, 5.0, 12.0, 8.0, 9.0]);
+        let rows = TableRows::task(&[1, 1], 2);
+        assert_eq!(per_row.bytes(&rows), [0.0, 0.0, 3.0, 8.0, 5.0, 6.0, 14.0, 9.0]);
     }
 }

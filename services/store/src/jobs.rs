@@ -163,11 +163,16 @@ impl Store {
                 *p.reused.entry(stage).or_default() += reused as u64;
             }
         }
-        let samples: i64 = sqlx::query("SELECT COUNT(*) AS n FROM samples WHERE job_id = $1")
-            .bind(job_id)
-            .fetch_one(&self.pool)
-            .await?
-            .try_get("n")?;
+        // A package task's outputs row counts the samples it made (migration 0013).
+        let samples: i64 = sqlx::query(
+            "SELECT CAST(COALESCE(SUM(o.samples), 0) AS BIGINT) AS n FROM tasks t JOIN outputs o ON o.task_id = t.id \
+             WHERE t.job_id = $1 AND t.stage = $2",
+        )
+        .bind(job_id)
+        .bind(vint_core::Stage::Package.as_str())
+        .fetch_one(&self.pool)
+        .await?
+        .try_get("n")?;
         p.samples = samples as u64;
         Ok(p)
     }

@@ -35,6 +35,7 @@ mod failures;
 pub mod footprint;
 mod jobs;
 mod lineage;
+mod outputs;
 mod queue;
 mod records;
 mod reuse;
@@ -90,6 +91,14 @@ impl Backend {
                     cols.iter().map(|(name, _)| format!("json_extract(value, '$.{name}') AS {name}")).collect();
                 format!("(SELECT {} FROM json_each({param})) AS {alias}", cols.join(", "))
             }
+        }
+    }
+
+    /// Bytes from the hex text `expr` (packed outputs travel in JSON parameters as hex).
+    fn bytes_from_hex(self, expr: &str) -> String {
+        match self {
+            Backend::Postgres => format!("decode({expr}, 'hex')"),
+            Backend::Sqlite => format!("unhex({expr})"),
         }
     }
 
@@ -159,6 +168,9 @@ pub enum StoreError {
     NotFound(String),
     #[error("corrupt row: {0}")]
     Corrupt(String),
+    /// A write the store refuses: what, and the rule it breaks.
+    #[error("{0}")]
+    Invalid(String),
 }
 
 pub type Result<T, E = StoreError> = std::result::Result<T, E>;
@@ -259,12 +271,17 @@ impl Store {
     /// Applies the migrations the database lacks (DDL).
     pub async fn migrate(&self) -> Result<()> {
         self.migrator().run(&self.pool).await?;
+        let packed = self.pack_legacy_artifacts().await?;
+        if packed > 0 {
+            tracing::info!(tasks = packed, "packed the outputs of tasks recorded before migration 0013");
+        }
         Ok(())
     }
 
     /// Refuses (`SchemaBehind`) a database that lacks any of this binary's migrations; changes
     /// nothing. A database ahead of the binary (migrated by a newer release during a rollout)
-    /// passes: migrations only add to the schema.
+    /// passes: migrations add to the schema, but for 0013, which replaces `artifacts` and `samples`
+    /// (docs/operations.md: stop older coordinators before it).
     pub async fn require_current_schema(&self) -> Result<()> {
         let applied = self.applied_migrations().await?;
         let missing: Vec<i64> = self.migrator().iter().map(|m| m.version).filter(|v| !applied.contains(v)).collect();

@@ -6,24 +6,32 @@ use std::collections::{BTreeMap, BTreeSet};
 use sqlx::Row;
 use sqlx::any::AnyRow;
 
-use crate::{ArtifactRecord, JobAsset, LineageEntry, Result, Store, StoreError, trusted};
+use vint_core::sample::SampleId;
 
-pub(crate) fn artifact_from_row(row: &AnyRow) -> Result<ArtifactRecord> {
-    Ok(ArtifactRecord {
-        task_id: row.try_get("task_id")?,
-        task_key: row.try_get("key")?,
-        name: row.try_get("name")?,
-        sha256: row.try_get("sha256")?,
-        size: row.try_get::<i64, _>("size")? as u64,
-        media_type: row.try_get("media_type")?,
-        object_key: row.try_get("object_key")?,
-    })
+use crate::{ArtifactRecord, JobAsset, LineageEntry, Result, Store, StoreError, outputs, trusted};
+
+/// The files of a row with a task's `task_id`, `key` and packed `files` (`outputs.rs`).
+pub(crate) fn outputs_from_row(row: &AnyRow) -> Result<Vec<ArtifactRecord>> {
+    let task_id: String = row.try_get("task_id")?;
+    let key: String = row.try_get("key")?;
+    let files: Vec<u8> = row.try_get("files")?;
+    outputs::unpack(&task_id, &key, &files)
+}
+
+/// Every file of `rows` (see `outputs_from_row`), in the rows' order and then by name.
+fn outputs_from_rows(rows: &[AnyRow]) -> Result<Vec<ArtifactRecord>> {
+    let mut files = Vec::new();
+    for row in rows {
+        files.extend(outputs_from_row(row)?);
+    }
+    Ok(files)
 }
 
 /// The `task_key` lineage gives a job's user files (they come with the submission, not a task).
 pub const ASSET_TASK_KEY: &str = "asset";
 
-const ARTIFACT_SELECT: &str = "SELECT a.task_id, t.key, a.name, a.sha256, a.size, a.media_type, a.object_key FROM artifacts a JOIN tasks t ON t.id = a.task_id";
+/// The packed outputs of the tasks a query selects (alias `t`), in the rows' order.
+const OUTPUTS_SELECT: &str = "SELECT o.task_id, t.key, o.files FROM tasks t JOIN outputs o ON o.task_id = t.id";
 
 impl Store {
     /// The task and, recursively, every task it depends on: producer first, then inputs'
@@ -46,17 +54,14 @@ impl Store {
                     .iter()
                     .map(|r| r.try_get("depends_on"))
                     .collect::<Result<_, _>>()?;
-            let mut inputs = sqlx::query(
-                "SELECT a.task_id, t.key, a.name, a.sha256, a.size, a.media_type, a.object_key FROM task_deps d \
-                 JOIN artifacts a ON a.task_id = d.depends_on JOIN tasks t ON t.id = a.task_id \
-                 WHERE d.task_id = $1 ORDER BY t.key, a.name",
+            let rows = sqlx::query(
+                "SELECT o.task_id, t.key, o.files FROM task_deps d JOIN outputs o ON o.task_id = d.depends_on \
+                 JOIN tasks t ON t.id = o.task_id WHERE d.task_id = $1 ORDER BY t.key",
             )
             .bind(&id)
             .fetch_all(&self.pool)
-            .await?
-            .iter()
-            .map(artifact_from_row)
-            .collect::<Result<Vec<_>>>()?;
+            .await?;
+            let mut inputs = outputs_from_rows(&rows)?;
             // A user file the task's parameters name (by hash) is an input too, "from" the job.
             if !job_assets.contains_key(&task.job_id) {
                 job_assets.insert(task.job_id.clone(), self.job_assets(&task.job_id).await?);
@@ -80,43 +85,43 @@ impl Store {
     }
 
     pub async fn artifacts_of_task(&self, task_id: &str) -> Result<Vec<ArtifactRecord>> {
-        let sql = format!("{ARTIFACT_SELECT} WHERE a.task_id = $1 ORDER BY a.name");
-        sqlx::query(trusted(sql)).bind(task_id).fetch_all(&self.pool).await?.iter().map(artifact_from_row).collect()
+        let sql = format!("{OUTPUTS_SELECT} WHERE t.id = $1");
+        outputs_from_rows(&sqlx::query(trusted(sql)).bind(task_id).fetch_all(&self.pool).await?)
+    }
+
+    /// The files of a job's succeeded tasks of `stage`, in task-key order.
+    async fn stage_outputs(&self, job_id: &str, stage: vint_core::Stage) -> Result<Vec<ArtifactRecord>> {
+        let sql = format!("{OUTPUTS_SELECT} WHERE t.job_id = $1 AND t.stage = $2 ORDER BY t.key");
+        let rows = sqlx::query(trusted(sql)).bind(job_id).bind(stage.as_str()).fetch_all(&self.pool).await?;
+        outputs_from_rows(&rows)
     }
 
     /// Tasks that produced content with this hash (content can be produced by several tasks,
-    /// e.g. a rendered image and its packaged copy), optionally within one job.
+    /// e.g. a rendered image and its packaged copy), optionally within one job. Outputs are not
+    /// indexed by hash (an index entry a file cost more than the packed file): the database finds
+    /// the rows holding the hash's bytes by scanning the job's (or every job's) outputs.
     pub async fn producers_of(&self, sha256: &str, job_id: Option<&str>) -> Result<Vec<ArtifactRecord>> {
-        let sql = format!(
-            "{ARTIFACT_SELECT} WHERE a.sha256 = $1 AND ($2 = '' OR t.job_id = $2) ORDER BY t.stage, a.task_id, a.name"
-        );
-        sqlx::query(trusted(sql))
-            .bind(sha256)
-            .bind(job_id.unwrap_or(""))
-            .fetch_all(&self.pool)
-            .await?
-            .iter()
-            .map(artifact_from_row)
-            .collect()
+        if sha256.len() != 64 || !sha256.bytes().all(|b| matches!(b, b'0'..=b'9' | b'a'..=b'f')) {
+            return Ok(Vec::new());
+        }
+        let holds = match self.backend {
+            crate::Backend::Postgres => "position(decode($1, 'hex') in o.files) > 0",
+            crate::Backend::Sqlite => "instr(o.files, unhex($1)) > 0",
+        };
+        let sql = format!("{OUTPUTS_SELECT} WHERE {holds} AND ($2 = '' OR t.job_id = $2) ORDER BY t.stage, t.id");
+        let rows = sqlx::query(trusted(sql)).bind(sha256).bind(job_id.unwrap_or("")).fetch_all(&self.pool).await?;
+        Ok(outputs_from_rows(&rows)?.into_iter().filter(|a| a.sha256 == sha256).collect())
     }
 
     /// Packaged samples of a job and their files (names relative to the sample's directory).
     pub async fn samples(&self, job_id: &str) -> Result<BTreeMap<String, Vec<ArtifactRecord>>> {
-        let rows = sqlx::query(
-            "SELECT s.sample_id, a.task_id, t.key, a.name, a.sha256, a.size, a.media_type, a.object_key \
-             FROM samples s JOIN artifacts a ON a.task_id = s.package_task_id JOIN tasks t ON t.id = a.task_id \
-             WHERE s.job_id = $1 ORDER BY s.sample_id, a.name",
-        )
-        .bind(job_id)
-        .fetch_all(&self.pool)
-        .await?;
         let mut out: BTreeMap<String, Vec<ArtifactRecord>> = BTreeMap::new();
-        for row in rows {
-            let sample: String = row.try_get("sample_id")?;
-            let mut a = artifact_from_row(&row)?;
-            let Some(file) = a.name.strip_prefix(&format!("{sample}/")).map(str::to_string) else {
+        for mut a in self.stage_outputs(job_id, vint_core::Stage::Package).await? {
+            let Some((sample, file)) = a.name.split_once('/') else { continue };
+            if sample.parse::<SampleId>().is_err() {
                 continue;
-            };
+            }
+            let (sample, file) = (sample.to_string(), file.to_string());
             a.name = file;
             out.entry(sample).or_default().push(a);
         }
@@ -126,23 +131,15 @@ impl Store {
     /// The grasp records of a job's packaged samples, by grasp id (`<grasp_id>/grasp.json`
     /// artifacts of its package tasks; the artifact's name is given as `grasp.json`).
     pub async fn grasp_records(&self, job_id: &str) -> Result<BTreeMap<String, ArtifactRecord>> {
-        let rows = sqlx::query(
-            "SELECT a.task_id, t.key, a.name, a.sha256, a.size, a.media_type, a.object_key \
-             FROM tasks t JOIN artifacts a ON a.task_id = t.id \
-             WHERE t.job_id = $1 AND t.stage = $2 AND a.name LIKE $3 ORDER BY a.name",
-        )
-        .bind(job_id)
-        .bind(vint_core::Stage::Package.as_str())
-        .bind(format!("%/{}", vint_core::contract::package::GRASP_RECORD_FILE))
-        .fetch_all(&self.pool)
-        .await?;
+        let record = vint_core::contract::package::GRASP_RECORD_FILE;
         let mut out = BTreeMap::new();
-        for row in rows {
-            let mut a = artifact_from_row(&row)?;
-            let Some((grasp, file)) = a.name.split_once('/').map(|(g, f)| (g.to_string(), f.to_string())) else {
+        for mut a in self.stage_outputs(job_id, vint_core::Stage::Package).await? {
+            let Some((grasp, file)) = a.name.split_once('/') else { continue };
+            if file != record {
                 continue;
-            };
-            a.name = file;
+            }
+            let grasp = grasp.to_string();
+            a.name = record.to_string();
             out.insert(grasp, a);
         }
         Ok(out)
@@ -156,33 +153,35 @@ impl Store {
         stage: vint_core::Stage,
         name: &str,
     ) -> Result<Vec<ArtifactRecord>> {
-        sqlx::query(
-            "SELECT a.task_id, t.key, a.name, a.sha256, a.size, a.media_type, a.object_key \
-             FROM tasks t JOIN artifacts a ON a.task_id = t.id \
-             WHERE t.job_id = $1 AND t.stage = $2 AND a.name = $3 ORDER BY t.key",
-        )
-        .bind(job_id)
-        .bind(stage.as_str())
-        .bind(name)
-        .fetch_all(&self.pool)
-        .await?
-        .iter()
-        .map(artifact_from_row)
-        .collect()
+        Ok(self.stage_outputs(job_id, stage).await?.into_iter().filter(|a| a.name == name).collect())
     }
 
     /// The (job, package task) that made `sample_id`: in `job_id` if given, else in the newest job
-    /// that packaged it.
+    /// that packaged it. A sample's package task is one of its (object, hand) pair's: those are
+    /// read, newest job first, until one lists it.
     pub async fn sample_package_task(&self, job_id: Option<&str>, sample_id: &str) -> Result<Option<(String, String)>> {
-        let row = sqlx::query(
-            "SELECT s.job_id, s.package_task_id FROM samples s JOIN jobs j ON j.id = s.job_id \
-             WHERE s.sample_id = $1 AND ($2 = '' OR s.job_id = $2) ORDER BY j.created_ms DESC, j.id LIMIT 1",
+        let Ok(id) = sample_id.parse::<SampleId>() else {
+            return Ok(None);
+        };
+        let prefix = format!("{}/{}/{}/", vint_core::Stage::Package.as_str(), id.object, id.hand);
+        let pattern = format!("{}%", prefix.replace('\\', "\\\\").replace('%', "\\%").replace('_', "\\_"));
+        let rows = sqlx::query(
+            "SELECT o.task_id, t.key, t.job_id, o.files FROM tasks t JOIN jobs j ON j.id = t.job_id \
+             JOIN outputs o ON o.task_id = t.id WHERE t.stage = $1 AND t.key LIKE $2 ESCAPE '\\' \
+             AND ($3 = '' OR t.job_id = $3) ORDER BY j.created_ms DESC, j.id, t.key",
         )
-        .bind(sample_id)
+        .bind(vint_core::Stage::Package.as_str())
+        .bind(pattern)
         .bind(job_id.unwrap_or(""))
-        .fetch_optional(&self.pool)
+        .fetch_all(&self.pool)
         .await?;
-        row.map(|r| Ok((r.try_get("job_id")?, r.try_get("package_task_id")?))).transpose()
+        let dir = format!("{sample_id}/");
+        for row in &rows {
+            if outputs_from_row(row)?.iter().any(|a| a.name.starts_with(&dir)) {
+                return Ok(Some((row.try_get("job_id")?, row.try_get("task_id")?)));
+            }
+        }
+        Ok(None)
     }
 
     /// Number of attempts of a task, ended or running (for lineage displays).
@@ -193,13 +192,9 @@ impl Store {
     /// (artifact rows, distinct contents) of a job: with content addressing, retries and copies
     /// add rows but never new objects for the same content.
     pub async fn artifact_stats(&self, job_id: &str) -> Result<(u64, u64)> {
-        let row = sqlx::query(
-            "SELECT COUNT(*) AS n, COUNT(DISTINCT a.sha256) AS d FROM artifacts a JOIN tasks t ON t.id = a.task_id \
-             WHERE t.job_id = $1",
-        )
-        .bind(job_id)
-        .fetch_one(&self.pool)
-        .await?;
-        Ok((row.try_get::<i64, _>("n")? as u64, row.try_get::<i64, _>("d")? as u64))
+        let sql = format!("{OUTPUTS_SELECT} WHERE t.job_id = $1");
+        let files = outputs_from_rows(&sqlx::query(trusted(sql)).bind(job_id).fetch_all(&self.pool).await?)?;
+        let distinct: BTreeSet<&str> = files.iter().map(|a| a.sha256.as_str()).collect();
+        Ok((files.len() as u64, distinct.len() as u64))
     }
 }

@@ -14,7 +14,8 @@ use vint_core::{AttemptOutcome, Stage, TaskState};
 
 use crate::jobs::{json_text, task_from_row};
 use crate::{
-    ArtifactRecord, Backend, Completion, Fence, LeasedTask, Result, Store, StoreError, literal, parse, to_u32, trusted,
+    ArtifactRecord, Backend, Completion, Fence, LeasedTask, Result, Store, StoreError, literal, outputs, parse, to_u32,
+    trusted,
 };
 
 /// How completed tasks came by their outputs.
@@ -77,10 +78,9 @@ impl Store {
                 let seen_pg = worker_seen("$2", "$6", "$4");
                 let sql = format!(
                     "WITH seen AS ({seen}), new_worker AS ({new_worker}), leased AS ({update}) \
-                     SELECT leased.*, (SELECT COALESCE(json_agg(json_build_object('task_id', a.task_id, \
-                     'key', t.key, 'name', a.name, 'sha256', a.sha256, 'size', a.size, 'media_type', a.media_type, \
-                     'object_key', a.object_key) ORDER BY t.key, a.name), '[]')::text FROM task_deps d \
-                     JOIN artifacts a ON a.task_id = d.depends_on JOIN tasks t ON t.id = a.task_id \
+                     SELECT leased.*, (SELECT COALESCE(json_agg(json_build_object('task_id', o.task_id, \
+                     'key', t.key, 'files', encode(o.files, 'hex')) ORDER BY t.key), '[]')::text FROM task_deps d \
+                     JOIN outputs o ON o.task_id = d.depends_on JOIN tasks t ON t.id = o.task_id \
                      WHERE d.task_id = leased.id) AS inputs_json FROM leased",
                     seen = seen_pg[0],
                     new_worker = seen_pg[1],
@@ -99,7 +99,9 @@ impl Store {
                     let mut task = leased_from_row(row)?;
                     let inputs: Vec<InputRow> = serde_json::from_str(&row.try_get::<String, _>("inputs_json")?)
                         .map_err(|e| StoreError::Corrupt(format!("inputs of task {}: {e}", task.id)))?;
-                    task.inputs = inputs.into_iter().map(InputRow::into_record).collect();
+                    for input in inputs {
+                        task.inputs.extend(input.into_records()?);
+                    }
                     leased.push(task);
                 }
                 leased
@@ -209,8 +211,23 @@ impl Store {
     ) -> Result<Vec<std::result::Result<(), StoreError>>> {
         let mut seen = HashSet::new();
         let first: Vec<bool> = items.iter().map(|(c, _)| seen.insert(c.fence.task_id.as_str())).collect();
-        let candidates: Vec<&(Completion, Vec<NewTask>)> =
-            items.iter().zip(&first).filter(|(_, first)| **first).map(|(item, _)| item).collect();
+        // Outputs the store cannot pack (a name twice, a digest or key of the wrong shape: the
+        // coordinator refuses them first) fail their own completion, not the batch.
+        let mut refused: HashMap<String, StoreError> = HashMap::new();
+        for ((c, _), first) in items.iter().zip(&first) {
+            if *first && let Err(e) = outputs::pack(&c.fence.task_id, &c.outputs) {
+                refused.insert(c.fence.task_id.clone(), e);
+            }
+        }
+        let candidates: Vec<&(Completion, Vec<NewTask>)> = items
+            .iter()
+            .zip(&first)
+            .filter(|((c, _), first)| **first && !refused.contains_key(&c.fence.task_id))
+            .map(|(item, _)| item)
+            .collect();
+        if candidates.is_empty() && !refused.is_empty() {
+            return Ok(completion_outcomes(items, &first, &HashMap::new(), refused));
+        }
         if candidates.is_empty() {
             return Ok(Vec::new());
         }
@@ -226,7 +243,7 @@ impl Store {
         }
         let jobs: BTreeSet<&str> = done.values().map(String::as_str).collect();
         self.finalize_jobs_among(&jobs, now_ms).await?;
-        Ok(completion_outcomes(items, &first, &done))
+        Ok(completion_outcomes(items, &first, &done, refused))
     }
 
     /// Records the completions whose fence holds, with the tasks they unlock, atomically; returns
@@ -336,7 +353,7 @@ impl Store {
 
     /// Keeps the planner's statistics of the tables a running job grows (Postgres): analyzes each
     /// one that holds twice the rows its last analysis counted (or was never analyzed),
-    /// returning their names. A job grows `artifacts` from nothing to millions of rows in
+    /// returning their names. A job grows `outputs` from nothing to millions of rows in
     /// minutes, faster than autovacuum's analyze follows (seen: none in the first 3 minutes of a
     /// 2 M-sample job), and a plan made with no statistics scans the whole table for each leased
     /// task's inputs. An analysis also replaces the cached plans of the statements that read the
@@ -347,7 +364,7 @@ impl Store {
         }
         let stale: Vec<String> = sqlx::query(
             "SELECT s.relname::text AS relname FROM pg_stat_user_tables s JOIN pg_class c ON c.oid = s.relid \
-             WHERE s.relname IN ('tasks', 'task_deps', 'attempts', 'artifacts', 'samples') \
+             WHERE s.relname IN ('tasks', 'task_deps', 'attempts', 'outputs') \
              AND s.n_live_tup > 1000 + 2 * greatest(c.reltuples, 0) ORDER BY s.relname",
         )
         .fetch_all(&self.pool)
@@ -543,29 +560,20 @@ fn leased_from_row(row: &sqlx::any::AnyRow) -> Result<LeasedTask> {
     })
 }
 
-/// An input artifact as Postgres's lease statement aggregates it (`json_build_object`).
+/// A dependency's packed outputs as Postgres's lease statement aggregates them
+/// (`json_build_object`, the bytes as hex).
 #[derive(serde::Deserialize)]
 struct InputRow {
     task_id: String,
     key: String,
-    name: String,
-    sha256: String,
-    size: u64,
-    media_type: String,
-    object_key: String,
+    files: String,
 }
 
 impl InputRow {
-    fn into_record(self) -> ArtifactRecord {
-        ArtifactRecord {
-            task_id: self.task_id,
-            task_key: self.key,
-            name: self.name,
-            sha256: self.sha256,
-            size: self.size,
-            media_type: self.media_type,
-            object_key: self.object_key,
-        }
+    fn into_records(self) -> Result<Vec<ArtifactRecord>> {
+        let bytes = hex::decode(&self.files)
+            .map_err(|e| StoreError::Corrupt(format!("outputs of task {}: {e}", self.task_id)))?;
+        outputs::unpack(&self.task_id, &self.key, &bytes)
     }
 }
 
@@ -616,18 +624,17 @@ fn fence_rows(candidates: &[&(Completion, Vec<NewTask>)]) -> Result<String> {
     json_text(&rows)
 }
 
-/// The outputs of the completions, as JSON rows.
+/// The outputs of the completions that made any, packed one row a task (`outputs.rs`; the bytes
+/// as hex, which each dialect decodes), as JSON rows.
 fn output_rows<'a>(completions: impl Iterator<Item = &'a Completion>) -> Result<String> {
-    let rows: Vec<serde_json::Value> = completions
-        .flat_map(|c| {
-            c.outputs.iter().map(|a| {
-                serde_json::json!({
-                    "task": c.fence.task_id, "name": a.name, "sha": a.sha256, "size": a.size,
-                    "media": a.media_type, "key": a.object_key,
-                })
-            })
-        })
-        .collect();
+    let mut rows = Vec::new();
+    for c in completions.filter(|c| !c.outputs.is_empty()) {
+        let files = outputs::pack(&c.fence.task_id, &c.outputs)?;
+        rows.push(serde_json::json!({
+            "task": c.fence.task_id, "files": hex::encode(files), "count": c.outputs.len(),
+            "bytes": outputs::total_size(&c.outputs), "samples": c.samples.len(),
+        }));
+    }
     json_text(&rows)
 }
 
@@ -640,8 +647,8 @@ const FENCE_COLUMNS: &[(&str, &str)] = &[
     ("timings", "text"),
     ("reused", "text"),
 ];
-const OUTPUT_COLUMNS: &[(&str, &str)] =
-    &[("task", "text"), ("name", "text"), ("sha", "text"), ("size", "bigint"), ("media", "text"), ("key", "text")];
+pub(crate) const OUTPUT_COLUMNS: &[(&str, &str)] =
+    &[("task", "text"), ("files", "text"), ("count", "bigint"), ("bytes", "bigint"), ("samples", "bigint")];
 
 /// Postgres: fences the completions and records what every accepted one made — task, attempt,
 /// outputs, unblocked dependents, samples — in ONE statement of data-modifying
@@ -652,15 +659,20 @@ fn completion_outcomes(
     items: &[(Completion, Vec<NewTask>)],
     first: &[bool],
     done: &HashMap<String, String>,
+    mut refused: HashMap<String, StoreError>,
 ) -> Vec<std::result::Result<(), StoreError>> {
     items
         .iter()
         .zip(first)
-        .map(
-            |((c, _), first)| {
-                if *first && done.contains_key(&c.fence.task_id) { Ok(()) } else { Err(lease_lost(&c.fence)) }
-            },
-        )
+        .map(|((c, _), first)| {
+            if !*first {
+                return Err(lease_lost(&c.fence));
+            }
+            if let Some(e) = refused.remove(&c.fence.task_id) {
+                return Err(e);
+            }
+            if done.contains_key(&c.fence.task_id) { Ok(()) } else { Err(lease_lost(&c.fence)) }
+        })
         .collect()
 }
 
@@ -670,10 +682,6 @@ async fn record_completions_pg(
     kind: Kind,
     now_ms: i64,
 ) -> Result<HashMap<String, String>> {
-    let samples: Vec<serde_json::Value> = candidates
-        .iter()
-        .flat_map(|(c, _)| c.samples.iter().map(|s| serde_json::json!({"sample": s, "task": c.fence.task_id})))
-        .collect();
     let pg = Backend::Postgres;
     let sql = format!(
         "WITH c AS (SELECT * FROM {fences}), \
@@ -682,21 +690,19 @@ async fn record_completions_pg(
            AND tasks.lease_owner = c.worker AND tasks.attempt = c.attempt AND tasks.lease_deadline_ms >= $3 \
            RETURNING tasks.id, tasks.job_id, tasks.attempt, tasks.leased_ms), \
          {ended}
-         outputs AS (INSERT INTO artifacts (task_id, name, sha256, size, media_type, object_key, created_ms) \
-           SELECT o.task, o.name, o.sha, o.size, o.media, o.key, $3 FROM {outputs} JOIN done ON done.id = o.task), \
+         outputs AS (INSERT INTO outputs (task_id, files, count, bytes, samples) \
+           SELECT o.task, decode(o.files, 'hex'), o.count, o.bytes, o.samples FROM {outputs} \
+           JOIN done ON done.id = o.task), \
          finished AS (SELECT d.task_id, COUNT(*) AS n FROM done JOIN task_deps d ON d.depends_on = done.id \
            GROUP BY d.task_id), \
          waiting AS (SELECT t.id, finished.n FROM tasks t JOIN finished ON finished.task_id = t.id ORDER BY t.id \
            FOR UPDATE OF t), \
          unblocked AS (UPDATE tasks SET deps_pending = tasks.deps_pending - w.n, \
            state = CASE WHEN tasks.state = $7 AND tasks.deps_pending - w.n = 0 THEN $8 ELSE tasks.state END, \
-           updated_ms = $3 FROM waiting w WHERE tasks.id = w.id), \
-         made AS (INSERT INTO samples (job_id, sample_id, package_task_id) SELECT done.job_id, s.sample, s.task \
-           FROM {samples} JOIN done ON done.id = s.task ON CONFLICT (job_id, sample_id) DO NOTHING) \
+           updated_ms = $3 FROM waiting w WHERE tasks.id = w.id) \
          SELECT id, job_id FROM done",
         fences = pg.json_rows("$4", "c", FENCE_COLUMNS),
         outputs = pg.json_rows("$6", "o", OUTPUT_COLUMNS),
-        samples = pg.json_rows("$9", "s", &[("sample", "text"), ("task", "text")]),
         reuse = kind.set_clause(),
         ended = match kind {
             Kind::Ran =>
@@ -716,7 +722,6 @@ async fn record_completions_pg(
         .bind(output_rows(candidates.iter().map(|(c, _)| c))?)
         .bind(TaskState::Waiting.as_str())
         .bind(TaskState::Queued.as_str())
-        .bind(json_text(&samples)?)
         .fetch_all(&mut *conn)
         .await?;
     rows.iter().map(|row| Ok((row.try_get::<String, _>("id")?, row.try_get::<String, _>("job_id")?))).collect()
@@ -759,12 +764,13 @@ async fn record_completions(
     let ids_json = json_text(&ids)?;
     if accepted.iter().any(|(c, _)| !c.outputs.is_empty()) {
         let sql = format!(
-            "INSERT INTO artifacts (task_id, name, sha256, size, media_type, object_key, created_ms) \
-             SELECT o.task, o.name, o.sha, o.size, o.media, o.key, $1 FROM {}",
-            backend.json_rows("$2", "o", OUTPUT_COLUMNS),
+            "INSERT INTO outputs (task_id, files, count, bytes, samples) SELECT o.task, {}, o.count, o.bytes, \
+             o.samples FROM {}",
+            backend.bytes_from_hex("o.files"),
+            backend.json_rows("$1", "o", OUTPUT_COLUMNS),
         );
         let outputs = output_rows(accepted.iter().map(|(c, _)| c))?;
-        sqlx::query(trusted(sql)).bind(now_ms).bind(outputs).execute(&mut **tx).await?;
+        sqlx::query(trusted(sql)).bind(outputs).execute(&mut **tx).await?;
     }
     // The attempts, written once now that they end (the task's row still holds leased_ms).
     if kind == Kind::Ran {
@@ -782,21 +788,6 @@ async fn record_completions(
             .await?;
     }
     unblock_dependents(tx, backend, &ids_json, now_ms).await?;
-    let samples: Vec<serde_json::Value> = accepted
-        .iter()
-        .flat_map(|(c, _)| {
-            let job = &done[&c.fence.task_id];
-            c.samples.iter().map(move |s| serde_json::json!({"job": job, "sample": s, "task": c.fence.task_id}))
-        })
-        .collect();
-    if !samples.is_empty() {
-        let sql = format!(
-            "INSERT INTO samples (job_id, sample_id, package_task_id) SELECT s.job, s.sample, s.task FROM {} \
-             WHERE true ON CONFLICT (job_id, sample_id) DO NOTHING",
-            backend.json_rows("$1", "s", &[("job", "text"), ("sample", "text"), ("task", "text")]),
-        );
-        sqlx::query(trusted(sql)).bind(json_text(&samples)?).execute(&mut **tx).await?;
-    }
     Ok(done)
 }
 
@@ -851,16 +842,16 @@ impl Store {
     /// The artifacts produced by the dependencies of each of `task_ids`: their inputs, by task.
     async fn dependency_outputs(&self, task_ids: &[&str]) -> Result<HashMap<String, Vec<ArtifactRecord>>> {
         let sql = format!(
-            "SELECT d.task_id AS consumer, a.task_id, t.key, a.name, a.sha256, a.size, a.media_type, a.object_key \
-             FROM task_deps d JOIN artifacts a ON a.task_id = d.depends_on JOIN tasks t ON t.id = a.task_id \
-             WHERE d.task_id IN ({}) ORDER BY d.task_id, t.key, a.name",
+            "SELECT d.task_id AS consumer, o.task_id, t.key, o.files \
+             FROM task_deps d JOIN outputs o ON o.task_id = d.depends_on JOIN tasks t ON t.id = o.task_id \
+             WHERE d.task_id IN ({}) ORDER BY d.task_id, t.key",
             self.backend.json_text_array("$1"),
         );
         let rows = sqlx::query(trusted(sql)).bind(json_text(task_ids)?).fetch_all(&self.pool).await?;
         let mut by_task: HashMap<String, Vec<ArtifactRecord>> = HashMap::new();
         for row in &rows {
             let consumer: String = row.try_get("consumer")?;
-            by_task.entry(consumer).or_default().push(crate::lineage::artifact_from_row(row)?);
+            by_task.entry(consumer).or_default().extend(crate::lineage::outputs_from_row(row)?);
         }
         Ok(by_task)
     }

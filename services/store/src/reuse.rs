@@ -86,20 +86,22 @@ impl Store {
         }
         let ids: Vec<&str> = by_key.values().map(|r| r.task_id.as_str()).collect();
         let sql = format!(
-            "SELECT task_id, name, sha256, size, media_type, object_key FROM artifacts WHERE task_id IN ({}) \
-             ORDER BY task_id, name",
+            "SELECT o.task_id, t.key, o.files FROM outputs o JOIN tasks t ON t.id = o.task_id \
+             WHERE o.task_id IN ({})",
             self.backend.json_text_array("$1"),
         );
         let rows = sqlx::query(trusted(sql)).bind(json_text(&ids)?).fetch_all(&self.pool).await?;
         let mut outputs: HashMap<String, Vec<NewArtifact>> = HashMap::new();
         for row in &rows {
-            outputs.entry(row.try_get("task_id")?).or_default().push(NewArtifact {
-                name: row.try_get("name")?,
-                sha256: row.try_get("sha256")?,
-                size: row.try_get::<i64, _>("size")? as u64,
-                media_type: row.try_get("media_type")?,
-                object_key: row.try_get("object_key")?,
-            });
+            for a in crate::lineage::outputs_from_row(row)? {
+                outputs.entry(a.task_id).or_default().push(NewArtifact {
+                    name: a.name,
+                    sha256: a.sha256,
+                    size: a.size,
+                    media_type: a.media_type,
+                    object_key: a.object_key,
+                });
+            }
         }
         for result in by_key.values_mut() {
             result.outputs = outputs.remove(&result.task_id).unwrap_or_default();
@@ -111,10 +113,27 @@ impl Store {
     /// An object of the store outside this set belongs to no job (an upload whose completion was
     /// refused, a crashed attempt's outputs) and may be collected.
     pub async fn referenced_object_keys(&self) -> Result<std::collections::HashSet<String>> {
-        let rows = sqlx::query("SELECT object_key FROM artifacts UNION SELECT object_key FROM job_assets")
+        let mut keys = std::collections::HashSet::new();
+        for row in sqlx::query("SELECT object_key FROM job_assets").fetch_all(&self.pool).await? {
+            keys.insert(row.try_get::<String, _>("object_key")?);
+        }
+        // Read in pages by task id: the packed rows of a 2 M-sample job are a few hundred MB.
+        let mut after = String::new();
+        loop {
+            let rows = sqlx::query(
+                "SELECT o.task_id, o.task_id AS key, o.files FROM outputs o WHERE o.task_id > $1 \
+                 ORDER BY o.task_id LIMIT 1000",
+            )
+            .bind(&after)
             .fetch_all(&self.pool)
             .await?;
-        rows.iter().map(|row| Ok(row.try_get::<String, _>("object_key")?)).collect()
+            let Some(last) = rows.last() else { break };
+            after = last.try_get("task_id")?;
+            for row in &rows {
+                keys.extend(crate::lineage::outputs_from_row(row)?.into_iter().map(|a| a.object_key));
+            }
+        }
+        Ok(keys)
     }
 
     /// A task's reuse key, if a lease wrote one.

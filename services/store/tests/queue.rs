@@ -12,13 +12,22 @@ use vint_core::plan::NewTask;
 use vint_core::{AttemptOutcome, JobState, Stage, TaskState};
 use vint_store::{Store, StoreError};
 
+/// The package task of `submit_chain`, keyed as the planner keys them (object, hand, chunk).
+const PACKAGE: &str = "package/can/trx3/c00000";
+/// A sample `PACKAGE` makes.
+const SAMPLE: &str = "can.trx3.g000000.v00";
+
 async fn submit_chain(store: &Store, id: &str) {
+    submit_chain_at(store, id, 0).await;
+}
+
+async fn submit_chain_at(store: &Store, id: &str, now_ms: i64) {
     let tasks = [
         task("grasp/a", Stage::Grasp, &[]),
         task("render/a", Stage::Render, &["grasp/a"]),
-        task("package/a", Stage::Package, &["grasp/a", "render/a"]),
+        task(PACKAGE, Stage::Package, &["grasp/a", "render/a"]),
     ];
-    store.submit_job(&job(id), &tasks, 0).await.unwrap();
+    store.submit_job(&job(id), &tasks, now_ms).await.unwrap();
 }
 
 async fn state_of(store: &Store, task_id: &str) -> TaskState {
@@ -48,10 +57,10 @@ store_test!(dependencies_gate_leasing_until_they_succeed, |store: Store| async m
     assert_eq!(next[0].inputs.len(), 1);
     assert_eq!(next[0].inputs[0].name, "grasps.json");
     assert_eq!(next[0].inputs[0].task_key, "grasp/a");
-    assert_eq!(state_of(&store, "j/package/a").await, TaskState::Waiting);
+    assert_eq!(state_of(&store, &format!("j/{PACKAGE}")).await, TaskState::Waiting);
     store.complete(&completion(fence(&next[0], "w"), &["v00_rgb.png"]), &[], 4).await.unwrap();
     let package = store.lease("w", &all, 10, 1_000, 5).await.unwrap();
-    assert_eq!(package[0].key, "package/a");
+    assert_eq!(package[0].key, PACKAGE);
     assert_eq!(package[0].inputs.len(), 2, "package sees both dependencies' outputs");
 });
 
@@ -220,7 +229,7 @@ store_test!(retries_back_off_then_fail_with_the_last_error, |store: Store| async
     assert_eq!(t.last_error.as_deref(), Some("boom 3"));
     // Its dependents can never run: they fail too, and the job ends failed.
     assert_eq!(state_of(&store, "j/render/a").await, TaskState::Failed);
-    assert_eq!(state_of(&store, "j/package/a").await, TaskState::Failed);
+    assert_eq!(state_of(&store, &format!("j/{PACKAGE}")).await, TaskState::Failed);
     assert_eq!(store.job("j").await.unwrap().unwrap().state, JobState::Failed);
 });
 
@@ -253,33 +262,45 @@ store_test!(completion_inserts_planned_children_atomically, |store: Store| async
 });
 
 store_test!(job_succeeds_when_every_task_has_and_lineage_reaches_the_root, |store: Store| async move {
-    submit_chain(&store, "j").await;
-    let all = Stage::ALL;
-    for (now, outputs) in [(1, vec!["grasps.json"]), (2, vec!["v00_rgb.png"]), (3, vec!["s1/rgb.png", "s1/meta.json"])]
-    {
-        let leased = store.lease("w", &all, 1, 1_000, now).await.unwrap();
-        let mut c = completion(fence(&leased[0], "w"), &outputs);
-        if leased[0].stage == Stage::Package {
-            c.samples = vec!["s1".into()];
+    let files = [format!("{SAMPLE}/rgb.png"), format!("{SAMPLE}/meta.json"), "can.trx3.g000000/grasp.json".into()];
+    let package_files: Vec<&str> = files.iter().map(String::as_str).collect();
+    for (job, at) in [("j", 0), ("newer", 10)] {
+        submit_chain_at(&store, job, at).await;
+        for (now, outputs) in [(1, vec!["grasps.json"]), (2, vec!["v00_rgb.png"]), (3, package_files.clone())] {
+            let now = at + now;
+            let leased = store.lease("w", &Stage::ALL, 1, 1_000, now).await.unwrap();
+            let mut c = completion(fence(&leased[0], "w"), &outputs);
+            if leased[0].stage == Stage::Package {
+                c.samples = vec![SAMPLE.into()];
+            }
+            store.complete(&c, &[], now).await.unwrap();
         }
-        store.complete(&c, &[], now).await.unwrap();
+        assert_eq!(store.job(job).await.unwrap().unwrap().state, JobState::Succeeded);
     }
-    assert_eq!(store.job("j").await.unwrap().unwrap().state, JobState::Succeeded);
     let samples = store.samples("j").await.unwrap();
-    assert_eq!(samples["s1"].iter().map(|a| a.name.as_str()).collect::<Vec<_>>(), ["meta.json", "rgb.png"]);
-    let (job, package) = store.sample_package_task(Some("j"), "s1").await.unwrap().unwrap();
-    assert_eq!(job, "j");
-    assert_eq!(store.sample_package_task(None, "s1").await.unwrap(), Some((job, package.clone())));
-    assert_eq!(store.sample_package_task(Some("other"), "s1").await.unwrap(), None);
+    assert_eq!(samples.keys().collect::<Vec<_>>(), [SAMPLE], "the grasp record is no sample");
+    assert_eq!(samples[SAMPLE].iter().map(|a| a.name.as_str()).collect::<Vec<_>>(), ["meta.json", "rgb.png"]);
+    let (job, package) = store.sample_package_task(Some("j"), SAMPLE).await.unwrap().unwrap();
+    assert_eq!((job.as_str(), package.as_str()), ("j", format!("j/{PACKAGE}").as_str()));
+    let newest = Some(("newer".to_string(), format!("newer/{PACKAGE}")));
+    assert_eq!(store.sample_package_task(None, SAMPLE).await.unwrap(), newest, "the newest job that packaged it");
+    assert_eq!(store.sample_package_task(Some("other"), SAMPLE).await.unwrap(), None);
+    assert_eq!(store.sample_package_task(Some("j"), "can.trx3.g000000.v01").await.unwrap(), None, "not packaged");
+    assert_eq!(store.sample_package_task(Some("j"), "not a sample id").await.unwrap(), None);
+    assert_eq!(store.grasp_records("j").await.unwrap().keys().collect::<Vec<_>>(), ["can.trx3.g000000"]);
     let chain = store.lineage(&package).await.unwrap();
     let keys: Vec<_> = chain.iter().map(|e| e.task.key.as_str()).collect();
-    assert_eq!(keys, ["package/a", "grasp/a", "render/a"]);
+    assert_eq!(keys, [PACKAGE, "grasp/a", "render/a"]);
     assert_eq!(chain[0].inputs.len(), 2, "package consumed grasps.json and the render output");
     assert!(chain.iter().all(|e| e.task.engine_json.as_deref() == Some(r#"{"name":"test-double"}"#)));
     let producers = store.producers_of(&artifact("grasps.json").sha256, Some("j")).await.unwrap();
-    assert!(producers.iter().any(|a| a.task_key == "grasp/a"));
+    // The test double's hash is its name's length: the render's v00_rgb.png has it too.
+    assert_eq!(producers.iter().map(|a| a.task_id.as_str()).collect::<Vec<_>>(), ["j/grasp/a", "j/render/a"]);
+    assert_eq!(store.producers_of(&artifact("grasps.json").sha256, None).await.unwrap().len(), 4, "both jobs'");
+    assert!(store.producers_of(&"f".repeat(64), None).await.unwrap().is_empty());
     let progress = store.progress("j").await.unwrap();
     assert_eq!((progress.total(), progress.count(TaskState::Succeeded), progress.samples), (3, 3, 1));
+    assert_eq!(store.artifact_stats("j").await.unwrap(), (5, 4), "5 files, 4 contents (as above)");
 });
 
 store_test!(a_jobs_assets_are_recorded_and_shown_as_inputs_of_the_tasks_naming_them, |store: Store| async move {

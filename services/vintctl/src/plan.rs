@@ -338,8 +338,11 @@ mod tests {
         let spec = DatasetSpec::parse(VINT_SIM).unwrap();
         let p = Plan::of(&spec).unwrap();
         let rows = |name: &str| p.database.tables.iter().find(|t| t.table == name).unwrap().rows;
-        assert_eq!(rows("samples"), 1_560_000);
+        assert_eq!(p.counts.samples, 1_560_000);
         assert_eq!(rows("tasks"), p.totals.tasks);
+        assert_eq!(rows("outputs"), p.totals.tasks, "every task of the recipe makes files: one row each");
+        // Per view: 6 render files, 1 noise file, and the sample's files in its package.
+        assert!(rows("outputs.files") > 14 * p.counts.samples, "{}", rows("outputs.files"));
         assert_eq!(rows("attempts"), p.totals.tasks, "one attempt per task");
         assert!(p.database.bytes_per_sample > 0.0);
         assert!(p.stages.iter().all(|s| s.cpu_hours > 0.0 && s.artifact_bytes > 0.0), "{:?}", p.stages);

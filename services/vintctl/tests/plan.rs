@@ -58,11 +58,12 @@ fn the_paper_recipe_plans_the_tasks_and_rows_its_numbers_say() {
     assert_eq!(rows(&p, "attempts"), chunks * 2 + grasps * 2);
     // render ← grasp, noise ← render, package ← its grasp task, renders and noises.
     assert_eq!(rows(&p, "task_deps"), grasps + grasps + chunks + 2 * grasps);
+    // Each task's files packed in one `outputs` row.
+    assert_eq!(rows(&p, "outputs"), chunks * 2 + grasps * 2);
     assert_eq!(
-        rows(&p, "artifacts"),
+        rows(&p, "outputs.files"),
         chunks * grasp_files + grasps * render_files + grasps * noise_files + samples * 7 + grasps
     );
-    assert_eq!(rows(&p, "samples"), samples);
     let bytes = p["database"]["bytes"].as_f64().unwrap();
     assert!((p["database"]["bytes_per_sample"].as_f64().unwrap() - bytes / samples as f64).abs() < 1e-6);
     assert!(p["stages"].as_array().unwrap().iter().all(|s| s["cpu_hours"].as_f64().unwrap() > 0.0));
@@ -84,7 +85,7 @@ fn the_text_plan_is_a_table_per_stage_and_per_table() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(text.contains("1,560,000 samples"), "{text}");
-    for line in ["grasp", "render", "noise", "package", "artifacts", "total"] {
+    for line in ["grasp", "render", "noise", "package", "outputs", "total"] {
         assert!(text.lines().any(|l| l.starts_with(line)), "no {line} line:\n{text}");
     }
 }

@@ -117,12 +117,13 @@ pub fn job(id: &str) -> NewJob {
 }
 
 pub fn artifact(name: &str) -> NewArtifact {
+    let sha256 = format!("{:0>64}", name.len());
     NewArtifact {
         name: name.into(),
-        sha256: format!("{:0>64}", name.len()),
+        object_key: vint_artifacts::key_for(&sha256).unwrap(),
+        sha256,
         size: 3,
         media_type: "application/octet-stream".into(),
-        object_key: format!("sha256/{name}"),
     }
 }
 
