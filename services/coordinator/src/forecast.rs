@@ -101,9 +101,14 @@ pub async fn forecast(
         match found.get(&task.key) {
             Some(stored) => {
                 f.reused(Stage::Grasp);
-                let unlocked =
-                    planner::on_complete(Some(&job_plan), &record(task), &stored.result_json, &stored.outputs)
-                        .map_err(|e| ForecastError::Stored(e.to_string()))?;
+                let params_json = task.params.to_string();
+                let unlocked = planner::on_complete(
+                    Some(&job_plan),
+                    done(task, &params_json),
+                    &stored.result_json,
+                    &stored.outputs,
+                )
+                .map_err(|e| ForecastError::Stored(e.to_string()))?;
                 next.extend(unlocked.children);
                 outputs.insert(task.key.clone(), stored.outputs.clone());
             }
@@ -238,24 +243,8 @@ fn count_after_runs(f: &mut Forecast, job_plan: &JobPlan, grasp: &NewTask, old: 
 }
 
 /// A planned task as the planner reads it (its id is its key: the forecast belongs to no job).
-fn record(task: &NewTask) -> TaskRecord {
-    TaskRecord {
-        id: task.key.clone(),
-        job_id: String::new(),
-        key: task.key.clone(),
-        stage: task.stage,
-        state: TaskState::Waiting,
-        params_json: task.params.to_string(),
-        attempt: 0,
-        max_attempts: 0,
-        not_before_ms: 0,
-        lease_owner: None,
-        lease_deadline_ms: None,
-        last_error: None,
-        engine_json: None,
-        result_json: None,
-        reused_from: None,
-    }
+fn done<'a>(task: &'a NewTask, params_json: &'a str) -> planner::Done<'a> {
+    planner::Done { id: &task.key, job_id: "", key: &task.key, stage: task.stage, params_json }
 }
 
 #[cfg(test)]

@@ -36,6 +36,23 @@ pub enum PlanError {
     Planning { job: String, source: plan::PlanError },
 }
 
+/// What the planner reads of a completed task: whoever holds it (a task row, a leased task being
+/// reused, a planned task being forecast) lends these fields, nothing else.
+#[derive(Clone, Copy, Debug)]
+pub struct Done<'a> {
+    pub id: &'a str,
+    pub job_id: &'a str,
+    pub key: &'a str,
+    pub stage: Stage,
+    pub params_json: &'a str,
+}
+
+impl<'a> From<&'a TaskRecord> for Done<'a> {
+    fn from(t: &'a TaskRecord) -> Done<'a> {
+        Done { id: &t.id, job_id: &t.job_id, key: &t.key, stage: t.stage, params_json: &t.params_json }
+    }
+}
+
 /// Children of a completed task and the samples it made.
 pub struct Unlocked {
     pub children: Vec<NewTask>,
@@ -64,26 +81,28 @@ pub async fn job_plan(store: &Store, job: &JobRecord) -> Result<JobPlan, tonic::
 /// task only (pass `None` for the others).
 pub fn on_complete(
     plan: Option<&JobPlan>,
-    task: &TaskRecord,
+    task: Done<'_>,
     result_json: &str,
     outputs: &[NewArtifact],
 ) -> Result<Unlocked, PlanError> {
     let result: Value = serde_json::from_str(result_json)
-        .map_err(|e| PlanError::ResultJson { task: task.id.clone(), reason: e.to_string() })?;
-    let typed = |stage| PlanError::Result { task: task.id.clone(), source: stage };
+        .map_err(|e| PlanError::ResultJson { task: task.id.to_string(), reason: e.to_string() })?;
+    let typed = |stage| PlanError::Result { task: task.id.to_string(), source: stage };
     match task.stage {
         Stage::Grasp => {
             let result: GraspResult = contract::result(Stage::Grasp, &result).map_err(typed)?;
-            let plan = plan.ok_or_else(|| PlanError::Plan { job: task.job_id.clone(), reason: "not given".into() })?;
-            let chunk = GraspChunk::from_key(&task.key).ok_or_else(|| PlanError::BadKey { task: task.id.clone() })?;
+            let plan =
+                plan.ok_or_else(|| PlanError::Plan { job: task.job_id.to_string(), reason: "not given".into() })?;
+            let chunk =
+                GraspChunk::from_key(task.key).ok_or_else(|| PlanError::BadKey { task: task.id.to_string() })?;
             let trials = plan.trials(&chunk);
             let accepted: BTreeSet<u32> = result.accepted.into_iter().collect();
             if let Some(&grasp) = accepted.iter().find(|g| !trials.contains(g)) {
-                return Err(PlanError::ForeignGrasp { task: task.id.clone(), grasp });
+                return Err(PlanError::ForeignGrasp { task: task.id.to_string(), grasp });
             }
             let accepted: Vec<u32> = accepted.into_iter().collect();
             let children = plan::after_grasp(plan, &chunk, &accepted)
-                .map_err(|source| PlanError::Planning { job: task.job_id.clone(), source })?;
+                .map_err(|source| PlanError::Planning { job: task.job_id.to_string(), source })?;
             Ok(Unlocked { children, samples: vec![] })
         }
         Stage::Package => {
@@ -101,13 +120,9 @@ pub fn on_complete(
 /// The samples a package task made, after checking its result against its parameters and its
 /// outputs: every sample it was asked for has a `meta.json`, every grasp record is one of those
 /// samples' grasps, and every output belongs to one of them.
-fn package_samples(
-    task: &TaskRecord,
-    result: &PackageResult,
-    outputs: &[NewArtifact],
-) -> Result<Vec<String>, PlanError> {
-    let mismatch = |what: String| PlanError::PackageMismatch { task: task.id.clone(), what };
-    let params: package::Params = serde_json::from_str(&task.params_json)
+fn package_samples(task: Done<'_>, result: &PackageResult, outputs: &[NewArtifact]) -> Result<Vec<String>, PlanError> {
+    let mismatch = |what: String| PlanError::PackageMismatch { task: task.id.to_string(), what };
+    let params: package::Params = serde_json::from_str(task.params_json)
         .map_err(|e| mismatch(format!("parameters are not the package contract's: {e}")))?;
     let asked: BTreeSet<&str> = params.samples.iter().map(|s| s.sample_id.as_str()).collect();
     let made: BTreeSet<&str> = result.samples.iter().map(String::as_str).collect();
@@ -211,7 +226,7 @@ mod tests {
     fn a_grasp_result_unlocks_render_noise_and_package_tasks_for_its_accepted_trials() {
         let grasp = task("grasp/tomato_soup_can/trx3/c00001", Stage::Grasp, json!({}));
         let result = r#"{"accepted": [3], "rejected": {"no_contact": 1}}"#;
-        let unlocked = on_complete(Some(&plan()), &grasp, result, &[]).unwrap();
+        let unlocked = on_complete(Some(&plan()), (&grasp).into(), result, &[]).unwrap();
         let keys: Vec<&str> = unlocked.children.iter().map(|t| t.key.as_str()).collect();
         assert_eq!(
             keys,
@@ -226,14 +241,14 @@ mod tests {
     #[test]
     fn a_grasp_result_naming_a_trial_of_another_chunk_or_of_the_wrong_shape_is_refused() {
         let grasp = task("grasp/tomato_soup_can/trx3/c00001", Stage::Grasp, json!({}));
-        let foreign = on_complete(Some(&plan()), &grasp, r#"{"accepted": [0]}"#, &[]);
+        let foreign = on_complete(Some(&plan()), (&grasp).into(), r#"{"accepted": [0]}"#, &[]);
         assert!(matches!(foreign, Err(PlanError::ForeignGrasp { grasp: 0, .. })));
         // The worker of old read grasps.json itself and sent a count: not the contract.
-        let shape = on_complete(Some(&plan()), &grasp, r#"{"accepted": 2}"#, &[]);
+        let shape = on_complete(Some(&plan()), (&grasp).into(), r#"{"accepted": 2}"#, &[]);
         assert!(matches!(shape, Err(PlanError::Result { .. })), "{:?}", shape.err());
         let render = task("render/tomato_soup_can/trx3/g000003", Stage::Render, json!({}));
-        assert!(on_complete(None, &render, r#"{"views": 2, "device": "CPU"}"#, &[]).is_ok());
-        assert!(on_complete(None, &render, "{}", &[]).is_err());
+        assert!(on_complete(None, (&render).into(), r#"{"views": 2, "device": "CPU"}"#, &[]).is_ok());
+        assert!(on_complete(None, (&render).into(), "{}", &[]).is_err());
     }
 
     #[test]
@@ -250,7 +265,7 @@ mod tests {
         ];
         let result = json!({"samples": ["tomato_soup_can.trx3.g000003.v00", "tomato_soup_can.trx3.g000003.v01"],
                             "grasps": ["tomato_soup_can.trx3.g000003"]});
-        let unlocked = on_complete(None, &package, &result.to_string(), &outputs).unwrap();
+        let unlocked = on_complete(None, (&package).into(), &result.to_string(), &outputs).unwrap();
         assert_eq!(unlocked.samples.len(), 2);
 
         let mut missing_sample = result.clone();
@@ -264,7 +279,7 @@ mod tests {
             (no_record, &outputs[..]),
             (result.clone(), &outputs[1..]),
         ] {
-            let refused = on_complete(None, &package, &result.to_string(), outputs);
+            let refused = on_complete(None, (&package).into(), &result.to_string(), outputs);
             assert!(matches!(refused, Err(PlanError::PackageMismatch { .. })), "{result}: {:?}", refused.err());
         }
     }

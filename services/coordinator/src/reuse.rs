@@ -17,7 +17,7 @@ use tonic::Status;
 use vint_core::Stage;
 use vint_core::plan::NewTask;
 use vint_core::reuse::{self, Input};
-use vint_store::{Completion, Fence, LeasedTask, StoredResult, TaskRecord};
+use vint_store::{Completion, Fence, LeasedTask, StoredResult};
 
 use crate::convert::status;
 use crate::now_ms;
@@ -64,23 +64,13 @@ pub(crate) fn key_of(task: &LeasedTask, identity: &str) -> String {
 }
 
 /// A leased task as the planner reads it.
-fn record(task: &LeasedTask, worker_id: &str) -> TaskRecord {
-    TaskRecord {
-        id: task.id.clone(),
-        job_id: task.job_id.clone(),
-        key: task.key.clone(),
+fn done(task: &LeasedTask) -> planner::Done<'_> {
+    planner::Done {
+        id: &task.id,
+        job_id: &task.job_id,
+        key: &task.key,
         stage: task.stage,
-        state: vint_core::TaskState::Running,
-        params_json: task.params_json.clone(),
-        attempt: task.attempt,
-        max_attempts: task.attempt,
-        not_before_ms: 0,
-        lease_owner: Some(worker_id.to_string()),
-        lease_deadline_ms: Some(task.lease_deadline_ms),
-        last_error: None,
-        engine_json: None,
-        result_json: None,
-        reused_from: None,
+        params_json: &task.params_json,
     }
 }
 
@@ -161,9 +151,8 @@ impl WorkApi {
         } else {
             None
         };
-        let unlocked =
-            planner::on_complete(plan.as_deref(), &record(task, worker_id), &stored.result_json, &stored.outputs)
-                .map_err(|e| e.to_string())?;
+        let unlocked = planner::on_complete(plan.as_deref(), done(task), &stored.result_json, &stored.outputs)
+            .map_err(|e| e.to_string())?;
         let completion = Completion {
             fence: Fence { task_id: task.id.clone(), worker_id: worker_id.to_string(), attempt: task.attempt },
             outputs: stored.outputs.clone(),

@@ -139,8 +139,8 @@ impl WorkApi {
         } else {
             None
         };
-        let unlocked =
-            planner::on_complete(plan.as_deref(), task, &req.result_json, &outputs).map_err(|e| e.to_string())?;
+        let unlocked = planner::on_complete(plan.as_deref(), task.into(), &req.result_json, &outputs)
+            .map_err(|e| e.to_string())?;
         let timings = req.timings.map(|t| {
             serde_json::json!({"fetch_ms": t.fetch_ms, "engine_ms": t.engine_ms, "upload_ms": t.upload_ms, "total_ms": t.total_ms})
         });

@@ -76,9 +76,45 @@ pub fn valid_identity(identity: &str) -> bool {
         && identity.bytes().all(|b| b.is_ascii_alphanumeric() || b"._:+-".contains(&b))
 }
 
+/// The identities `python -m vint_engines identity` printed (`{"<stage>": {"identity": "…",
+/// …}, …}`), by stage; an error names the first entry that is not a known stage with a valid
+/// identity. The worker (which declares them) and `vintctl plan --against` (which keys with them)
+/// read them through this one parser.
+pub fn parse_identities(stdout: &[u8]) -> Result<std::collections::HashMap<Stage, String>, String> {
+    let doc: std::collections::BTreeMap<String, serde_json::Value> =
+        serde_json::from_slice(stdout).map_err(|e| format!("not JSON: {e}"))?;
+    let mut out = std::collections::HashMap::new();
+    for (name, entry) in doc {
+        let stage: Stage = name.parse().map_err(|e| format!("{e}"))?;
+        let identity = entry
+            .get("identity")
+            .and_then(serde_json::Value::as_str)
+            .filter(|id| valid_identity(id))
+            .ok_or_else(|| format!("{name}: no valid \"identity\""))?;
+        out.insert(stage, identity.to_string());
+    }
+    Ok(out)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn identities_parse_by_stage_and_refuse_what_is_not_one() {
+        let ok = br#"{"render": {"identity": "py:abc123", "files": 12}, "noise": {"identity": "py:def"}}"#;
+        let ids = parse_identities(ok).unwrap();
+        assert_eq!((ids[&Stage::Render].as_str(), ids[&Stage::Noise].as_str()), ("py:abc123", "py:def"));
+        for (bad, says) in [
+            (&br#"{"paint": {"identity": "x"}}"#[..], "paint"),
+            (br#"{"render": {"identity": "has space"}}"#, "render: no valid"),
+            (br#"{"render": {}}"#, "render: no valid"),
+            (b"not json", "not JSON"),
+        ] {
+            let e = parse_identities(bad).unwrap_err();
+            assert!(e.contains(says), "{e}");
+        }
+    }
 
     const RENDER: Input<'static> = Input { task_key: "grasp/mug/trx3/c0000", name: "grasps.json", sha256: "aa" };
     const TOUCH: Input<'static> = Input { task_key: "grasp/mug/trx3/c0000", name: "object.ply", sha256: "bb" };

@@ -9,7 +9,7 @@ use std::collections::HashMap;
 use std::path::Path;
 
 use anyhow::{Context, anyhow};
-use serde_json::{Value, json};
+use serde_json::json;
 use sha2::{Digest, Sha256};
 use vint_coordinator::forecast::{self, Forecast};
 use vint_core::Stage;
@@ -54,14 +54,13 @@ pub async fn plan_against(spec_path: &Path, job: &str, records: &Records<'_>, js
 async fn identities(quiet: bool) -> HashMap<Stage, String> {
     let mut out = HashMap::from([(Stage::Package, vint_core::contract::package::ENGINE_IDENTITY.to_string())]);
     match handover::engines("identity", &[]).await {
-        Ok(done) => {
-            let doc: HashMap<String, Value> = serde_json::from_slice(&done.stdout).unwrap_or_default();
-            for (name, entry) in doc {
-                if let (Ok(stage), Some(id)) = (name.parse::<Stage>(), entry.get("identity").and_then(Value::as_str)) {
-                    out.insert(stage, id.to_string());
-                }
+        Ok(done) => match vint_core::reuse::parse_identities(&done.stdout) {
+            Ok(ids) => out.extend(ids),
+            Err(e) if !quiet => {
+                eprintln!("warning: the engines' identities could not be read ({e}): their tasks are forecast to run")
             }
-        }
+            Err(_) => {}
+        },
         Err(f) if !quiet => eprintln!(
             "warning: the engines' identities are unknown here ({}): their tasks are forecast to run",
             f.error

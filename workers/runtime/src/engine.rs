@@ -66,19 +66,7 @@ pub async fn identities(cmd: &EngineCommand) -> Result<std::collections::HashMap
             String::from_utf8_lossy(&output.stderr).trim()
         )));
     }
-    let doc: std::collections::BTreeMap<String, Value> =
-        serde_json::from_slice(&output.stdout).map_err(|e| IdentityError::Failed(format!("not JSON: {e}")))?;
-    let mut out = std::collections::HashMap::new();
-    for (name, entry) in doc {
-        let stage: Stage = name.parse().map_err(|e| IdentityError::Failed(format!("{e}")))?;
-        let identity = entry
-            .get("identity")
-            .and_then(Value::as_str)
-            .filter(|id| vint_core::reuse::valid_identity(id))
-            .ok_or_else(|| IdentityError::Failed(format!("{name}: no valid \"identity\"")))?;
-        out.insert(stage, identity.to_string());
-    }
-    Ok(out)
+    vint_core::reuse::parse_identities(&output.stdout).map_err(IdentityError::Failed)
 }
 
 /// How to start engines.
