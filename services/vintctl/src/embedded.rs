@@ -45,8 +45,7 @@ pub async fn run(spec_path: &Path, out: &Path, target: Target, local: &Local<'_>
     std::fs::create_dir_all(state.join("logs"))
         .with_context(|| format!("creating state directory {}", state.display()))?;
     let state = state.canonicalize().with_context(|| format!("resolving {}", state.display()))?;
-    let db_url = format!("sqlite://{}", state.join("vint.db").display());
-    let store_url = format!("file://{}", state.join("objects").display());
+    let (db_url, store_url) = crate::state_dir::state_urls(&state);
     let artifacts = vint_artifacts::ArtifactStore::open(&store_url)?;
 
     let retry = RetryPolicy { max_attempts: 4, backoff_base_ms: 500, backoff_cap_ms: 10_000 };

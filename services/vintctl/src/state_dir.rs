@@ -7,6 +7,12 @@ use anyhow::{Context, anyhow};
 
 use crate::{Failure, bad_input};
 
+/// The database URL and the object store URL of the (absolute) state directory `state`: where
+/// `vintctl run` keeps a job's records and where the commands that read them look.
+pub fn state_urls(state: &Path) -> (String, String) {
+    (format!("sqlite://{}", state.join("vint.db").display()), format!("file://{}", state.join("objects").display()))
+}
+
 pub enum Records<'a> {
     /// A `vintctl run` state directory.
     State(&'a Path),
@@ -27,10 +33,7 @@ impl Records<'_> {
                     )));
                 }
                 let state = state.canonicalize().with_context(|| format!("resolving {}", state.display()))?;
-                Ok((
-                    format!("sqlite://{}", state.join("vint.db").display()),
-                    format!("file://{}", state.join("objects").display()),
-                ))
+                Ok(state_urls(&state))
             }
             Records::Urls { database, store } => Ok((database.to_string(), store.to_string())),
         }
