@@ -89,7 +89,8 @@ impl Store {
         outputs_from_rows(&sqlx::query(trusted(sql)).bind(task_id).fetch_all(&self.pool).await?)
     }
 
-    /// The files of a job's succeeded tasks of `stage`, in task-key order.
+    /// The files of a job's tasks of `stage`, in task-key order (only a succeeded task has an
+    /// `outputs` row).
     async fn stage_outputs(&self, job_id: &str, stage: vint_core::Stage) -> Result<Vec<ArtifactRecord>> {
         let sql = format!("{OUTPUTS_SELECT} WHERE t.job_id = $1 AND t.stage = $2 ORDER BY t.key");
         let rows = sqlx::query(trusted(sql)).bind(job_id).bind(stage.as_str()).fetch_all(&self.pool).await?;
