@@ -158,28 +158,41 @@ impl Store {
     }
 
     /// The (job, package task) that made `sample_id`: in `job_id` if given, else in the newest job
-    /// that packaged it. A sample's package task is one of its (object, hand) pair's: those are
-    /// read, newest job first, until one lists it.
+    /// that packaged it. A job's stored plan names the sample's package task (the chunk of its
+    /// grasp); a job stored without one (before migration 0005) has its sample's (object, hand)
+    /// pair's package tasks read until one lists it.
     pub async fn sample_package_task(&self, job_id: Option<&str>, sample_id: &str) -> Result<Option<(String, String)>> {
         let Ok(id) = sample_id.parse::<SampleId>() else {
             return Ok(None);
         };
-        let prefix = format!("{}/{}/{}/", vint_core::Stage::Package.as_str(), id.object, id.hand);
-        let pattern = format!("{}%", prefix.replace('\\', "\\\\").replace('%', "\\%").replace('_', "\\_"));
-        let rows = sqlx::query(
-            "SELECT o.task_id, t.key, t.job_id, o.files FROM tasks t JOIN jobs j ON j.id = t.job_id \
-             JOIN outputs o ON o.task_id = t.id WHERE t.stage = $1 AND t.key LIKE $2 ESCAPE '\\' \
-             AND ($3 = '' OR t.job_id = $3) ORDER BY j.created_ms DESC, j.id, t.key",
-        )
-        .bind(vint_core::Stage::Package.as_str())
-        .bind(pattern)
-        .bind(job_id.unwrap_or(""))
-        .fetch_all(&self.pool)
-        .await?;
+        let jobs =
+            sqlx::query("SELECT id, plan_json FROM jobs WHERE ($1 = '' OR id = $1) ORDER BY created_ms DESC, id")
+                .bind(job_id.unwrap_or(""))
+                .fetch_all(&self.pool)
+                .await?;
         let dir = format!("{sample_id}/");
-        for row in &rows {
-            if outputs_from_row(row)?.iter().any(|a| a.name.starts_with(&dir)) {
-                return Ok(Some((row.try_get("job_id")?, row.try_get("task_id")?)));
+        for job in &jobs {
+            let job_id: String = job.try_get("id")?;
+            let plan_json: Option<String> = job.try_get("plan_json")?;
+            let plan = plan_json.as_deref().and_then(|p| serde_json::from_str::<vint_core::plan::JobPlan>(p).ok());
+            let rows = match plan {
+                Some(plan) => {
+                    let key = plan.chunk_of(&id.object, &id.hand, id.grasp_index).package_key();
+                    let sql = format!("{OUTPUTS_SELECT} WHERE t.id = $1");
+                    sqlx::query(trusted(sql)).bind(format!("{job_id}/{key}")).fetch_all(&self.pool).await?
+                }
+                None => {
+                    let prefix = format!("{}/{}/{}/", vint_core::Stage::Package.as_str(), id.object, id.hand);
+                    let pattern = format!("{}%", prefix.replace('\\', "\\\\").replace('%', "\\%").replace('_', "\\_"));
+                    let sql =
+                        format!("{OUTPUTS_SELECT} WHERE t.job_id = $1 AND t.key LIKE $2 ESCAPE '\\' ORDER BY t.key");
+                    sqlx::query(trusted(sql)).bind(&job_id).bind(pattern).fetch_all(&self.pool).await?
+                }
+            };
+            for row in &rows {
+                if outputs_from_row(row)?.iter().any(|a| a.name.starts_with(&dir)) {
+                    return Ok(Some((job_id, row.try_get("task_id")?)));
+                }
             }
         }
         Ok(None)

@@ -99,8 +99,14 @@ store_test!(a_job_writes_the_rows_its_footprint_predicts_with_noisy_depth, |stor
     let predicted = run_to_the_end(&store, &spec).await;
     assert!(predicted.output_files > 2 * predicted.outputs, "{predicted:?}");
     assert_eq!(store.table_rows().await.unwrap(), predicted);
-    let samples = store.progress("j").await.unwrap().samples;
-    assert!(samples > 0 && samples == store.samples("j").await.unwrap().len() as u64, "{samples}");
+    let samples = store.samples("j").await.unwrap();
+    assert!(!samples.is_empty() && store.progress("j").await.unwrap().samples == samples.len() as u64);
+    // The job's stored plan names each sample's package task: the one whose files hold it.
+    for (sample, files) in &samples {
+        let found = store.sample_package_task(None, sample).await.unwrap();
+        let (job, task) = found.unwrap_or_else(|| panic!("{sample}: no package task"));
+        assert_eq!((job.as_str(), task.as_str()), ("j", files[0].task_id.as_str()), "{sample}");
+    }
 });
 
 store_test!(a_job_writes_the_rows_its_footprint_predicts_without_noise_tasks, |store: Store| async move {
