@@ -8,6 +8,7 @@ pub fn status(e: StoreError) -> Status {
     match e {
         StoreError::LeaseLost { .. } => Status::failed_precondition(e.to_string()),
         StoreError::NotFound(_) => Status::not_found(e.to_string()),
+        StoreError::Invalid(_) => Status::invalid_argument(e.to_string()),
         other => {
             tracing::error!(error = %other, "store error");
             Status::internal(other.to_string())

@@ -106,9 +106,15 @@ impl WorkApi {
                     )
                 }
                 Err(e) => {
-                    self.config.metrics.completion_refused(Refusal::LeaseLost);
+                    // The store refuses outputs it cannot pack (the checks above come first, so
+                    // this is a defence) as invalid; anything else per task is a lost lease.
+                    let (refusal, outcome) = match e {
+                        vint_store::StoreError::Invalid(_) => (Refusal::Invalid, Outcome::Invalid),
+                        _ => (Refusal::LeaseLost, Outcome::LeaseLost),
+                    };
+                    self.config.metrics.completion_refused(refusal);
                     tracing::warn!(job = %task.job_id, task = %task.key, error = %e, "completion refused");
-                    results[i].outcome = Outcome::LeaseLost as i32;
+                    results[i].outcome = outcome as i32;
                     results[i].message = e.to_string();
                 }
             }

@@ -375,6 +375,28 @@ store_test!(a_lost_lease_in_a_batch_refuses_that_task_alone, |store: Store| asyn
     assert_eq!(store.job("j").await.unwrap().unwrap().state, JobState::Succeeded);
 });
 
+store_test!(outputs_the_store_cannot_pack_refuse_that_completion_alone, |store: Store| async move {
+    let fences = three_leased(&store).await;
+    let mut moved = completion(fences[2].clone(), &["grasps.json"]);
+    moved.outputs[0].object_key = "elsewhere/grasps.json".into();
+    let batch = vec![
+        (completion(fences[0].clone(), &["grasps.json"]), vec![]),
+        (completion(fences[1].clone(), &["grasps.json", "grasps.json"]), vec![]),
+        (moved, vec![]),
+    ];
+    let results = store.complete_batch(&batch, 10).await.unwrap();
+    assert!(results[0].is_ok(), "{results:?}");
+    for (i, rule) in [(1, "named twice"), (2, "is not its content's")] {
+        let Err(StoreError::Invalid(why)) = &results[i] else { panic!("{i}: {results:?}") };
+        assert!(why.contains(rule) && why.contains(&fences[i].task_id), "{why}");
+    }
+    assert_eq!(state_of(&store, "j/grasp/a").await, TaskState::Succeeded);
+    for refused in ["j/grasp/b", "j/grasp/c"] {
+        assert_eq!(state_of(&store, refused).await, TaskState::Running, "{refused} keeps its lease");
+        assert!(store.artifacts_of_task(refused).await.unwrap().is_empty());
+    }
+});
+
 store_test!(an_expired_lease_in_a_batch_is_refused_alone, |store: Store| async move {
     let tasks = [task("grasp/a", Stage::Grasp, &[]), task("grasp/b", Stage::Grasp, &[])];
     store.submit_job(&job("j"), &tasks, 0).await.unwrap();
