@@ -102,7 +102,7 @@ impl Store {
     /// indexed by hash (an index entry a file cost more than the packed file): the database finds
     /// the rows holding the hash's bytes by scanning the job's (or every job's) outputs.
     pub async fn producers_of(&self, sha256: &str, job_id: Option<&str>) -> Result<Vec<ArtifactRecord>> {
-        if sha256.len() != 64 || !sha256.bytes().all(|b| matches!(b, b'0'..=b'9' | b'a'..=b'f')) {
+        if outputs::digest_bytes(sha256).is_none() {
             return Ok(Vec::new());
         }
         let holds = match self.backend {

@@ -219,7 +219,7 @@ fn shared_prefix(a: &str, b: &str) -> usize {
     n
 }
 
-fn digest_bytes(sha256: &str) -> Option<[u8; DIGEST_BYTES]> {
+pub(crate) fn digest_bytes(sha256: &str) -> Option<[u8; DIGEST_BYTES]> {
     if sha256.len() != 2 * DIGEST_BYTES || !sha256.bytes().all(|b| matches!(b, b'0'..=b'9' | b'a'..=b'f')) {
         return None;
     }
