@@ -12,7 +12,7 @@ of one half-empty 8 KiB page per table) into a scratch Postgres database with
 (files and dependencies per task by stage), how an `outputs` row's bytes split into the row and
 its packed files (`POSTGRES_BYTES_PER_ROW.outputs` and `.output_files`), and the file sizes by
 kind, which
-`services/vintctl/src/estimate.rs` uses for the object store. The scratch database
+the stages' modules (`services/core/src/contract/<stage>.rs`) use for the object store. The scratch database
 (`measure_db_bytes_<pid>`) is dropped at the end unless `--keep`.
 
 Standard library and the `psql` client only.

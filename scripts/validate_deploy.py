@@ -44,9 +44,12 @@ K8S = DEPLOY / "k8s"
 # before it) and the newest schema kubernetes-validate ships.
 KUBERNETES_VERSIONS = ("1.30.0", "1.37.0")
 
-STAGES = ("grasp", "render", "noise", "package")
+# The pipeline's stages, as the generated contract schema lists them (a new stage needs its worker
+# Deployment and autoscaler here, and no edit of this script).
+ENGINES = ROOT / "workers" / "engines" / "vint_engines"
+STAGES = tuple(sorted(json.loads((ENGINES / "contract.schema.json").read_text(encoding="utf-8"))["stages"]))
 # Stages whose worker runs a Python engine that VINT_ENGINE_MAX_RSS_MIB bounds (package is Rust).
-ENGINE_STAGES = ("grasp", "render", "noise")
+ENGINE_STAGES = tuple(s for s in STAGES if (ENGINES / s / "engine.py").is_file())
 # Memory a worker pod needs above its engine's bound: the Rust worker itself, and one task's growth
 # past the bound (the worker checks the engine's RSS between tasks).
 WORKER_HEADROOM_MIB = 1024

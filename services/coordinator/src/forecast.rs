@@ -119,7 +119,8 @@ pub async fn forecast(
             }
         }
     }
-    for stage in [Stage::Render, Stage::Noise, Stage::Package] {
+    // The rest in pipeline order: a task's dependencies are forecast before it.
+    for stage in Stage::ALL.into_iter().filter(|s| *s != Stage::Grasp) {
         let tasks: Vec<NewTask> = next.iter().filter(|t| t.stage == stage).cloned().collect();
         let ready: Vec<NewTask> =
             tasks.iter().filter(|t| !t.deps.iter().any(|d| running.contains(d))).cloned().collect();
@@ -226,15 +227,15 @@ fn first_difference(a: &Value, b: &Value, path: String) -> Option<String> {
     }
 }
 
-/// The earlier job's render, noise and package tasks of a grasp chunk that will run.
+/// The earlier job's tasks downstream of a grasp chunk (its grasps' and its package task) that
+/// will run.
 fn count_after_runs(f: &mut Forecast, job_plan: &JobPlan, grasp: &NewTask, old: &HashMap<String, TaskRecord>) {
     let Some(chunk) = GraspChunk::from_key(&grasp.key) else { return };
     for g in job_plan.trials(&chunk) {
-        if old.contains_key(&plan::render_key(&chunk.object, &chunk.hand, g)) {
-            f.stage(Stage::Render).after_runs += 1;
-        }
-        if old.contains_key(&plan::noise_key(&chunk.object, &chunk.hand, g)) {
-            f.stage(Stage::Noise).after_runs += 1;
+        for (stage, key) in plan::grasp_keys(&chunk.object, &chunk.hand, g) {
+            if old.contains_key(&key) {
+                f.stage(stage).after_runs += 1;
+            }
         }
     }
     if old.contains_key(&chunk.package_key()) {

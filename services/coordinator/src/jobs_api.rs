@@ -101,13 +101,11 @@ impl JobApi {
         let (job_id, package_task) = self.job_of_sample(job_id, sample_id).await?;
         let job = self.job_record(&job_id).await?;
         let job_plan = crate::planner::job_plan(&self.store, &job).await?;
-        let own: BTreeSet<String> = [
-            plan::noise_key(&id.object, &id.hand, id.grasp_index),
-            plan::render_key(&id.object, &id.hand, id.grasp_index),
-            job_plan.chunk_of(&id.object, &id.hand, id.grasp_index).key(),
-        ]
-        .into_iter()
-        .collect();
+        let own: BTreeSet<String> = plan::grasp_keys(&id.object, &id.hand, id.grasp_index)
+            .into_iter()
+            .map(|(_, key)| key)
+            .chain([job_plan.chunk_of(&id.object, &id.hand, id.grasp_index).key()])
+            .collect();
         let mut chain = self.store.lineage(&package_task).await.map_err(status)?;
         // Show the sample's chain in pipeline order, from its package back to its grasp.
         chain.sort_by_key(|e| std::cmp::Reverse(e.task.stage));

@@ -8,7 +8,7 @@ pub mod asset;
 pub mod budget;
 pub mod catalog;
 pub mod contract;
-pub mod file_sizes;
+pub mod cost;
 pub mod plan;
 pub mod reuse;
 pub mod sample;

@@ -74,12 +74,13 @@ impl GraspChunk {
     }
 }
 
-pub fn render_key(object: &str, hand: &str, grasp_index: u32) -> String {
-    format!("render/{object}/{hand}/g{grasp_index:06}")
-}
-
-pub fn noise_key(object: &str, hand: &str, grasp_index: u32) -> String {
-    format!("noise/{object}/{hand}/g{grasp_index:06}")
+/// The keys of the tasks one accepted grasp of (object, hand) gets, with their stages (a stage
+/// the job does not ask for has no such task): what a sample's lineage and a forecast look up.
+pub fn grasp_keys(object: &str, hand: &str, grasp_index: u32) -> [(Stage, String); 2] {
+    [
+        (Stage::Render, render::task_key(object, hand, grasp_index)),
+        (Stage::Noise, noise::task_key(object, hand, grasp_index)),
+    ]
 }
 
 /// Why a spec cannot be planned.
@@ -380,7 +381,7 @@ pub fn after_grasp(plan: &JobPlan, chunk: &GraspChunk, accepted: &[u32]) -> Resu
     let mut package_deps = vec![chunk.key()];
     let mut samples = Vec::new();
     for &g in accepted {
-        let render = render_key(object, hand, g);
+        let render = render::task_key(object, hand, g);
         tasks.push(NewTask::new(
             render.clone(),
             Stage::Render,
@@ -389,7 +390,7 @@ pub fn after_grasp(plan: &JobPlan, chunk: &GraspChunk, accepted: &[u32]) -> Resu
         )?);
         package_deps.push(render.clone());
         if let Some(model) = &plan.noise {
-            let noise = noise_key(object, hand, g);
+            let noise = noise::task_key(object, hand, g);
             let params = noise_params(plan, model, object, hand, g);
             tasks.push(NewTask::new(noise.clone(), Stage::Noise, &params, vec![render])?);
             package_deps.push(noise);
@@ -451,6 +452,20 @@ mod tests {
     fn spec(extra: &str) -> DatasetSpec {
         DatasetSpec::parse(&format!("objects = [\"tomato_soup_can\"]\n[dataset]\nname = \"t\"\nseed = 1\n{extra}"))
             .unwrap()
+    }
+
+    #[test]
+    fn grasp_keys_name_every_per_grasp_task_the_planner_makes() {
+        let s = spec("[grasp]\ntrials_per_pair = 4\nchunk_size = 4\n");
+        let p = plan(&s);
+        let chunk = GraspChunk { object: "tomato_soup_can".into(), hand: "trx3".into(), chunk: 0 };
+        let tasks = after_grasp(&p, &chunk, &[1, 3]).unwrap();
+        let per_grasp: Vec<(Stage, String)> =
+            tasks.iter().filter(|t| t.key != chunk.package_key()).map(|t| (t.stage, t.key.clone())).collect();
+        let named: Vec<(Stage, String)> =
+            [1, 3].iter().flat_map(|&g| grasp_keys("tomato_soup_can", "trx3", g)).collect();
+        assert!(!per_grasp.is_empty() && per_grasp.iter().all(|t| named.contains(t)), "{per_grasp:?} {named:?}");
+        assert_eq!(per_grasp.len(), named.len(), "the spec asks for every per-grasp stage");
     }
 
     #[test]

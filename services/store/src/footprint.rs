@@ -11,8 +11,8 @@ use std::ops::{Add, AddAssign};
 use serde::Serialize;
 use sqlx::Row;
 
-use vint_core::contract::render;
-use vint_core::plan::JobPlan;
+use vint_core::contract::{self, BadParams};
+use vint_core::plan::NewTask;
 
 use crate::{Result, Store, trusted};
 
@@ -70,12 +70,11 @@ impl TableRows {
     /// (written when a worker that declares its engine leases it: every production worker, not
     /// the timing-only one), its attempt, its `outputs` files packed in one row (none when it made
     /// none). Its samples are named by its files (migration 0013), not rows of their own.
-    /// Its inputs are derived (its dependencies' outputs), not stored: `dependency_outputs[i]` is
-    /// dependency `i`'s artifact count, which only the number of dependencies matters for.
-    pub fn task(dependency_outputs: &[u64], outputs: u64) -> TableRows {
+    /// Its inputs are derived (its dependencies' outputs), not stored.
+    pub fn task(dependencies: usize, outputs: u64) -> TableRows {
         TableRows {
             tasks: 1,
-            task_deps: dependency_outputs.len() as u64,
+            task_deps: dependencies as u64,
             attempts: 1,
             outputs: u64::from(outputs > 0),
             output_files: outputs,
@@ -115,41 +114,15 @@ impl AddAssign for TableRows {
     }
 }
 
-/// Files a grasp task writes: `grasps.json`, `touch.json` and `object.ply`
-/// (`vint_core::contract::grasp`), whatever it accepted.
-pub const GRASP_TASK_OUTPUTS: u64 = 3;
-
-/// Files one render task of `plan` writes: the view files of its outputs, for every view.
-pub fn render_task_outputs(plan: &JobPlan) -> u64 {
-    u64::from(plan.views_per_grasp()) * render::view_files(&plan.render_outputs).len() as u64
-}
-
-/// Files a package task writes per sample: `meta.json` and the files of the requested modalities.
-pub fn package_files_per_sample(plan: &JobPlan) -> u64 {
-    1 + plan.modalities.iter().map(|m| m.sample_files().len() as u64).sum::<u64>()
-}
-
-/// The rows of one grasp chunk of `plan` that accepted `grasps` grasps, planned by
-/// `vint_core::plan::after_grasp`: its grasp task, then per grasp a render task and (with noisy
-/// depth) a noise task, and one package task waiting for all of them that packages every view
-/// of every grasp and one record per grasp.
-pub fn chunk_rows(plan: &JobPlan, grasps: u32) -> TableRows {
-    let mut rows = TableRows::task(&[], GRASP_TASK_OUTPUTS);
-    if grasps == 0 {
-        return rows;
+/// The rows planned tasks write over their lives, each succeeding at its first attempt: a grasp
+/// task and what its completion unlocks (`vint_core::plan::after_grasp`), say. Each task's file
+/// count is its stage's own (`vint_core::contract::files_written`), so no stage is named here.
+pub fn task_rows(tasks: &[NewTask]) -> Result<TableRows, BadParams> {
+    let mut rows = TableRows::default();
+    for t in tasks {
+        rows += TableRows::task(t.deps.len(), contract::files_written(t.stage, &t.params)?);
     }
-    let g = u64::from(grasps);
-    let views = u64::from(plan.views_per_grasp());
-    let render_outputs = render_task_outputs(plan);
-    rows += TableRows::task(&[GRASP_TASK_OUTPUTS], render_outputs).times(g);
-    let mut package_deps = vec![GRASP_TASK_OUTPUTS];
-    package_deps.extend(std::iter::repeat_n(render_outputs, grasps as usize));
-    if plan.noise.is_some() {
-        rows += TableRows::task(&[render_outputs], views).times(g);
-        package_deps.extend(std::iter::repeat_n(views, grasps as usize));
-    }
-    rows += TableRows::task(&package_deps, g * views * package_files_per_sample(plan) + g);
-    rows
+    Ok(rows)
 }
 
 /// Bytes one row of each table takes on Postgres with its indexes and TOAST
@@ -222,7 +195,7 @@ mod tests {
 
     #[test]
     fn a_task_writes_its_row_deps_attempt_and_packed_outputs() {
-        let package = TableRows::task(&[3, 12, 2], 15);
+        let package = TableRows::task(3, 15);
         assert_eq!(
             package,
             TableRows {
@@ -238,7 +211,7 @@ mod tests {
         let job = TableRows::submit(2) + package.times(3);
         assert_eq!((job.jobs, job.job_assets, job.tasks, job.outputs, job.output_files), (1, 2, 3, 3, 45));
         assert_eq!(job.total(), 1 + 2 + 3 * (1 + 3 + 1 + 1 + 15 + 1));
-        assert_eq!(TableRows::task(&[], 0).outputs, 0, "a task that made no file has no outputs row");
+        assert_eq!(TableRows::task(0, 0).outputs, 0, "a task that made no file has no outputs row");
     }
 
     #[test]
@@ -253,7 +226,7 @@ mod tests {
             output_files: 7.0,
             task_keys: 9.0,
         };
-        let rows = TableRows::task(&[1, 1], 2);
+        let rows = TableRows::task(2, 2);
         assert_eq!(per_row.bytes(&rows), [0.0, 0.0, 3.0, 8.0, 5.0, 6.0, 14.0, 9.0]);
     }
 }

@@ -1,7 +1,7 @@
 //! `vint_store::footprint` against what the store writes: a job planned by the real planner
 //! (`vint_core::plan`), run to the end by a test worker that completes every task with the files
-//! its stage contract names, holds exactly the rows `chunk_rows` predicts, table by table, on
-//! both backends.
+//! its stage contract names (written out here, apart from the contract's own file counts), holds
+//! exactly the rows `task_rows` predicts, table by table, on both backends.
 
 #[macro_use]
 mod common;
@@ -11,7 +11,7 @@ use vint_core::contract::{grasp, noise, package, render};
 use vint_core::plan::{GraspChunk, JobPlan, after_grasp, initial_tasks};
 use vint_core::sample::SampleId;
 use vint_core::{DatasetSpec, JobState, Stage};
-use vint_store::footprint::{TableRows, chunk_rows};
+use vint_store::footprint::{TableRows, task_rows};
 use vint_store::{LeasedTask, Store};
 
 /// Two objects × one hand, 5 trials in chunks of 2 (3 chunks per pair: 2, 2 and 1 trials).
@@ -63,10 +63,11 @@ fn outputs_of(plan: &JobPlan, t: &LeasedTask) -> (Vec<String>, Vec<String>) {
 /// Runs `spec` to the end and returns the rows `footprint` predicted for it.
 async fn run_to_the_end(store: &Store, spec: &DatasetSpec) -> TableRows {
     let plan = JobPlan::new(spec, &[]).unwrap();
-    let mut predicted = TableRows::submit(0);
     let mut new_job = job("j");
     new_job.plan_json = serde_json::to_string(&plan).unwrap();
-    store.submit_job(&new_job, &initial_tasks(spec, &[]).unwrap(), 0).await.unwrap();
+    let initial = initial_tasks(spec, &[]).unwrap();
+    let mut predicted = TableRows::submit(0) + task_rows(&initial).unwrap();
+    store.submit_job(&new_job, &initial, 0).await.unwrap();
     for now in 1.. {
         let leased = store.lease("w", &Stage::ALL, 64, 60_000, now).await.unwrap();
         if leased.is_empty() {
@@ -84,8 +85,8 @@ async fn run_to_the_end(store: &Store, spec: &DatasetSpec) -> TableRows {
             if t.stage == Stage::Grasp {
                 let chunk = GraspChunk::from_key(&t.key).unwrap();
                 let accepted = accepted_of(&chunk, plan.trials(&chunk));
-                predicted += chunk_rows(&plan, accepted.len() as u32);
                 children = after_grasp(&plan, &chunk, &accepted).unwrap();
+                predicted += task_rows(&children).unwrap();
             }
             store.complete(&c, &children, now).await.unwrap();
         }

@@ -32,7 +32,7 @@ pub fn validate(path: &Path, json: bool) -> CliResult {
         }
     };
     let spec = &loaded.spec;
-    let estimate = Estimate::of(spec);
+    let estimate = Estimate::of(spec).map_err(|e| bad_input(anyhow!("{}: {e}", path.display())))?;
     if json {
         report::print_json(&json!({
             "valid": true, "spec": spec, "max_samples": spec.max_samples(), "estimate": estimate,

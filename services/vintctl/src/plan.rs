@@ -1,20 +1,18 @@
 //! `vintctl plan SPEC`: what a spec will cost before anything runs — its tasks per stage, the
 //! database rows and bytes they write, the object store's bytes and the CPU time per stage.
 //!
-//! It reads no server and no database. Counts come from the planner (`vint_core::plan`: the
-//! chunks a pair splits into and what a chunk's accepted grasps unlock), rows from the store's
-//! own footprint (`vint_store::footprint`, held to what the store writes by its tests), bytes and
-//! CPU time from measured per-row and per-unit figures (`vint_store::footprint`,
-//! `estimate.rs`), each of which names its source.
+//! It reads no server and no database. Tasks, CPU time and object-store bytes per stage come from
+//! `vint_core::cost` (the planner's own counts: the chunks a pair splits into and what a chunk's
+//! accepted grasps unlock; each stage's cost model), rows from the store's own footprint
+//! (`vint_store::footprint`, held to what the store writes by its tests), bytes per row from
+//! measured figures, each of which names its source.
 
 use serde::Serialize;
 use vint_core::DatasetSpec;
-use vint_core::Stage;
-use vint_core::asset::Asset;
-use vint_core::plan::{GraspChunk, JobPlan, PlanError, after_grasp, grasp_task};
-use vint_store::footprint::{POSTGRES_BYTES_PER_ROW, POSTGRES_TASK_BYTES_BEYOND_PARAMS, TableRows, chunk_rows};
+use vint_core::cost::{self, CostError};
+use vint_store::footprint::{POSTGRES_BYTES_PER_ROW, POSTGRES_TASK_BYTES_BEYOND_PARAMS, TableRows, task_rows};
 
-use crate::estimate::{self, PerStage, Workload};
+use crate::estimate;
 
 /// How the counts are meant, said wherever they are shown.
 pub const EXACT_QUOTA: &str = "exact if every grasp chunk fills its quota of accepted grasps within its share of \
@@ -93,45 +91,33 @@ pub struct Plan {
 }
 
 impl Plan {
-    pub fn of(spec: &DatasetSpec) -> Result<Plan, PlanError> {
-        let w = Workload::of(spec);
-        let assets = stand_in_assets(spec);
-        let job = JobPlan::new(spec, &assets)?;
-        let budget = job.budget();
-        // Every pair splits alike: count one pair's chunks, then every pair.
-        let mut pair = TableRows::default();
-        let mut package_tasks = 0u64;
-        for c in 0..budget.chunks() {
-            let grasps = budget.quota(c).unwrap_or_else(|| budget.trials(c).len() as u32);
-            pair += chunk_rows(&job, grasps);
-            package_tasks += u64::from(grasps > 0);
-        }
+    pub fn of(spec: &DatasetSpec) -> Result<Plan, CostError> {
+        let c = cost::of(spec)?;
+        let w = &c.work;
         let user_files = spec.asset_uses().iter().map(|u| &u.path).collect::<std::collections::BTreeSet<_>>().len();
-        let rows = TableRows::submit(user_files as u64) + pair.times(w.pairs);
+        let mut rows = TableRows::submit(user_files as u64);
+        for group in &c.chunks {
+            rows += task_rows(&group.tasks)?.times(group.chunks);
+        }
 
-        let cpu = estimate::cpu_seconds(spec, &w);
-        let artifacts = estimate::object_store_bytes(&w, &job.render_outputs);
-        let stage = |stage, tasks, tasks_exact, pick: fn(&PerStage) -> f64| StagePlan {
-            stage,
-            tasks,
-            tasks_exact,
-            cpu_hours: pick(&cpu) / 3_600.0,
-            gpu_hours: None,
-            artifact_bytes: pick(&artifacts),
-        };
-        let stages = vec![
-            stage("grasp", w.chunks, true, |p| p.grasp),
-            stage("render", w.grasps, w.quota, |p| p.render),
-            stage("noise", if w.noisy { w.grasps } else { 0 }, w.quota || !w.noisy, |p| p.noise),
-            stage("package", package_tasks * w.pairs, w.quota, |p| p.package),
-        ];
+        let stages: Vec<StagePlan> = c
+            .stages
+            .iter()
+            .map(|s| StagePlan {
+                stage: s.stage.as_str(),
+                tasks: s.tasks,
+                tasks_exact: s.tasks_exact,
+                cpu_hours: s.cost.cpu_s / 3_600.0,
+                gpu_hours: None,
+                artifact_bytes: s.cost.bytes,
+            })
+            .collect();
 
         let mut bytes = POSTGRES_BYTES_PER_ROW.bytes(&rows);
         let mut per_row = POSTGRES_BYTES_PER_ROW.figures();
         // A task row is mostly its parameters: size it from the parameters this spec's tasks get.
-        let row = task_row_bytes(spec, &job, &assets)?;
         let task_bytes: f64 =
-            stages.iter().zip([row.grasp, row.render, row.noise, row.package]).map(|(s, b)| s.tasks as f64 * b).sum();
+            c.stages.iter().map(|s| s.tasks as f64 * (s.params_bytes + POSTGRES_TASK_BYTES_BEYOND_PARAMS)).sum();
         bytes[2] = task_bytes;
         per_row[2] = if rows.tasks > 0 { task_bytes / rows.tasks as f64 } else { 0.0 };
         let tables = TableRows::TABLES
@@ -141,10 +127,11 @@ impl Plan {
             .map(|(i, (table, n))| TablePlan { table, rows: n, bytes_per_row: per_row[i], bytes: bytes[i] })
             .collect();
         let db_bytes: f64 = bytes.iter().sum();
+        let total = c.total();
         Ok(Plan {
             name: spec.dataset.name.clone(),
-            exact: w.quota,
-            counts_are: if w.quota { EXACT_QUOTA } else { UPPER_BOUND },
+            exact: c.exact,
+            counts_are: if c.exact { EXACT_QUOTA } else { UPPER_BOUND },
             counts: Counts {
                 pairs: w.pairs,
                 trials_max: w.trials,
@@ -154,9 +141,9 @@ impl Plan {
             },
             totals: Totals {
                 tasks: stages.iter().map(|s| s.tasks).sum(),
-                cpu_hours: cpu.total() / 3_600.0,
-                artifact_bytes: artifacts.total(),
-                dataset_bytes: estimate::dataset_bytes(spec, &w),
+                cpu_hours: total.cpu_s / 3_600.0,
+                artifact_bytes: total.bytes,
+                dataset_bytes: estimate::dataset_bytes(spec, w),
             },
             stages,
             database: Database {
@@ -170,42 +157,6 @@ impl Plan {
             gpu: NO_GPU,
         })
     }
-}
-
-/// Bytes of one task row of each stage on Postgres: the measured row beyond its parameters
-/// plus the parameters the planner makes for this spec, taken from the first pair's first chunk
-/// planned for real (its quota accepted, or every trial).
-fn task_row_bytes(spec: &DatasetSpec, job: &JobPlan, assets: &[Asset]) -> Result<PerStage, PlanError> {
-    let mut row = PerStage::default();
-    let (Some(object), Some(hand)) = (spec.objects.first(), spec.hands.first()) else {
-        return Ok(row);
-    };
-    let chunk = GraspChunk { object: object.clone(), hand: hand.clone(), chunk: 0 };
-    let grasp = grasp_task(spec, job, &chunk, assets)?;
-    let budget = job.budget();
-    let accepted: Vec<u32> = job.trials(&chunk).take(budget.quota(0).unwrap_or(u32::MAX) as usize).collect();
-    let params_bytes = |t: &vint_core::plan::NewTask| t.params.to_string().len() as f64;
-    row.grasp = params_bytes(&grasp);
-    for t in after_grasp(job, &chunk, &accepted)? {
-        let slot = match t.stage {
-            Stage::Grasp => &mut row.grasp,
-            Stage::Render => &mut row.render,
-            Stage::Noise => &mut row.noise,
-            Stage::Package => &mut row.package,
-        };
-        *slot = params_bytes(&t);
-    }
-    for b in [&mut row.grasp, &mut row.render, &mut row.noise, &mut row.package] {
-        *b += POSTGRES_TASK_BYTES_BEYOND_PARAMS;
-    }
-    Ok(row)
-}
-
-/// The spec's user files as the planner sees them. A plan's shape (which tasks, which outputs)
-/// does not depend on the files' content, only on which files the spec names, so they stand in
-/// unread.
-fn stand_in_assets(spec: &DatasetSpec) -> Vec<Asset> {
-    spec.asset_uses().into_iter().map(|u| Asset { path: u.path, sha256: "0".repeat(64), size: 0 }).collect()
 }
 
 /// A count with thousands separators: `1,560,000`.

@@ -7,7 +7,7 @@ use std::sync::Mutex;
 use chrono::{Local, TimeZone};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::{Value, json};
-use vint_core::{SpecError, SpecErrors};
+use vint_core::{SpecError, SpecErrors, Stage};
 use vint_proto::v1 as pb;
 
 use crate::Failure;
@@ -60,19 +60,15 @@ pub fn valid_spec(path: &std::path::Path, spec: &vint_core::DatasetSpec, e: &Est
         spec.render.views_per_grasp(),
         spec.max_samples()
     );
-    let t = &e.tasks;
+    let tasks: Vec<String> = e.stages.iter().map(|s| format!("{} {}", s.tasks, s.stage)).collect();
+    let bound = if e.stages.iter().all(|s| s.tasks_exact) { "" } else { " (at most: every trial accepted)" };
+    println!("  tasks: {}{bound}", tasks.join(", "));
+    let cpu: Vec<String> =
+        e.stages.iter().map(|s| format!("{} {}", s.stage, estimate::cpu_time(s.cpu_seconds))).collect();
     println!(
-        "  tasks: {} grasp, and if every trial is accepted {} render, {} noise and {} package",
-        t.grasp, t.render_max, t.noise_max, t.package_max
-    );
-    let c = &e.cpu_seconds;
-    println!(
-        "  rough cost if every trial is accepted: {} (grasp {}, render {}, noise {}, package {}), {} written",
-        estimate::cpu_time(c.total),
-        estimate::cpu_time(c.grasp),
-        estimate::cpu_time(c.render),
-        estimate::cpu_time(c.noise),
-        estimate::cpu_time(c.package),
+        "  rough cost if every trial is accepted: {} ({}), {} written",
+        estimate::cpu_time(e.cpu_seconds),
+        cpu.join(", "),
         estimate::size(e.output_bytes)
     );
     println!("  ({})", estimate::BASIS);
@@ -107,10 +103,11 @@ pub fn failed_tasks_json(tasks: &[pb::FailedTask]) -> Value {
 }
 
 fn progress_line(p: &pb::JobProgress) -> String {
-    let stages: Vec<String> = ["grasp", "render", "noise", "package"]
+    let stages: Vec<String> = Stage::ALL
         .iter()
+        .map(|s| s.as_str())
         .filter_map(|s| {
-            p.stages.get(*s).map(|st| match st.reused {
+            p.stages.get(s).map(|st| match st.reused {
                 0 => format!("{s} {}/{}", st.succeeded, st.total),
                 r => format!("{s} {}/{} ({r} reused)", st.succeeded, st.total),
             })
@@ -353,10 +350,11 @@ pub fn export_json(s: &ExportSummary) -> Value {
 /// What an export wrote (text); `--json` callers print `export_json` inside their own report.
 /// What ran and what was reused, per stage: `grasp 4 (4 reused) · render 12 (12 reused) · …`.
 pub fn work_line(p: &pb::JobProgress) -> String {
-    let stages: Vec<String> = ["grasp", "render", "noise", "package"]
+    let stages: Vec<String> = Stage::ALL
         .iter()
+        .map(|s| s.as_str())
         .filter_map(|s| {
-            p.stages.get(*s).map(|st| match st.reused {
+            p.stages.get(s).map(|st| match st.reused {
                 0 => format!("{s} {} ran", st.succeeded),
                 r if r == st.succeeded => format!("{s} {r} reused"),
                 r => format!("{s} {} ran, {r} reused", st.succeeded - r),

@@ -1,4 +1,5 @@
-"""Command line: `python -m vint_engines serve --stage {grasp|render|noise}`,
+"""Command line: `python -m vint_engines serve --stage STAGE` (a stage with an engine here:
+`vint_engines/stages.py`),
 `python -m vint_engines study {grasp|render|touch} --out DIR` (the studies, `vint_engines/study/`),
 `python -m vint_engines stats --dataset DIR --out OUT` (a dataset's statistics, `vint_engines/stats/`),
 `python -m vint_engines preview --dataset DIR --out SHEET.png` (a contact sheet, `vint_engines/preview/`), and
@@ -22,41 +23,20 @@ from pathlib import Path
 
 from vint_engines.preview import DEFAULT_SAMPLES
 from vint_engines.protocol import BadInput, Engine, ProtocolError, serve
-
-STAGES = ("grasp", "render", "noise")
+from vint_engines.stages import engine_module, python_stages
 
 
 def make_engine(stage: str) -> Engine:
     """Import the stage's engine and build it (this loads libraries and the scene)."""
-    if stage == "grasp":
-        from vint_engines.grasp.engine import GraspEngine
-
-        return GraspEngine()
-    if stage == "render":
-        from vint_engines.render.engine import RenderEngine
-
-        return RenderEngine()
-    if stage == "noise":
-        from vint_engines.noise.engine import NoiseEngine
-
-        return NoiseEngine()
-    raise ValueError(f"unknown stage {stage!r}")
+    engine: Engine = engine_module(stage).make_engine()
+    return engine
 
 
 def parse_params(stage: str, params: dict[str, object]) -> None:
-    """Parse a task's parameters as the stage's engine does before it runs anything."""
-    if stage == "grasp":
-        from vint_engines.grasp.engine import GraspTask
-
-        GraspTask.parse(params)
-    elif stage == "render":
-        from vint_engines.render.engine import RenderTask
-
-        RenderTask.parse(params)
-    elif stage == "noise":
-        from vint_engines.noise.engine import parse_params as parse_noise
-
-        parse_noise(params)
+    """Parse a task's parameters as the stage's engine does before it runs anything; a stage with
+    no engine here (package, in Rust) against the contract's schema."""
+    if stage in python_stages():
+        engine_module(stage).parse_params(params)
     else:
         from vint_engines import contract
 
@@ -108,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="vint_engines", description=__doc__)
     commands = parser.add_subparsers(dest="command", required=True)
     serve_cmd = commands.add_parser("serve", help="serve tasks over stdin/stdout (PROTOCOL.md)")
-    serve_cmd.add_argument("--stage", required=True, choices=STAGES)
+    serve_cmd.add_argument("--stage", required=True, choices=python_stages())
     study_cmd = commands.add_parser("study", help="run a numerics study and write its report")
     study_cmd.add_argument("study", choices=("grasp", "render", "touch"))
     study_cmd.add_argument("--out", required=True, type=Path, help="directory for the CSVs, plot and table")

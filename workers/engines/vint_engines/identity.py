@@ -26,20 +26,12 @@ import platform
 from pathlib import Path
 
 from vint_engines.objects.catalog import CATALOG_DIR
+from vint_engines.stages import PACKAGE_DIR, python_stages
 
 PACKAGE = "vint_engines"
-PACKAGE_DIR = Path(__file__).resolve().parent
 LOCK = PACKAGE_DIR.parent / "requirements.lock"
-SCHEMA_FILE = PACKAGE_DIR / "contract.schema.json"
 
-
-def python_stages() -> tuple[str, ...]:
-    """The stages of the contract with an engine here (`vint_engines/<stage>/engine.py`): a new
-    stage's engine has an identity without a list to extend."""
-    stages = json.loads(SCHEMA_FILE.read_text(encoding="utf-8"))["stages"]
-    return tuple(s for s in sorted(stages) if (PACKAGE_DIR / s / "engine.py").is_file())
-
-
+# A new stage's engine has an identity without a list to extend.
 STAGES = python_stages()
 # Modules whose code reads files outside the package: the directory joins their stage's identity.
 DATA_DIRS = {f"{PACKAGE}.objects.catalog": CATALOG_DIR}

@@ -13,10 +13,9 @@ use std::collections::BTreeMap;
 use serde_json::{Value, json};
 use vint_artifacts::ArtifactStore;
 use vint_core::contract::grasp::{GRASPS_FILE, TOUCH_FILE};
-use vint_core::contract::noise::noisy_depth_file;
-use vint_core::contract::package::{GRASP_RECORD_FILE, META_FILE, Modality, PackageResult, Params, Source, model_path};
-use vint_core::contract::render::ViewFile;
-use vint_core::plan::{GraspChunk, noise_key, render_key};
+use vint_core::contract::package::{GRASP_RECORD_FILE, META_FILE, Modality, PackageResult, Params, model_path};
+use vint_core::contract::render::{self, ViewFile};
+use vint_core::plan::GraspChunk;
 use vint_core::{GraspId, SampleId};
 
 /// The package stage's engine identity (`vint_core::reuse`): a package task whose key matches a
@@ -114,18 +113,11 @@ pub(crate) fn referenced_files(
     modalities: &[Modality],
 ) -> Result<Vec<PackagedFile>, PackageError> {
     let sample = id.to_string();
-    let render = render_key(&id.object, &id.hand, id.grasp_index);
     let mut files = Vec::new();
     for modality in modalities {
         for file in modality.sample_files() {
-            let src = match file.from {
-                Source::Render(view_file) => inputs.find(&sample, render.clone(), view_file.name(id.view_index))?,
-                Source::Noise => inputs.find(
-                    &sample,
-                    noise_key(&id.object, &id.hand, id.grasp_index),
-                    noisy_depth_file(id.view_index),
-                )?,
-            };
+            let (task_key, name) = file.from.origin(id);
+            let src = inputs.find(&sample, task_key, name)?;
             files.push(PackagedFile {
                 name: format!("{sample}/{}", file.name),
                 sha256: src.sha256.clone(),
@@ -156,7 +148,7 @@ pub async fn package(params: &Value, inputs: &[PackageInput], store: &ArtifactSt
         let id: SampleId =
             s.sample_id.parse().map_err(|e: vint_core::sample::BadSampleId| PackageError::Params(e.to_string()))?;
         files.extend(referenced_files(&by_origin, &id, &params.modalities)?);
-        let render = render_key(&id.object, &id.hand, id.grasp_index);
+        let render = render::task_key(&id.object, &id.hand, id.grasp_index);
         let camera_ref = by_origin.find(&s.sample_id, render, ViewFile::Camera.name(id.view_index))?;
         let camera = read_json(store, camera_ref, &s.sample_id).await?;
         bytes_read += camera_ref.size;

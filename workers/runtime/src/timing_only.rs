@@ -3,8 +3,8 @@
 //! the scale of a real dataset (`benches/dispatch.sh` drives 2 M samples through it).
 //!
 //! It is never the default and its output is not data. Each task answers what its engine would:
-//! a result of the stage's contract and output files of the real names and sizes
-//! (`vint_core::file_sizes`, measured on real runs). The bytes of a file are a constant payload
+//! a result of the stage's contract and output files of the real names and sizes (each stage's
+//! own `fake` in `vint_core::contract`, from the sizes measured on real runs). The bytes of a file are a constant payload
 //! per (kind, size), stored once in the object store and referenced by its hash, so the object
 //! store sees every put and content addressing dedupes the rest; a package task references its
 //! render and noise inputs by hash exactly as the real stage does. A grasp trial is accepted when
@@ -30,14 +30,10 @@ use tokio::sync::{Mutex, watch};
 use tracing::Instrument;
 use vint_artifacts::{ArtifactStore, StoredObject};
 use vint_connect::AuthChannel;
-use vint_core::contract::grasp::{self, GRASPS_FILE, GraspResult, MODEL_FILE, TOUCH_FILE};
-use vint_core::contract::noise::{self, NoiseResult, noisy_depth_file};
-use vint_core::contract::package::{self, GRASP_RECORD_FILE, META_FILE, PackageResult};
-use vint_core::contract::render::{self, RenderResult, ViewFile};
-use vint_core::file_sizes::{
-    GRASP_RECORD_BYTES, GRASPS_JSON_BYTES_PER_TRIAL, META_JSON_BYTES, OBJECT_PLY_BYTES, TOUCH_JSON_BYTES_PER_TRIAL,
-    view_file_bytes,
+use vint_core::contract::package::{
+    self, GRASP_RECORD_BYTES, GRASP_RECORD_FILE, META_FILE, META_JSON_BYTES, PackageResult,
 };
+use vint_core::contract::{self, FakeInput, FileKind};
 use vint_core::{SampleId, Stage};
 use vint_proto::v1 as pb;
 use vint_proto::v1::completion_result::Outcome;
@@ -53,7 +49,7 @@ const MAX_MESSAGE_BYTES: usize = 64 << 20;
 const MAX_COMPLETION_CALL_BYTES: usize = 6 << 20;
 
 /// What `engine_json` says of every task this mode completes.
-pub const ENGINE_MODE: &str = "timing-only";
+pub const ENGINE_MODE: &str = contract::TIMING_ONLY;
 
 #[derive(Clone, Debug)]
 pub struct TimingOnlyConfig {
@@ -87,17 +83,17 @@ pub struct Tally {
 /// The constant payloads, each stored once and then referenced by hash.
 struct Payloads {
     store: ArtifactStore,
-    stored: Mutex<HashMap<(&'static str, u64), StoredObject>>,
+    stored: Mutex<HashMap<(FileKind, u64), StoredObject>>,
     metrics: WorkerMetrics,
 }
 
 impl Payloads {
-    async fn get(&self, kind: &'static str, size: u64) -> Result<StoredObject, vint_artifacts::ArtifactError> {
+    async fn get(&self, kind: FileKind, size: u64) -> Result<StoredObject, vint_artifacts::ArtifactError> {
         let mut stored = self.stored.lock().await;
         if let Some(object) = stored.get(&(kind, size)) {
             return Ok(object.clone());
         }
-        let line = format!("vint timing-only payload ({kind}): not data\n");
+        let line = format!("vint timing-only payload ({}): not data\n", kind.as_str());
         let bytes: Vec<u8> = line.bytes().cycle().take(size as usize).collect();
         let object = self.store.put_bytes(Bytes::from(bytes)).await?;
         self.metrics.moved_bytes(0, object.size);
@@ -105,31 +101,16 @@ impl Payloads {
         Ok(object)
     }
 
-    async fn file(
-        &self,
-        name: String,
-        kind: &'static str,
-        size: u64,
-        task_key: &str,
-    ) -> Result<pb::ArtifactRef, String> {
-        let object = self.get(kind, size).await.map_err(|e| format!("storing a {kind} payload: {e}"))?;
+    async fn file(&self, name: String, kind: FileKind, size: u64, task_key: &str) -> Result<pb::ArtifactRef, String> {
+        let object = self.get(kind, size).await.map_err(|e| format!("storing a {} payload: {e}", kind.as_str()))?;
         Ok(pb::ArtifactRef {
             name,
             sha256: object.sha256,
             size: object.size,
-            media_type: media_type(kind).to_string(),
+            media_type: kind.media_type().to_string(),
             key: object.key,
             task_key: task_key.to_string(),
         })
-    }
-}
-
-fn media_type(kind: &str) -> &'static str {
-    match kind {
-        "png" => "image/png",
-        "npy" => "application/x-npy",
-        "ply" => "application/x-ply",
-        _ => "application/json",
     }
 }
 
@@ -144,12 +125,9 @@ fn permanent(message: impl Into<String>) -> Refusal {
     Refusal { retryable: false, message: message.into() }
 }
 
-/// A trial's acceptance: its seed is uniform over [0, 2^53), so this accepts `rate` of them.
-fn accepted(seed: u64, rate: f64) -> bool {
-    (seed as f64) / ((vint_core::seed::SEED_MASK as f64) + 1.0) < rate
-}
-
-/// The result and output files of one task, as its stage's engine would answer.
+/// The result and output files of one task, as its stage's engine would answer: the stage's own
+/// timing-only answer (`vint_core::contract::fake`), or for the package stage, which moves no
+/// pixels, its files referenced as the real stage references them.
 async fn answer(
     task: &pb::LeasedTask,
     payloads: &Payloads,
@@ -158,110 +136,46 @@ async fn answer(
     let stage: Stage = task.stage.parse().map_err(|e: vint_core::stage::UnknownStage| permanent(e.to_string()))?;
     let params: Value =
         serde_json::from_str(&task.params_json).map_err(|e| permanent(format!("task params are not JSON: {e}")))?;
-    let contract = |e: serde_json::Error| permanent(format!("{stage} params do not follow the contract: {e}"));
     let store = |message: String| Refusal { retryable: true, message };
     let key = task.key.as_str();
+    let inputs: Vec<FakeInput<'_>> = task.inputs.iter().map(|a| FakeInput { name: &a.name, size: a.size }).collect();
+    if let Some(fake) = contract::fake(stage, &params, &inputs, accept_rate).map_err(|e| permanent(e.to_string()))? {
+        let mut files = Vec::with_capacity(fake.files.len());
+        for f in fake.files {
+            files.push(payloads.file(f.name, f.kind, f.size, key).await.map_err(store)?);
+        }
+        return Ok((fake.result, files));
+    }
+    let p: package::Params = serde_json::from_value(params)
+        .map_err(|e| permanent(format!("{stage} params do not follow the contract: {e}")))?;
+    let inputs: Vec<PackageInput> = task.inputs.iter().map(PackageInput::from).collect();
+    let by_origin = Inputs::new(&inputs);
+    let mut result = PackageResult::default();
     let mut files = Vec::new();
-    let result = match stage {
-        Stage::Grasp => {
-            let p: grasp::Params = serde_json::from_value(params).map_err(contract)?;
-            let mut result = GraspResult::default();
-            let mut ran = 0u64;
-            for trial in &p.trials {
-                if p.accept.is_some_and(|quota| result.accepted.len() as u32 >= quota) {
-                    break;
-                }
-                ran += 1;
-                if accepted(trial.seed, accept_rate) {
-                    result.accepted.push(trial.grasp_index);
-                } else {
-                    *result.rejected.entry("timing_only".into()).or_default() += 1;
-                }
-            }
-            let per_trial = |bytes: f64| (bytes * ran as f64).round() as u64;
-            files.push(
-                payloads
-                    .file(GRASPS_FILE.into(), "json", per_trial(GRASPS_JSON_BYTES_PER_TRIAL), key)
-                    .await
-                    .map_err(store)?,
-            );
-            files.push(
-                payloads
-                    .file(TOUCH_FILE.into(), "json", per_trial(TOUCH_JSON_BYTES_PER_TRIAL), key)
-                    .await
-                    .map_err(store)?,
-            );
-            files.push(payloads.file(MODEL_FILE.into(), "ply", OBJECT_PLY_BYTES as u64, key).await.map_err(store)?);
-            serde_json::to_value(result)
+    let mut grasps = BTreeSet::new();
+    for s in &p.samples {
+        let id: SampleId = s.sample_id.parse().map_err(|e: vint_core::sample::BadSampleId| permanent(e.to_string()))?;
+        for f in referenced_files(&by_origin, &id, &p.modalities).map_err(|e| permanent(e.to_string()))? {
+            files.push(pb::ArtifactRef {
+                name: f.name,
+                sha256: f.sha256,
+                size: f.size,
+                media_type: f.media_type,
+                key: f.key,
+                task_key: key.to_string(),
+            });
         }
-        Stage::Render => {
-            let p: render::Params = serde_json::from_value(params).map_err(contract)?;
-            let pixels = u64::from(p.render.width) * u64::from(p.render.height);
-            for view in &p.views {
-                for file in render::view_files(&p.outputs) {
-                    let kind = match file {
-                        ViewFile::Depth => "npy",
-                        ViewFile::Camera => "json",
-                        _ => "png",
-                    };
-                    let name = file.name(view.view_index);
-                    files.push(payloads.file(name, kind, view_file_bytes(file, pixels), key).await.map_err(store)?);
-                }
-            }
-            serde_json::to_value(RenderResult {
-                views: p.views.len() as u32,
-                device: ENGINE_MODE.into(),
-                occlusion: Vec::new(),
-            })
-        }
-        Stage::Noise => {
-            let p: noise::Params = serde_json::from_value(params).map_err(contract)?;
-            for view in &p.views {
-                // The noisy depth is the size of the depth it is made from.
-                let depth = ViewFile::Depth.name(view.view_index);
-                let size = task
-                    .inputs
-                    .iter()
-                    .find(|a| a.name == depth)
-                    .map(|a| a.size)
-                    .ok_or_else(|| permanent(format!("noise input {depth} is missing")))?;
-                files.push(payloads.file(noisy_depth_file(view.view_index), "npy", size, key).await.map_err(store)?);
-            }
-            serde_json::to_value(NoiseResult { views: p.views.len() as u32 })
-        }
-        Stage::Package => {
-            let p: package::Params = serde_json::from_value(params).map_err(contract)?;
-            let inputs: Vec<PackageInput> = task.inputs.iter().map(PackageInput::from).collect();
-            let by_origin = Inputs::new(&inputs);
-            let mut result = PackageResult::default();
-            let mut grasps = BTreeSet::new();
-            for s in &p.samples {
-                let id: SampleId =
-                    s.sample_id.parse().map_err(|e: vint_core::sample::BadSampleId| permanent(e.to_string()))?;
-                for f in referenced_files(&by_origin, &id, &p.modalities).map_err(|e| permanent(e.to_string()))? {
-                    files.push(pb::ArtifactRef {
-                        name: f.name,
-                        sha256: f.sha256,
-                        size: f.size,
-                        media_type: f.media_type,
-                        key: f.key,
-                        task_key: key.to_string(),
-                    });
-                }
-                let meta = format!("{}/{META_FILE}", s.sample_id);
-                files.push(payloads.file(meta, "json", META_JSON_BYTES as u64, key).await.map_err(store)?);
-                grasps.insert(id.grasp().to_string());
-                result.samples.push(s.sample_id.clone());
-            }
-            for grasp in &grasps {
-                let record = format!("{grasp}/{GRASP_RECORD_FILE}");
-                files.push(payloads.file(record, "json", GRASP_RECORD_BYTES as u64, key).await.map_err(store)?);
-            }
-            result.grasps = grasps.into_iter().collect();
-            serde_json::to_value(result)
-        }
-    };
-    let result = result.map_err(|e| permanent(format!("{stage} result: {e}")))?;
+        let meta = format!("{}/{META_FILE}", s.sample_id);
+        files.push(payloads.file(meta, FileKind::Json, META_JSON_BYTES as u64, key).await.map_err(store)?);
+        grasps.insert(id.grasp().to_string());
+        result.samples.push(s.sample_id.clone());
+    }
+    for grasp in &grasps {
+        let record = format!("{grasp}/{GRASP_RECORD_FILE}");
+        files.push(payloads.file(record, FileKind::Json, GRASP_RECORD_BYTES as u64, key).await.map_err(store)?);
+    }
+    result.grasps = grasps.into_iter().collect();
+    let result = serde_json::to_value(result).map_err(|e| permanent(format!("{stage} result: {e}")))?;
     Ok((result, files))
 }
 
@@ -570,18 +484,5 @@ async fn heartbeat_loop(shared: Arc<Shared>) {
             Ok(_) => {}
             Err(s) => tracing::warn!(error = %s.message(), "heartbeat failed"),
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn acceptance_follows_the_rate_over_many_seeds() {
-        let seeds = (0..10_000u32).map(|i| vint_core::seed::grasp_trial(7, "mug", "trx3", i));
-        let share = seeds.filter(|&s| accepted(s, 0.84)).count() as f64 / 10_000.0;
-        assert!((share - 0.84).abs() < 0.02, "{share}");
-        assert!(!accepted(0, 0.0) && accepted(vint_core::seed::SEED_MASK, 1.0));
     }
 }

@@ -331,3 +331,87 @@ pub struct ActiveTaxels {
     pub grasp_index: u32,
     pub by_region: BTreeMap<String, u32>,
 }
+
+/// The grasp stage's JSON and model files, from the artifacts of a real `vintctl run
+/// examples/tiny.toml` job (2026-11-25, commit `687edb3`; `scripts/measure_db_bytes.py` prints
+/// them): `grasps.json` and `touch.json` per trial the chunk ran (medians over its 6 chunks of 2
+/// trials; rejected trials write less), `object.ply` per object (content-addressed: one object
+/// for every chunk and hand; median of tiny's 3 objects, 5–18 KB).
+pub const GRASPS_JSON_BYTES_PER_TRIAL: f64 = 8_505.0;
+pub const TOUCH_JSON_BYTES_PER_TRIAL: f64 = 7_279.0;
+pub const OBJECT_PLY_BYTES: f64 = 11_306.0;
+
+/// A grasp task writes its three documents whatever it accepted.
+pub fn files_written() -> u64 {
+    [GRASPS_FILE, TOUCH_FILE, MODEL_FILE].len() as u64
+}
+
+/// CPU seconds per trial at the default 2 ms timestep with 2.25 s simulated (a 1 s hold).
+/// docs/benchmarks.md, "Grasp engine": "a trial costs ~60–80 ms of CPU (2.25 s of simulated time
+/// at 2 ms)".
+const S_PER_TRIAL: f64 = 0.070;
+const REFERENCE_SIM_S: f64 = 2.25;
+const REFERENCE_HOLD_S: f64 = 1.0;
+const REFERENCE_TIMESTEP_S: f64 = 0.002;
+
+/// CPU seconds one trial costs at `physics`: the measured trial scaled by simulated time and
+/// timestep.
+pub fn s_per_trial(physics: &Physics) -> f64 {
+    let shake_s = if physics.shake.enabled { physics.shake.duration_s } else { 0.0 };
+    let simulated = REFERENCE_SIM_S - REFERENCE_HOLD_S + physics.hold_s + shake_s;
+    S_PER_TRIAL * (simulated / REFERENCE_SIM_S) * (REFERENCE_TIMESTEP_S / physics.timestep)
+}
+
+/// Every trial of the bound run; two documents per trial and a model per object stored.
+pub fn cost(work: &super::Workload, task: &Params) -> super::Cost {
+    super::Cost {
+        cpu_s: s_per_trial(&task.physics) * work.trials as f64,
+        bytes: work.trials as f64 * (GRASPS_JSON_BYTES_PER_TRIAL + TOUCH_JSON_BYTES_PER_TRIAL)
+            + work.objects as f64 * OBJECT_PLY_BYTES,
+    }
+}
+
+/// A trial's acceptance in the timing-only worker: its seed is uniform over [0, 2^53), so this
+/// accepts `rate` of them.
+fn accepted_by_seed(seed: u64, rate: f64) -> bool {
+    (seed as f64) / ((SEED_MAX as f64) + 1.0) < rate
+}
+
+/// The timing-only answer: trials accepted by their seeds (within the quota), the documents
+/// sized by the trials run.
+pub fn fake(task: &Params, accept_rate: f64) -> (GraspResult, Vec<super::FakeFile>) {
+    use super::{FakeFile, FileKind};
+    let mut result = GraspResult::default();
+    let mut ran = 0u64;
+    for trial in &task.trials {
+        if task.accept.is_some_and(|quota| result.accepted.len() as u32 >= quota) {
+            break;
+        }
+        ran += 1;
+        if accepted_by_seed(trial.seed, accept_rate) {
+            result.accepted.push(trial.grasp_index);
+        } else {
+            *result.rejected.entry("timing_only".into()).or_default() += 1;
+        }
+    }
+    let per_trial = |bytes: f64| (bytes * ran as f64).round() as u64;
+    let files = vec![
+        FakeFile { name: GRASPS_FILE.into(), kind: FileKind::Json, size: per_trial(GRASPS_JSON_BYTES_PER_TRIAL) },
+        FakeFile { name: TOUCH_FILE.into(), kind: FileKind::Json, size: per_trial(TOUCH_JSON_BYTES_PER_TRIAL) },
+        FakeFile { name: MODEL_FILE.into(), kind: FileKind::Ply, size: OBJECT_PLY_BYTES as u64 },
+    ];
+    (result, files)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn timing_only_acceptance_follows_the_rate_over_many_seeds() {
+        let seeds = (0..10_000u32).map(|i| crate::seed::grasp_trial(7, "mug", "trx3", i));
+        let share = seeds.filter(|&s| accepted_by_seed(s, 0.84)).count() as f64 / 10_000.0;
+        assert!((share - 0.84).abs() < 0.02, "{share}");
+        assert!(!accepted_by_seed(0, 0.0) && accepted_by_seed(SEED_MAX, 1.0));
+    }
+}

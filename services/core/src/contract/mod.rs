@@ -1,8 +1,10 @@
-//! One typed contract per stage: what a task of the stage is given (its parameters, with every
-//! bound and default as a constant), what its engine answers (the stage's result, in the reply
-//! frame), the files it writes and which of its dependencies' files it reads.
+//! One module per stage: what a task of the stage is given (its parameters, with every bound and
+//! default as a constant), what its engine answers (the stage's result, in the reply frame), the
+//! files it writes and their measured sizes, which of its dependencies' files it reads, what the
+//! stage costs (`cost`) and what the timing-only worker answers in its place (`fake`).
 //!
-//! This module is the one definition of those things. The spec schema (`spec`) takes its bounds
+//! This module is the one definition of those things, and the functions below are the one
+//! dispatch over `Stage` to them. The spec schema (`spec`) takes its bounds
 //! from the constants here, the planner (`plan`) builds task parameters as these types, the worker
 //! asks `reads` which inputs to stage, the coordinator reads results as these types, and the
 //! Python engines validate parameters against the JSON Schema generated from them
@@ -10,8 +12,10 @@
 //! when the committed file is stale). So a spec that validates yields parameters every engine
 //! accepts by construction.
 //!
-//! Adding a stage kind means: a variant of `Stage`, a module here (params, result, files, reads),
-//! its arms in the three matches below, and an engine package with its PROTOCOL.md section.
+//! Adding a stage kind means: a variant of `Stage`, a module here (params, result, files, reads,
+//! cost, fake), its arms in the matches below, where its tasks sit in the DAG (`plan`), and an
+//! engine package with its PROTOCOL.md section; ARCHITECTURE.md lists every file, and a test holds
+//! the list.
 
 pub mod grasp;
 pub mod noise;
@@ -78,6 +82,160 @@ pub fn check_result(stage: Stage, value: &Value) -> Result<(), BadResult> {
         Stage::Render => result::<render::RenderResult>(stage, value).map(drop),
         Stage::Noise => result::<noise::NoiseResult>(stage, value).map(drop),
         Stage::Package => result::<package::PackageResult>(stage, value).map(drop),
+    }
+}
+
+/// Why a task's parameters cannot be read as its stage's contract.
+#[derive(Debug, thiserror::Error)]
+#[error("{stage} params do not follow the contract: {source}")]
+pub struct BadParams {
+    pub stage: Stage,
+    pub source: serde_json::Error,
+}
+
+fn params<T: DeserializeOwned>(stage: Stage, value: &Value) -> Result<T, BadParams> {
+    T::deserialize(value).map_err(|source| BadParams { stage, source })
+}
+
+/// What a job asks of its stages, counted: the ground every stage's `cost` stands on
+/// (`crate::cost` counts it from a spec).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Workload {
+    /// (object, hand) pairs.
+    pub pairs: u64,
+    pub objects: u64,
+    /// Grasp tasks: exact, fixed at submit.
+    pub chunks: u64,
+    /// Trials the grasp tasks may run: the spec's bound.
+    pub trials: u64,
+    /// Accepted grasps: the quota's target, or every trial (an upper bound) without one.
+    pub grasps: u64,
+    pub views_per_grasp: u64,
+    /// `grasps × views_per_grasp`.
+    pub samples: u64,
+    /// Pixels per view.
+    pub pixels: f64,
+}
+
+/// What one stage of a job costs: CPU seconds on one core of the measured machine (2 vCPUs, AMD
+/// EPYC, one render thread per engine; each stage's figures name their source) and the bytes it
+/// adds to the object store.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Cost {
+    pub cpu_s: f64,
+    pub bytes: f64,
+}
+
+/// What the stage costs for `work`, given one of its tasks' parameters (the stage's settings:
+/// every task of a job shares them).
+pub fn cost(stage: Stage, work: &Workload, task: &Value) -> Result<Cost, BadParams> {
+    Ok(match stage {
+        Stage::Grasp => grasp::cost(work, &params(stage, task)?),
+        Stage::Render => render::cost(work, &params(stage, task)?),
+        Stage::Noise => noise::cost(work),
+        Stage::Package => package::cost(work),
+    })
+}
+
+/// How many files a task writes, from its parameters: what the database's footprint counts.
+pub fn files_written(stage: Stage, task: &Value) -> Result<u64, BadParams> {
+    Ok(match stage {
+        Stage::Grasp => grasp::files_written(),
+        Stage::Render => render::files_written(&params(stage, task)?),
+        Stage::Noise => noise::files_written(&params(stage, task)?),
+        Stage::Package => package::files_written(&params(stage, task)?),
+    })
+}
+
+/// The kind of a file a stage writes, as the object store records it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum FileKind {
+    Png,
+    Npy,
+    Json,
+    Ply,
+}
+
+impl FileKind {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            FileKind::Png => "png",
+            FileKind::Npy => "npy",
+            FileKind::Json => "json",
+            FileKind::Ply => "ply",
+        }
+    }
+
+    pub fn media_type(self) -> &'static str {
+        match self {
+            FileKind::Png => "image/png",
+            FileKind::Npy => "application/x-npy",
+            FileKind::Json => "application/json",
+            FileKind::Ply => "application/x-ply",
+        }
+    }
+}
+
+/// A file the timing-only worker writes in place of an engine's: the real name, the measured size.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct FakeFile {
+    pub name: String,
+    pub kind: FileKind,
+    pub size: u64,
+}
+
+/// What the timing-only worker answers for a task: a result of the stage's contract and files of
+/// the real names and sizes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Fake {
+    pub result: Value,
+    pub files: Vec<FakeFile>,
+}
+
+/// Why the timing-only worker cannot answer a task.
+#[derive(Debug, thiserror::Error)]
+pub enum FakeError {
+    #[error(transparent)]
+    Params(#[from] BadParams),
+    #[error("{stage} input {name} is missing")]
+    MissingInput { stage: Stage, name: String },
+    #[error("{stage} result: {source}")]
+    Result { stage: Stage, source: serde_json::Error },
+}
+
+/// What the timing-only worker calls itself wherever an engine would name itself or its device.
+pub const TIMING_ONLY: &str = "timing-only";
+
+/// A task's staged input as the timing-only worker sees it: its name and size.
+#[derive(Clone, Copy, Debug)]
+pub struct FakeInput<'a> {
+    pub name: &'a str,
+    pub size: u64,
+}
+
+/// What the timing-only worker answers for a task of an engine stage, as its engine would:
+/// grasp trials are accepted when their seed falls below `accept_rate` (so a run is
+/// deterministic), images and documents have the sizes measured on real runs. `None` for the
+/// package stage, which the worker runs for real (it moves no pixels).
+pub fn fake(stage: Stage, task: &Value, inputs: &[FakeInput<'_>], accept_rate: f64) -> Result<Option<Fake>, FakeError> {
+    let answer = |result: Result<Value, serde_json::Error>, files| match result {
+        Ok(result) => Ok(Some(Fake { result, files })),
+        Err(source) => Err(FakeError::Result { stage, source }),
+    };
+    match stage {
+        Stage::Grasp => {
+            let (result, files) = grasp::fake(&params(stage, task)?, accept_rate);
+            answer(serde_json::to_value(result), files)
+        }
+        Stage::Render => {
+            let (result, files) = render::fake(&params(stage, task)?);
+            answer(serde_json::to_value(result), files)
+        }
+        Stage::Noise => {
+            let (result, files) = noise::fake(&params(stage, task)?, inputs)?;
+            answer(serde_json::to_value(result), files)
+        }
+        Stage::Package => Ok(None),
     }
 }
 

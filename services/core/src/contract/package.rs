@@ -110,6 +110,22 @@ pub enum Source {
     Noise,
 }
 
+impl Source {
+    /// The task key and file name this file is, for sample `id`: its grasp's render or noise
+    /// task's file of the sample's view.
+    pub fn origin(self, id: &crate::sample::SampleId) -> (String, String) {
+        match self {
+            Source::Render(file) => {
+                (super::render::task_key(&id.object, &id.hand, id.grasp_index), file.name(id.view_index))
+            }
+            Source::Noise => (
+                super::noise::task_key(&id.object, &id.hand, id.grasp_index),
+                super::noise::noisy_depth_file(id.view_index),
+            ),
+        }
+    }
+}
+
 /// A package task's parameters: the samples of one grasp chunk and what they hold.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
@@ -133,4 +149,30 @@ pub struct SampleRef {
 pub struct PackageResult {
     pub samples: Vec<String>,
     pub grasps: Vec<String>,
+}
+
+/// A sample's `meta.json` and a grasp's record: medians of tiny.toml's (docs/benchmarks.md,
+/// "Output size per sample"): the view alone (4.1–4.7 KB); the record once per grasp (26–50 KB).
+pub const META_JSON_BYTES: f64 = 4_417.0;
+pub const GRASP_RECORD_BYTES: f64 = 37_053.0;
+
+/// A package task writes, per sample, its `meta.json` and the files of its modalities, and one
+/// record per grasp of its samples.
+pub fn files_written(task: &Params) -> u64 {
+    let per_sample = 1 + task.modalities.iter().map(|m| m.sample_files().len()).sum::<usize>();
+    let grasps: std::collections::BTreeSet<u32> = task.samples.iter().map(|s| s.grasp_index).collect();
+    (task.samples.len() * per_sample + grasps.len()) as u64
+}
+
+/// Per sample. docs/benchmarks.md, "tiny.toml": 244 ms for 72 samples.
+const S_PER_SAMPLE: f64 = 0.0034;
+
+/// Every sample packaged. Content addressing stores a packaged image once: it is the render's or
+/// noise's object under the same hash, so the package stage adds only its JSON.
+pub fn cost(work: &super::Workload) -> super::Cost {
+    let samples = work.samples as f64;
+    super::Cost {
+        cpu_s: S_PER_SAMPLE * samples,
+        bytes: samples * META_JSON_BYTES + work.grasps as f64 * GRASP_RECORD_BYTES,
+    }
 }

@@ -517,6 +517,11 @@ impl ViewFile {
     }
 }
 
+/// The key of the render task of grasp `grasp_index` of (object, hand).
+pub fn task_key(object: &str, hand: &str, grasp_index: u32) -> String {
+    format!("render/{object}/{hand}/g{grasp_index:06}")
+}
+
 /// A render task reads its grasp chunk's poses and hand geometry and the object's model mesh;
 /// never the touch readings (the bulk of a chunk's output), which only the package stage reads.
 pub fn reads(file: &str) -> bool {
@@ -538,9 +543,133 @@ pub struct RenderResult {
     pub occlusion: Vec<f64>,
 }
 
+/// Bytes per pixel of each image file. docs/benchmarks.md, "Output size per sample": medians of
+/// tiny.toml's 72 samples (128×128, 16 spp). An RGB PNG shrinks as samples per pixel rise (less
+/// noise to compress); depth is float32 `.npy`.
+pub const RGB_BYTES_PER_PIXEL: f64 = 1.8; // rgb.png, median 29 916 B
+pub const DEPTH_BYTES_PER_PIXEL: f64 = 4.0; // depth.npy and depth_noisy.npy, 65 664 B each
+pub const MASKS_BYTES_PER_PIXEL: f64 = 0.05; // mask.png + mask_full.png, 383 + 398 B
+pub const SEGMENTATION_BYTES_PER_PIXEL: f64 = 0.045; // segmentation.png, 707 B
+/// A `.npy` file's header before its float32 data.
+pub const NPY_HEADER_BYTES: u64 = 128;
+/// A view's `camera.json`: the median of 60 from a real `vintctl run examples/tiny.toml` job
+/// (2026-11-25, commit `687edb3`; `scripts/measure_db_bytes.py` prints them).
+pub const CAMERA_JSON_BYTES: f64 = 1_612.0;
+
+impl RenderOutput {
+    /// Bytes per pixel of the files this output adds to a view.
+    pub fn bytes_per_pixel(self) -> f64 {
+        match self {
+            RenderOutput::Rgb => RGB_BYTES_PER_PIXEL,
+            RenderOutput::Depth => DEPTH_BYTES_PER_PIXEL,
+            RenderOutput::Mask => MASKS_BYTES_PER_PIXEL,
+            RenderOutput::Segmentation => SEGMENTATION_BYTES_PER_PIXEL,
+        }
+    }
+}
+
+impl ViewFile {
+    /// The file's size at `pixels` pixels per image, as measured.
+    pub fn bytes(self, pixels: u64) -> u64 {
+        let px = pixels as f64;
+        let bytes = match self {
+            ViewFile::Rgb => RGB_BYTES_PER_PIXEL * px,
+            ViewFile::Depth => return 4 * pixels + NPY_HEADER_BYTES,
+            ViewFile::Mask | ViewFile::MaskFull => MASKS_BYTES_PER_PIXEL / 2.0 * px,
+            ViewFile::Segmentation => SEGMENTATION_BYTES_PER_PIXEL * px,
+            ViewFile::Camera => CAMERA_JSON_BYTES,
+        };
+        bytes.round().max(1.0) as u64
+    }
+
+    pub fn kind(self) -> super::FileKind {
+        match self {
+            ViewFile::Depth => super::FileKind::Npy,
+            ViewFile::Camera => super::FileKind::Json,
+            _ => super::FileKind::Png,
+        }
+    }
+}
+
+/// A render task writes its outputs' files and a camera record for every view.
+pub fn files_written(task: &Params) -> u64 {
+    (task.views.len() * view_files(&task.outputs).len()) as u64
+}
+
+/// Path tracing per pixel and sample, with the default scene (the table fills most of the image
+/// with a diffuse surface that shades and bounces where the bare HDRI background only looked up
+/// a colour: ~2.5–3× the bare scene's cost at 640×480, `benches/scene_cost.py`). Calibrated on
+/// tiny.toml (128×128, 16 raw spp, the default scene): ~0.59 CPU-s per view in all, of which the
+/// fixed and geometry parts ~0.11 s, leaving ~0.47 s for 262 144 pixel-samples.
+const S_PER_PIXEL_SAMPLE: f64 = 1.8e-6;
+/// The geometry passes (depth, masks, segmentation) per pixel: the same table's 217 ms for
+/// 307 200 px without path tracing.
+const S_PER_PIXEL: f64 = 0.7e-6;
+/// Per view whatever the size (camera and scene updates, the object-alone pass).
+/// docs/benchmarks.md, "tiny.toml": 72 views at 128×128 / 16 spp in ~270 ms each, of which the two
+/// rates above accounted for ~160 ms.
+const S_PER_VIEW: f64 = 0.1;
+/// OpenImageDenoise (the engine's own call, with Cycles' albedo and normal passes) per view and
+/// per pixel: 1.6 s for a 640×480 image on one thread and 0.09 s for 128×128 (timed beside a
+/// render study), and tiny.toml's 60 views cost 53.6 CPU-s with it against 43.9 without (~0.16 s
+/// a view with the passes and their files).
+const DENOISE_S_PER_VIEW: f64 = 0.075;
+const DENOISE_S_PER_PIXEL: f64 = 5.2e-6;
+
+/// CPU seconds one view of `task` costs: the geometry passes always, path tracing (and the
+/// denoiser) only when RGB is asked for.
+pub fn s_per_view(task: &Params) -> f64 {
+    let pixels = f64::from(task.render.width) * f64::from(task.render.height);
+    let mut per_view = S_PER_VIEW + S_PER_PIXEL * pixels;
+    if task.outputs.contains(&RenderOutput::Rgb) {
+        per_view += S_PER_PIXEL_SAMPLE * pixels * f64::from(task.render.samples);
+        if task.render.denoise {
+            per_view += DENOISE_S_PER_VIEW + DENOISE_S_PER_PIXEL * pixels;
+        }
+    }
+    per_view
+}
+
+/// Every view of every grasp rendered; the outputs it is asked for (the segmentation the noise
+/// model reads included) and a camera record per view stored.
+pub fn cost(work: &super::Workload, task: &Params) -> super::Cost {
+    let views = work.samples as f64;
+    let bytes_per_pixel: f64 = task.outputs.iter().map(|o| o.bytes_per_pixel()).sum();
+    super::Cost { cpu_s: s_per_view(task) * views, bytes: views * (bytes_per_pixel * work.pixels + CAMERA_JSON_BYTES) }
+}
+
+/// The timing-only answer: every view's files at their measured sizes.
+pub fn fake(task: &Params) -> (RenderResult, Vec<super::FakeFile>) {
+    let pixels = u64::from(task.render.width) * u64::from(task.render.height);
+    let files = task
+        .views
+        .iter()
+        .flat_map(|view| {
+            view_files(&task.outputs).into_iter().map(move |file| super::FakeFile {
+                name: file.name(view.view_index),
+                kind: file.kind(),
+                size: file.bytes(pixels),
+            })
+        })
+        .collect();
+    let result =
+        RenderResult { views: task.views.len() as u32, device: super::TIMING_ONLY.into(), occlusion: Vec::new() };
+    (result, files)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn view_files_reproduce_the_measured_tiny_sizes() {
+        let px = 128 * 128;
+        assert_eq!(ViewFile::Depth.bytes(px), 65_664, "a 128×128 float32 .npy");
+        let rgb = ViewFile::Rgb.bytes(px) as f64;
+        assert!((rgb - 29_916.0).abs() / 29_916.0 < 0.02, "{rgb}");
+        assert_eq!(ViewFile::Camera.bytes(px), ViewFile::Camera.bytes(4 * px));
+        assert!(ViewFile::Mask.bytes(16) >= 1, "no empty file, however small the image");
+    }
 
     #[test]
     fn a_view_writes_its_camera_record_and_the_files_of_each_output() {

@@ -302,3 +302,13 @@ def mount_record(mount: tuple[Vec3, Vec3] | None) -> dict[str, Any] | None:
         return None
     point, axis = mount
     return {"link": "palm", "p": list(point), "axis": list(axis)}
+
+
+def make_engine() -> GraspEngine:
+    """The stage's engine (`vint_engines.stages`' convention)."""
+    return GraspEngine()
+
+
+def parse_params(params: Mapping[str, Any]) -> GraspTask:
+    """A task's parameters as the engine parses them before it runs anything."""
+    return GraspTask.parse(params)

@@ -137,3 +137,8 @@ def segment_materials(camera: Json, prefix: str) -> dict[int, str]:
         return {int(segment): tag for segment, tag in materials.items()}
     except ValueError as exc:
         raise BadInput(f"{prefix}_camera.json: a `materials` key is not a segment id: {exc}") from exc
+
+
+def make_engine() -> NoiseEngine:
+    """The stage's engine (`vint_engines.stages`' convention)."""
+    return NoiseEngine()

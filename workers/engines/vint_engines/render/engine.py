@@ -681,3 +681,13 @@ def find_trial(grasps: Mapping[str, Any], grasp_index: int) -> Mapping[str, Any]
                 raise BadInput(f"grasp {grasp_index} was rejected ({trial.get('reason')}); nothing to render")
             return trial
     raise BadInput(f"{GRASPS_INPUT} has no trial with grasp_index {grasp_index}")
+
+
+def make_engine() -> RenderEngine:
+    """The stage's engine (`vint_engines.stages`' convention)."""
+    return RenderEngine()
+
+
+def parse_params(params: Mapping[str, Any]) -> RenderTask:
+    """A task's parameters as the engine parses them before it runs anything."""
+    return RenderTask.parse(params)
