@@ -296,6 +296,63 @@ async fn a_worker_sigtermed_mid_task_gives_its_lease_back_at_once_and_exits_0() 
     assert_same_as_embedded(&c.export(&job));
 }
 
+/// A worker leasing batches (`--batch`): a task waiting its turn behind slower ones keeps its lease
+/// through the one heartbeat (a lease shorter than a render would expire otherwise), SIGTERM gives
+/// back every lease of the batch at once, started or not, and the dataset is the embedded run's.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_batching_worker_keeps_its_waiting_tasks_leases_and_gives_them_all_back_on_sigterm() {
+    let c = Cluster::new("batch").await;
+    let _coordinator = c.coordinator_proc("coordinator");
+    let job = c.submit();
+    let store = c.store().await;
+    let scratch = c.dir.path().join("scratch");
+    let mut env = c.env.clone();
+    env.push(("VINT_WORKER_BATCH".into(), "4".into()));
+
+    // A lease far longer than the test: only a hand-back can requeue the tasks in time.
+    let mut first = start_worker_with_lease(&c.coordinator, &c.store_url, "first", &c.logs(), &scratch, &env, 600_000);
+    let deadline = std::time::Instant::now() + Duration::from_secs(120);
+    let held = loop {
+        let running = store.running_tasks().await.unwrap();
+        let held: Vec<_> = running.into_iter().filter(|t| t.lease_owner.as_deref() == Some("first")).collect();
+        if held.len() >= 2 {
+            break held;
+        }
+        assert!(std::time::Instant::now() < deadline, "the worker never held two leases at once");
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    };
+    let status = first.sigterm_and_wait_for(Duration::from_secs(10)).expect("no exit within 10 s of SIGTERM");
+    assert!(status.success(), "the worker exited {status}");
+    for t in &held {
+        let attempts = store.attempts(&t.id).await.unwrap();
+        let last = attempts.last().unwrap();
+        // Given back (`released`), or reported just before the signal (a finished task).
+        assert!(
+            matches!(last.outcome, Some(AttemptOutcome::Released | AttemptOutcome::Succeeded)),
+            "{}: {attempts:?}",
+            t.key
+        );
+    }
+    assert!(
+        store.running_tasks().await.unwrap().iter().all(|t| t.lease_owner.as_deref() != Some("first")),
+        "a lease of the stopped worker is still held"
+    );
+
+    // Leases of 3 s against renders of about as long each: a batch's later tasks wait longer than
+    // a lease, so only the heartbeat keeps them.
+    let _second = start_worker(&c.coordinator, &c.store_url, "second", &c.logs(), &scratch, &env);
+    c.watch(&job);
+    for t in store.tasks_of_job(&job).await.unwrap() {
+        let attempts = store.attempts(&t.id).await.unwrap();
+        assert!(
+            attempts.iter().all(|a| a.outcome != Some(AttemptOutcome::LeaseExpired)),
+            "{}: a lease expired: {attempts:?}",
+            t.key
+        );
+    }
+    assert_same_as_embedded(&c.export(&job));
+}
+
 #[tokio::test(flavor = "multi_thread")]
 async fn a_coordinator_restart_mid_job_loses_nothing() {
     let c = Cluster::new("restart").await;

@@ -1,5 +1,8 @@
-//! The worker loop: lease a task, stage its inputs, run it (engine or in-process package stage),
-//! upload its outputs, and complete or fail it, heartbeating all the while.
+//! The worker loop: lease a batch of tasks, and for each one stage its inputs, run it (engine or
+//! in-process package stage), upload its outputs, and complete or fail it; one heartbeat renews
+//! every lease the worker holds, those waiting their turn in the batch included. With a batch of
+//! more than one task the next lease is already in flight while the batch's last task runs
+//! (prefetch), so a worker of short tasks (noise, package) does not wait for a lease between them.
 //!
 //! A worker keeps one engine per stage it has served, alive between tasks. It survives a
 //! coordinator restart (RPCs are retried with backoff) and never completes a task whose lease it
@@ -7,11 +10,10 @@
 //! to stop (SIGTERM), it does not wait for a task that may run for half an hour: it kills the
 //! engine and gives the lease back (`ReleaseTasks`), so the task is queued again at once.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::future::Future;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
@@ -39,6 +41,9 @@ pub struct WorkerConfig {
     pub engine: EngineCommand,
     /// Longest pause between lease polls when there is no work.
     pub max_idle_poll: Duration,
+    /// Tasks per lease (at least 1). Above 1, the next lease goes out when a batch's last task
+    /// starts.
+    pub batch: u32,
     /// Where the worker records what it does (`--metrics-listen` serves it).
     pub metrics: WorkerMetrics,
     /// Whether the worker declares its engines' identities when it leases, so that tasks whose
@@ -94,13 +99,14 @@ pub struct Worker {
     engines: HashMap<Stage, Engine>,
     /// The identity of the engine of each stage it declares (empty without reuse).
     identities: HashMap<Stage, String>,
+    held: Arc<HeldLeases>,
 }
 
 impl Worker {
     pub fn new(config: WorkerConfig, store: ArtifactStore) -> Result<Worker, WorkerError> {
         let endpoint = config.coordinator.endpoint()?.connect_timeout(Duration::from_secs(5));
         let client = WorkServiceClient::new(config.coordinator.lazy_channel(endpoint)?);
-        Ok(Worker { config, client, store, engines: HashMap::new(), identities: HashMap::new() })
+        Ok(Worker { config, client, store, engines: HashMap::new(), identities: HashMap::new(), held: Arc::default() })
     }
 
     /// The identities to declare: the package stage's constant and the Python engines' (read
@@ -128,26 +134,40 @@ impl Worker {
     }
 
     /// Serves tasks until `shutdown` resolves. A task still running then is stopped (its engine
-    /// killed) and its lease given back; one already being reported is reported first.
+    /// killed) and its lease given back, with those of the batch it has not started and of a
+    /// prefetched lease; one already being reported is reported first.
     pub async fn run(mut self, shutdown: impl Future<Output = ()>) {
         tokio::pin!(shutdown);
         let stages: Vec<String> = self.config.stages.iter().map(|s| s.as_str().to_string()).collect();
         self.identities = self.read_identities().await;
         let engines: HashMap<String, String> =
             self.identities.iter().map(|(s, id)| (s.as_str().to_string(), id.clone())).collect();
-        tracing::info!(worker = %self.config.worker_id, engines = ?engines, "engine identities");
+        tracing::info!(worker = %self.config.worker_id, engines = ?engines, batch = self.config.batch, "engine identities");
+        let request = pb::LeaseTasksRequest {
+            worker_id: self.config.worker_id.clone(),
+            stages,
+            capacity: self.config.batch.max(1),
+            lease_ms: self.config.lease_ms,
+            engines,
+        };
+        let heartbeat = tokio::spawn(heartbeat_loop(
+            self.client.clone(),
+            self.config.worker_id.clone(),
+            self.held.clone(),
+            self.config.lease_ms,
+            self.config.metrics.clone(),
+        ));
         let mut idle = Duration::from_millis(50);
+        let mut prefetched: Option<tokio::task::JoinHandle<Result<Vec<pb::LeasedTask>, Status>>> = None;
         loop {
             self.config.metrics.beat();
-            let request = pb::LeaseTasksRequest {
-                worker_id: self.config.worker_id.clone(),
-                stages: stages.clone(),
-                capacity: 1,
-                lease_ms: self.config.lease_ms,
-                engines: engines.clone(),
-            };
-            let mut client = self.client.clone();
-            let lease = client.lease_tasks(request);
+            // The prefetched lease, or a new one: in a task of its own either way, so that what
+            // it grants is held (heartbeated) as soon as it arrives.
+            let lease = prefetched
+                .take()
+                .unwrap_or_else(|| tokio::spawn(lease_batch(self.client.clone(), request.clone(), self.held.clone())));
+            let lease =
+                async move { lease.await.unwrap_or_else(|e| Err(Status::internal(format!("lease task: {e}")))) };
             tokio::pin!(lease);
             let (leased, stopping) = tokio::select! {
                 r = &mut lease => (r, false),
@@ -158,25 +178,35 @@ impl Worker {
                 }
             };
             if stopping {
-                if let Ok(resp) = leased {
-                    for task in resp.into_inner().tasks {
-                        self.release(&task).await;
-                    }
+                if let Ok(tasks) = leased {
+                    self.release(&tasks).await;
                 }
                 break;
             }
             match leased {
-                Ok(resp) if !resp.get_ref().tasks.is_empty() => {
+                Ok(tasks) if !tasks.is_empty() => {
                     idle = Duration::from_millis(50);
+                    let last = tasks.len() - 1;
+                    let mut tasks = tasks.into_iter().enumerate();
                     let mut stopped = false;
-                    for task in resp.into_inner().tasks {
-                        if stopped {
-                            self.release(&task).await;
-                        } else {
-                            stopped = self.serve(task, shutdown.as_mut()).await == Served::Stopped;
+                    for (i, task) in tasks.by_ref() {
+                        if i == last && self.config.batch > 1 {
+                            let next = lease_batch(self.client.clone(), request.clone(), self.held.clone());
+                            prefetched = Some(tokio::spawn(next));
+                        }
+                        if self.serve(task, shutdown.as_mut()).await == Served::Stopped {
+                            stopped = true;
+                            break;
                         }
                     }
                     if stopped {
+                        let rest: Vec<pb::LeasedTask> = tasks.map(|(_, t)| t).collect();
+                        self.release(&rest).await;
+                        if let Some(handle) = prefetched.take()
+                            && let Ok(Ok(Ok(tasks))) = tokio::time::timeout(RELEASE_TIMEOUT, handle).await
+                        {
+                            self.release(&tasks).await;
+                        }
                         break;
                     }
                     continue;
@@ -190,6 +220,7 @@ impl Worker {
             }
             idle = (idle * 2).min(self.config.max_idle_poll);
         }
+        heartbeat.abort();
         for (_, engine) in self.engines.drain() {
             engine.shutdown().await;
         }
@@ -197,19 +228,18 @@ impl Worker {
     }
 
     /// Runs one task and reports it, unless `shutdown` resolves while it runs: then its engines
-    /// are killed and the lease is given back.
+    /// are killed and the lease is given back. A task whose lease was lost while it waited its
+    /// turn in the batch is not run.
     async fn serve(&mut self, task: pb::LeasedTask, shutdown: std::pin::Pin<&mut impl Future<Output = ()>>) -> Served {
         let span = tracing::info_span!("task", job = %task.job_id, task = %task.key, stage = %task.stage, attempt = task.attempt);
         async {
-            let lost = Arc::new(AtomicBool::new(false));
-            let heartbeat = tokio::spawn(heartbeat_loop(
-                self.client.clone(),
-                self.config.worker_id.clone(),
-                pb::TaskAttempt { task_id: task.task_id.clone(), attempt: task.attempt },
-                self.config.lease_ms,
-                lost.clone(),
-                self.config.metrics.clone(),
-            ));
+            let attempt = (task.task_id.clone(), task.attempt);
+            if self.held.lost(&attempt) {
+                tracing::warn!("lease lost before the task's turn; not run");
+                self.held.forget(&attempt);
+                self.record(&task, TaskOutcome::LeaseLost);
+                return Served::Done;
+            }
             let dir = self.config.scratch.join(format!("{}-a{}", sanitize(&task.task_id), task.attempt));
             let outcome = tokio::select! {
                 outcome = self.execute(&task, &dir) => Some(outcome),
@@ -219,18 +249,20 @@ impl Worker {
                 // The engine may be mid-task: its protocol state is unknown, and a new process
                 // takes it up wherever the task is leased next.
                 self.engines.clear();
-                heartbeat.abort();
                 let _ = tokio::fs::remove_dir_all(&dir).await;
-                self.release(&task).await;
+                self.release(std::slice::from_ref(&task)).await;
                 return Served::Stopped;
             };
-            heartbeat.abort();
             let _ = tokio::fs::remove_dir_all(&dir).await;
-            if lost.load(Ordering::SeqCst) {
+            if self.held.lost(&attempt) {
                 tracing::warn!("lease lost while running; result discarded");
+                self.held.forget(&attempt);
                 self.record(&task, TaskOutcome::LeaseLost);
                 return Served::Done;
             }
+            // Reported from here on, not renewed: a heartbeat racing the report would find the
+            // row locked by it and read the lease as lost.
+            self.held.forget(&attempt);
             match outcome {
                 Ok(done) => self.complete(&task, done).await,
                 Err(failure) => self.fail(&task, failure).await,
@@ -421,10 +453,14 @@ impl Worker {
         self.record(task, outcome);
     }
 
-    /// Gives `task`'s lease back.
-    async fn release(&self, task: &pb::LeasedTask) {
-        let held = [pb::TaskAttempt { task_id: task.task_id.clone(), attempt: task.attempt }];
+    /// Gives the leases of `tasks` back.
+    async fn release(&self, tasks: &[pb::LeasedTask]) {
+        let held: Vec<pb::TaskAttempt> =
+            tasks.iter().map(|t| pb::TaskAttempt { task_id: t.task_id.clone(), attempt: t.attempt }).collect();
         release(&self.client, &self.config.worker_id, &held).await;
+        for t in tasks {
+            self.held.forget(&(t.task_id.clone(), t.attempt));
+        }
     }
 
     async fn fail(&mut self, task: &pb::LeasedTask, failure: TaskFailure) {
@@ -493,26 +529,87 @@ pub(crate) fn log_lease_failure(status: &tonic::Status) {
     }
 }
 
+/// The leases a worker holds (leased, not yet reported or given back) and those of them the
+/// coordinator said were lost.
+#[derive(Debug, Default)]
+struct HeldLeases {
+    held: std::sync::Mutex<HashSet<(String, u32)>>,
+    lost: std::sync::Mutex<HashSet<(String, u32)>>,
+}
+
+impl HeldLeases {
+    fn hold(&self, tasks: &[pb::LeasedTask]) {
+        let mut held = self.held.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        held.extend(tasks.iter().map(|t| (t.task_id.clone(), t.attempt)));
+    }
+
+    fn forget(&self, attempt: &(String, u32)) {
+        self.held.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).remove(attempt);
+        self.lost.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).remove(attempt);
+    }
+
+    fn lost(&self, attempt: &(String, u32)) -> bool {
+        self.lost.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).contains(attempt)
+    }
+
+    fn snapshot(&self) -> Vec<pb::TaskAttempt> {
+        let held = self.held.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        held.iter().map(|(task_id, attempt)| pb::TaskAttempt { task_id: task_id.clone(), attempt: *attempt }).collect()
+    }
+
+    /// Marks `lost` lost, of those still held; returns how many were.
+    fn mark_lost(&self, lost: &[pb::TaskAttempt]) -> usize {
+        let held = self.held.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        let mut marked = self.lost.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        let mut n = 0;
+        for l in lost {
+            let attempt = (l.task_id.clone(), l.attempt);
+            if held.contains(&attempt) && marked.insert(attempt) {
+                n += 1;
+            }
+        }
+        n
+    }
+}
+
+/// One lease call; the tasks it grants are held (heartbeated) from the moment they arrive, so a
+/// prefetched batch waiting for its turn keeps its leases.
+async fn lease_batch(
+    mut client: WorkServiceClient<AuthChannel>,
+    request: pb::LeaseTasksRequest,
+    held: Arc<HeldLeases>,
+) -> Result<Vec<pb::LeasedTask>, Status> {
+    let tasks = client.lease_tasks(request).await?.into_inner().tasks;
+    held.hold(&tasks);
+    Ok(tasks)
+}
+
+/// Renews every lease the worker holds, every third of a lease, for as long as the worker runs.
 async fn heartbeat_loop(
     mut client: WorkServiceClient<AuthChannel>,
     worker_id: String,
-    held: pb::TaskAttempt,
+    held: Arc<HeldLeases>,
     lease_ms: u32,
-    lost: Arc<AtomicBool>,
     metrics: WorkerMetrics,
 ) {
     let every = Duration::from_millis(u64::from(lease_ms / 3).max(200));
     loop {
         tokio::time::sleep(every).await;
+        let attempts = held.snapshot();
+        if attempts.is_empty() {
+            continue;
+        }
+        // A task that runs for long keeps the worker live: its heartbeats are the loop's beat.
         metrics.beat();
-        let request = pb::HeartbeatRequest { worker_id: worker_id.clone(), held: vec![held.clone()], lease_ms };
+        let request = pb::HeartbeatRequest { worker_id: worker_id.clone(), held: attempts, lease_ms };
         match client.heartbeat(request).await {
-            Ok(resp) if resp.get_ref().lost.iter().any(|l| l.task_id == held.task_id) => {
-                metrics.leases_lost(1);
-                lost.store(true, Ordering::SeqCst);
-                return;
+            Ok(resp) => {
+                let lost = held.mark_lost(&resp.get_ref().lost);
+                if lost > 0 {
+                    metrics.leases_lost(lost as u64);
+                    tracing::warn!(lost, "leases lost; their tasks' results will be discarded");
+                }
             }
-            Ok(_) => {}
             Err(s) => tracing::warn!(error = %s.message(), "heartbeat failed"),
         }
     }

@@ -78,9 +78,12 @@ struct Args {
     /// objects' mean (docs/physics.md).
     #[arg(long, default_value_t = 0.84, value_parser = share)]
     accept_rate: f64,
-    /// timing-only: tasks per lease and per completion call (1–256).
-    #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u32).range(1..=256))]
-    batch: u32,
+    /// Tasks per lease (1–256; default 1 with engines, 64 timing-only). With engines, a batch
+    /// above 1 suits short tasks (noise, package): the next lease is in flight while a batch's
+    /// last task runs, and one heartbeat keeps every leased task's lease. Timing-only: also tasks
+    /// per completion call.
+    #[arg(long, env = "VINT_WORKER_BATCH", value_parser = clap::value_parser!(u32).range(1..=256))]
+    batch: Option<u32>,
     /// timing-only: lease-and-complete loops in flight (1–64).
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=64))]
     concurrency: u32,
@@ -133,7 +136,7 @@ async fn main() -> anyhow::Result<()> {
             stages,
             lease_ms: args.lease_ms,
             accept_rate: args.accept_rate,
-            batch: args.batch,
+            batch: args.batch.unwrap_or(64),
             concurrency: args.concurrency,
             max_idle_poll,
             latency_log: args.latency_log,
@@ -161,10 +164,11 @@ async fn main() -> anyhow::Result<()> {
             },
         },
         max_idle_poll,
+        batch: args.batch.unwrap_or(1),
         metrics,
         reuse: !args.no_reuse,
     };
-    tracing::info!(worker = %config.worker_id, stages = ?config.stages, "worker starting");
+    tracing::info!(worker = %config.worker_id, stages = ?config.stages, batch = config.batch, "worker starting");
     let worker = Worker::new(config, store)?;
     worker.run(shutdown_signal()).await;
     let _ = std::fs::remove_dir_all(&scratch);
