@@ -4,10 +4,11 @@ Reads what dispatch.sh left in --out (plan.json, rss.csv, progress.csv, latency-
 db-before.json, db-after.json), checks --verify random samples' lineage through `vintctl lineage`
 against the database and the object store, and writes summary.json and lineage.json.
 
-A sample passes when its lineage is package <- noise <- render <- grasp, every task succeeded in
-timing-only mode, its render task is for its grasp and its grasp task ran that trial, each task's
-inputs are its dependency's outputs (by hash), each packaged file is its render's or noise's
-artifact (by hash), and every output on the chain is in the object store at its size.
+A sample passes when its lineage is its package task, its grasp's own tasks (render, noise) and its
+grasp task, every task succeeded in timing-only mode, its grasp's tasks are keyed by its grasp and
+its grasp task ran that trial, each task's inputs are outputs of the tasks upstream of it (by
+hash), each packaged file is an artifact of its grasp's own tasks (by hash), and every output on
+the chain is in the object store at its size.
 
 It has no smoke mode of its own: it reads a dispatch run, and `VINT_BENCH_SMOKE=1 bash
 benches/dispatch.sh`, the smoke the test command runs, ends with this report on its small run.
@@ -60,13 +61,15 @@ def sample_ids(database: str, job: str, n: int) -> list[str]:
 
 
 def check_sample(sample: str, lineage: dict[str, Any], store: Path) -> list[str]:
-    """What is wrong with one sample's lineage (nothing, when it passes)."""
+    """What is wrong with one sample's lineage (nothing, when it passes). The chain is its package
+    task, its grasp's own tasks (a render task, and whatever stages the job adds between), then its
+    grasp task, in pipeline order as `vintctl lineage` shows it; no stage between is named here."""
     problems = []
     tasks = lineage["tasks"]
     stages = [t["stage"] for t in tasks]
-    if stages != ["package", "noise", "render", "grasp"]:
+    if len(tasks) < 3 or stages[0] != "package" or stages[-1] != "grasp" or len(set(stages)) != len(stages):
         return [f"stages {stages}"]
-    package, noise, render, grasp = tasks
+    package, own, grasp = tasks[0], tasks[1:-1], tasks[-1]
     object_, hand, grasp_part, view_part = sample.split(".")
     grasp_index, view_index = int(grasp_part[1:]), int(view_part[1:])
     for t in tasks:
@@ -74,8 +77,11 @@ def check_sample(sample: str, lineage: dict[str, Any], store: Path) -> list[str]
             problems.append(f"{t['key']} is {t['state']}")
         if t["engine"].get("mode") != "timing-only":
             problems.append(f"{t['key']} engine {t['engine']}")
-    if render["params"]["grasp_index"] != grasp_index:
-        problems.append(f"render is for grasp {render['params']['grasp_index']}")
+    for t in own:
+        if t["key"] != f"{t['stage']}/{object_}/{hand}/g{grasp_index:06d}":
+            problems.append(f"{t['key']} is not grasp {grasp_index}'s {t['stage']} task")
+        if t["params"].get("grasp_index", grasp_index) != grasp_index:
+            problems.append(f"{t['key']} is for grasp {t['params']['grasp_index']}")
     if grasp_index not in [trial["grasp_index"] for trial in grasp["params"]["trials"]]:
         problems.append(f"grasp task {grasp['key']} did not run trial {grasp_index}")
     if not grasp["key"].startswith(f"grasp/{object_}/{hand}/"):
@@ -84,8 +90,9 @@ def check_sample(sample: str, lineage: dict[str, Any], store: Path) -> list[str]
     def hashes(t: dict[str, Any]) -> set[str]:
         return {a["sha256"] for a in t["outputs"]}
 
-    for child, parents in ((render, [grasp]), (noise, [render]), (package, [render, noise, grasp])):
-        made = set().union(*(hashes(p) for p in parents))
+    # Each task reads only what the tasks upstream of it on the chain made.
+    for i, child in enumerate(tasks[:-1]):
+        made = set().union(*(hashes(p) for p in tasks[i + 1 :]))
         stray = [a["name"] for a in child["inputs"] if a["sha256"] not in made]
         if stray:
             problems.append(f"{child['key']} reads {stray[:3]} that its dependencies did not make")
@@ -94,13 +101,13 @@ def check_sample(sample: str, lineage: dict[str, Any], store: Path) -> list[str]
     if "meta.json" not in names:
         problems.append("no meta.json")
     view = f"v{view_index:02d}_"
-    pixels = hashes(render) | hashes(noise)
+    pixels = set().union(*(hashes(t) for t in own))
     for a in mine:
         if a["name"].endswith("/meta.json"):
             continue
         if a["sha256"] not in pixels:
-            problems.append(f"{a['name']} is not its render's or noise's artifact")
-    view_files = [a for a in render["outputs"] + noise["outputs"] if a["name"].startswith(view)]
+            problems.append(f"{a['name']} is not an artifact of its grasp's own tasks")
+    view_files = [a for t in own for a in t["outputs"] if a["name"].startswith(view)]
     if len(view_files) < len(mine) - 1:
         problems.append(f"{len(view_files)} files of view {view_index}, {len(mine) - 1} packaged")
     for t in tasks:
