@@ -133,3 +133,27 @@ fn globs_match_by_segment() {
     assert!(!matches("a/*.sql", "a/x.py"));
     assert!(names("use contract::noise::X", "noise::") && !names("let denoise::x", "noise::"));
 }
+
+/// The code map has a heading for every crate of the workspace.
+#[test]
+fn every_workspace_crate_has_its_heading_in_the_code_map() {
+    let manifest = std::fs::read_to_string(root().join("Cargo.toml")).expect("Cargo.toml");
+    let manifest: toml::Table = manifest.parse().expect("Cargo.toml parses");
+    let members: Vec<&str> = manifest["workspace"]["members"]
+        .as_array()
+        .expect("workspace members")
+        .iter()
+        .filter_map(|m| m.as_str())
+        .collect();
+    assert!(members.len() >= 10, "{members:?}");
+    let text = std::fs::read_to_string(root().join("ARCHITECTURE.md")).expect("ARCHITECTURE.md");
+    let (_, map) = text.split_once("## Code map").expect("a code map");
+    let map = map.split("\n## ").next().unwrap_or_default();
+    let headings: Vec<&str> = map.lines().filter(|l| l.starts_with("### ")).collect();
+    for member in members {
+        assert!(
+            headings.iter().any(|h| h.contains(&format!("`{member}`"))),
+            "ARCHITECTURE.md's code map has no heading for the crate {member}: {headings:?}"
+        );
+    }
+}
