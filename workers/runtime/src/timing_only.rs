@@ -4,9 +4,9 @@
 //!
 //! It is never the default and its output is not data. Each task answers what its engine would:
 //! a result of the stage's contract and output files of the real names and sizes (each stage's
-//! own `fake` in `vint_core::contract`, from the sizes measured on real runs). The bytes of a file are a constant payload
-//! per (kind, size), stored once in the object store and referenced by its hash, so the object
-//! store sees every put and content addressing dedupes the rest; a package task references its
+//! own `fake` in `vint_core::contract`, from the sizes measured on real runs). The bytes of a file
+//! are a constant payload per (kind, size), stored once in the object store and referenced by its
+//! hash, so the object store sees every put and content addressing dedupes the rest; a package task references its
 //! render and noise inputs by hash exactly as the real stage does. A grasp trial is accepted when
 //! its seed (derived from the job seed and the trial's identity) falls below `accept_rate`, so a
 //! run is deterministic. Every completion's `engine_json` names the mode, so lineage says which
