@@ -56,10 +56,6 @@ impl SpecCost {
             .iter()
             .fold(Cost::default(), |a, s| Cost { cpu_s: a.cpu_s + s.cost.cpu_s, bytes: a.bytes + s.cost.bytes })
     }
-
-    pub fn stage(&self, stage: Stage) -> Option<&StageCost> {
-        self.stages.iter().find(|s| s.stage == stage)
-    }
 }
 
 /// Why a spec cannot be costed: it cannot be planned, or the planner made parameters its own

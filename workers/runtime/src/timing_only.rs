@@ -18,7 +18,7 @@
 //! the process holds. Asked to stop, it answers the batches it is answering and gives back the
 //! leases of those it has not started (the prefetched ones).
 
-use std::collections::{BTreeSet, HashMap, HashSet};
+use std::collections::{BTreeSet, HashMap};
 use std::future::Future;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -41,7 +41,7 @@ use vint_proto::v1::work_service_client::WorkServiceClient;
 
 use crate::metrics::{TaskOutcome, WorkerMetrics};
 use crate::package::{Inputs, PackageInput, referenced_files};
-use crate::worker::{WorkerError, ms};
+use crate::worker::{HeldLeases, WorkerError, heartbeat_loop, ms};
 
 /// Largest lease answer read, and largest completion call sent: a batch's completions go in as
 /// many `CompleteTasks` calls as keep each under the coordinator's limit (8 MiB).
@@ -184,7 +184,7 @@ struct Shared {
     config: TimingOnlyConfig,
     client: WorkServiceClient<AuthChannel>,
     payloads: Payloads,
-    held: std::sync::Mutex<HashSet<(String, u32)>>,
+    held: Arc<HeldLeases>,
     tally: Arc<Tally>,
     engine_json: String,
     latency_log: Option<std::sync::Mutex<std::io::BufWriter<std::fs::File>>>,
@@ -241,14 +241,20 @@ pub async fn run(
         // tens of MiB.
         client: WorkServiceClient::new(channel).max_decoding_message_size(MAX_MESSAGE_BYTES),
         payloads: Payloads { store, stored: Mutex::default(), metrics: config.metrics.clone() },
-        held: std::sync::Mutex::default(),
+        held: Arc::default(),
         tally: tally.clone(),
         engine_json,
         latency_log,
         config,
     });
     let (stop_tx, stop_rx) = watch::channel(false);
-    let heartbeat = tokio::spawn(heartbeat_loop(shared.clone()));
+    let heartbeat = tokio::spawn(heartbeat_loop(
+        shared.client.clone(),
+        shared.config.worker_id.clone(),
+        shared.held.clone(),
+        shared.config.lease_ms,
+        shared.config.metrics.clone(),
+    ));
     let loops: Vec<_> = (0..shared.config.concurrency.max(1))
         .map(|slot| tokio::spawn(serve_loop(shared.clone(), slot, stop_rx.clone())))
         .collect();
@@ -291,8 +297,7 @@ async fn lease_batch(shared: &Shared) -> Vec<pb::LeasedTask> {
     match shared.client.clone().lease_tasks(request).await {
         Ok(resp) => {
             let tasks = resp.into_inner().tasks;
-            let mut held = shared.held.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
-            held.extend(tasks.iter().map(|t| (t.task_id.clone(), t.attempt)));
+            shared.held.hold(&tasks);
             tasks
         }
         Err(status) => {
@@ -337,10 +342,7 @@ async fn give_back(shared: &Shared, tasks: &[pb::LeasedTask]) {
     let held: Vec<pb::TaskAttempt> =
         tasks.iter().map(|t| pb::TaskAttempt { task_id: t.task_id.clone(), attempt: t.attempt }).collect();
     crate::worker::release(&shared.client, &shared.config.worker_id, &held).await;
-    let mut held = shared.held.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
-    for t in tasks {
-        held.remove(&(t.task_id.clone(), t.attempt));
-    }
+    shared.held.forget_all(tasks);
 }
 
 /// Answers a batch; returns the completion RPC's round trip in milliseconds.
@@ -424,10 +426,7 @@ async fn answer_batch(shared: &Shared, tasks: Vec<pb::LeasedTask>) -> f64 {
             }
         }
     }
-    let mut held = shared.held.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
-    for t in &tasks {
-        held.remove(&(t.task_id.clone(), t.attempt));
-    }
+    shared.held.forget_all(&tasks);
     complete_ms
 }
 
@@ -450,39 +449,4 @@ fn split_by_size(completions: Vec<pb::CompleteTaskRequest>) -> Vec<Vec<pb::Compl
         }
     }
     calls
-}
-
-/// Renews every lease this process holds, every third of the lease.
-async fn heartbeat_loop(shared: Arc<Shared>) {
-    let every = Duration::from_millis(u64::from(shared.config.lease_ms / 3).max(200));
-    loop {
-        tokio::time::sleep(every).await;
-        shared.config.metrics.beat();
-        let held: Vec<pb::TaskAttempt> = {
-            let held = shared.held.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
-            held.iter()
-                .map(|(task_id, attempt)| pb::TaskAttempt { task_id: task_id.clone(), attempt: *attempt })
-                .collect()
-        };
-        if held.is_empty() {
-            continue;
-        }
-        let request =
-            pb::HeartbeatRequest { worker_id: shared.config.worker_id.clone(), held, lease_ms: shared.config.lease_ms };
-        match shared.client.clone().heartbeat(request).await {
-            Ok(resp) if !resp.get_ref().lost.is_empty() => {
-                // A batch completed while the heartbeat was in flight reads as lost: only those
-                // still held are.
-                let held = shared.held.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
-                let lost =
-                    resp.get_ref().lost.iter().filter(|l| held.contains(&(l.task_id.clone(), l.attempt))).count();
-                if lost > 0 {
-                    shared.config.metrics.leases_lost(lost as u64);
-                    tracing::warn!(lost, "leases lost; their completions will be refused");
-                }
-            }
-            Ok(_) => {}
-            Err(s) => tracing::warn!(error = %s.message(), "heartbeat failed"),
-        }
-    }
 }

@@ -458,9 +458,7 @@ impl Worker {
         let held: Vec<pb::TaskAttempt> =
             tasks.iter().map(|t| pb::TaskAttempt { task_id: t.task_id.clone(), attempt: t.attempt }).collect();
         release(&self.client, &self.config.worker_id, &held).await;
-        for t in tasks {
-            self.held.forget(&(t.task_id.clone(), t.attempt));
-        }
+        self.held.forget_all(tasks);
     }
 
     async fn fail(&mut self, task: &pb::LeasedTask, failure: TaskFailure) {
@@ -532,13 +530,13 @@ pub(crate) fn log_lease_failure(status: &tonic::Status) {
 /// The leases a worker holds (leased, not yet reported or given back) and those of them the
 /// coordinator said were lost.
 #[derive(Debug, Default)]
-struct HeldLeases {
+pub(crate) struct HeldLeases {
     held: std::sync::Mutex<HashSet<(String, u32)>>,
     lost: std::sync::Mutex<HashSet<(String, u32)>>,
 }
 
 impl HeldLeases {
-    fn hold(&self, tasks: &[pb::LeasedTask]) {
+    pub(crate) fn hold(&self, tasks: &[pb::LeasedTask]) {
         let mut held = self.held.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
         held.extend(tasks.iter().map(|t| (t.task_id.clone(), t.attempt)));
     }
@@ -546,6 +544,17 @@ impl HeldLeases {
     fn forget(&self, attempt: &(String, u32)) {
         self.held.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).remove(attempt);
         self.lost.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).remove(attempt);
+    }
+
+    /// Forgets every lease of `tasks` (reported or given back).
+    pub(crate) fn forget_all(&self, tasks: &[pb::LeasedTask]) {
+        let mut held = self.held.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        let mut lost = self.lost.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        for t in tasks {
+            let attempt = (t.task_id.clone(), t.attempt);
+            held.remove(&attempt);
+            lost.remove(&attempt);
+        }
     }
 
     fn lost(&self, attempt: &(String, u32)) -> bool {
@@ -584,8 +593,10 @@ async fn lease_batch(
     Ok(tasks)
 }
 
-/// Renews every lease the worker holds, every third of a lease, for as long as the worker runs.
-async fn heartbeat_loop(
+/// Renews every lease the worker holds, every third of a lease, for as long as the worker runs
+/// (the timing-only worker's too). A lease reported while a heartbeat was in flight is no longer
+/// held, so it is not counted lost.
+pub(crate) async fn heartbeat_loop(
     mut client: WorkServiceClient<AuthChannel>,
     worker_id: String,
     held: Arc<HeldLeases>,
@@ -607,7 +618,7 @@ async fn heartbeat_loop(
                 let lost = held.mark_lost(&resp.get_ref().lost);
                 if lost > 0 {
                     metrics.leases_lost(lost as u64);
-                    tracing::warn!(lost, "leases lost; their tasks' results will be discarded");
+                    tracing::warn!(lost, "leases lost; their results will be discarded or refused");
                 }
             }
             Err(s) => tracing::warn!(error = %s.message(), "heartbeat failed"),
