@@ -12,7 +12,8 @@ use serde_json::Value;
 use sqlx::Row;
 use sqlx::any::AnyRow;
 
-use crate::{Backend, Result, Store, trusted};
+use crate::sql::sql;
+use crate::{Result, Store};
 
 /// The most rows one query returns (and what a limit of 0 means).
 pub const MAX_ROWS: u32 = 10_000;
@@ -166,26 +167,20 @@ impl DashboardView {
         }
     }
 
-    /// The order its rows are read in: its grouping columns.
-    fn order_by(self) -> &'static str {
+    /// The statement that reads it (`sql/<dialect>/dashboard.sql`): its columns in the order of
+    /// its grouping columns, of one job or of all.
+    fn statement(self) -> &'static str {
         match self {
-            DashboardView::JobProgress | DashboardView::BytesWritten => "job_id, stage",
-            DashboardView::Throughput => "job_id, minute_ms, stage",
-            DashboardView::Failures => "job_id, stage, attempts DESC, outcome, reason",
-            DashboardView::Workers => "worker_id",
-            DashboardView::GraspAcceptance => "job_id, object, hand",
-            DashboardView::GraspRejections => "job_id, object, hand, reason",
-            DashboardView::ActiveTaxels => "job_id, hand, region",
-            DashboardView::RenderSeconds => "job_id, width, height, samples, device",
-            DashboardView::Occlusion => "job_id, object, bin",
-        }
-    }
-
-    /// The view as the backend names it.
-    fn relation(self, backend: Backend) -> String {
-        match backend {
-            Backend::Postgres => format!("dashboard.{}", self.name()),
-            Backend::Sqlite => format!("dashboard_{}", self.name()),
+            DashboardView::JobProgress => "dashboard_job_progress",
+            DashboardView::Throughput => "dashboard_throughput",
+            DashboardView::Failures => "dashboard_failures",
+            DashboardView::Workers => "dashboard_workers",
+            DashboardView::GraspAcceptance => "dashboard_grasp_acceptance",
+            DashboardView::GraspRejections => "dashboard_grasp_rejections",
+            DashboardView::ActiveTaxels => "dashboard_active_taxels",
+            DashboardView::RenderSeconds => "dashboard_render_seconds",
+            DashboardView::BytesWritten => "dashboard_bytes_written",
+            DashboardView::Occlusion => "dashboard_occlusion",
         }
     }
 }
@@ -232,19 +227,10 @@ impl Store {
     /// (ignored by a view that is not per job, `DashboardView::per_job`).
     pub async fn dashboard(&self, view: DashboardView, job_id: Option<&str>, limit: u32) -> Result<DashboardTable> {
         let columns = view.columns();
-        let list = columns.iter().map(|(name, _)| *name).collect::<Vec<_>>().join(", ");
-        let job_id = job_id.filter(|_| view.per_job());
-        let filter = if job_id.is_some() { "WHERE job_id = $2" } else { "" };
-        // Names and clauses come from the fixed tables above; the job and the limit are bound.
-        let sql = format!(
-            "SELECT {list} FROM {relation} {filter} ORDER BY {order} LIMIT $1",
-            relation = view.relation(self.backend),
-            order = view.order_by(),
-        );
         let limit = if limit == 0 { MAX_ROWS } else { limit.min(MAX_ROWS) };
-        let mut query = sqlx::query(trusted(sql)).bind(i64::from(limit));
-        if let Some(job_id) = job_id {
-            query = query.bind(job_id);
+        let mut query = sqlx::query(sql(self.backend, view.statement())?).bind(i64::from(limit));
+        if view.per_job() {
+            query = query.bind(job_id.unwrap_or(""));
         }
         let rows = query.fetch_all(&self.pool).await?;
         let rows = rows.iter().map(|row| row_values(row, columns)).collect::<Result<_>>()?;
@@ -255,12 +241,11 @@ impl Store {
 fn row_values(row: &AnyRow, columns: &[(&str, ColumnType)]) -> Result<Vec<Value>> {
     columns
         .iter()
-        .enumerate()
-        .map(|(i, (_, ty))| {
+        .map(|(name, ty)| {
             Ok(match ty {
-                Text => row.try_get::<Option<String>, _>(i)?.map(Value::from),
-                Integer => row.try_get::<Option<i64>, _>(i)?.map(Value::from),
-                Real => row.try_get::<Option<f64>, _>(i)?.map(Value::from),
+                Text => row.try_get::<Option<String>, _>(*name)?.map(Value::from),
+                Integer => row.try_get::<Option<i64>, _>(*name)?.map(Value::from),
+                Real => row.try_get::<Option<f64>, _>(*name)?.map(Value::from),
             }
             .unwrap_or(Value::Null))
         })

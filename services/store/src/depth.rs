@@ -11,7 +11,8 @@
 use sqlx::Row;
 use vint_core::{JobState, Stage, TaskState};
 
-use crate::{Result, Store, literal, parse, trusted};
+use crate::sql::sql;
+use crate::{Result, Store, parse};
 
 /// Live tasks and jobs, counted at one moment.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -40,25 +41,14 @@ pub const LIVE_TASK_STATES: [TaskState; 3] = [TaskState::Waiting, TaskState::Que
 impl Store {
     /// Counts live tasks by stage and state and jobs by state (see the module's doc for the cost).
     pub async fn queue_depth(&self) -> Result<QueueDepth> {
-        // The states are literals: a partial index serves only a query that names its state.
-        let sql = format!(
-            "SELECT stage, {queued} AS state, COUNT(*) AS n FROM tasks WHERE state = {queued} GROUP BY stage \
-             UNION ALL SELECT stage, {running}, COUNT(*) FROM tasks WHERE state = {running} GROUP BY stage \
-             UNION ALL SELECT t.stage, {waiting}, COUNT(*) FROM jobs j JOIN tasks t ON t.job_id = j.id \
-             AND t.state = {waiting} WHERE j.state = {job_running} GROUP BY t.stage",
-            queued = literal(TaskState::Queued.as_str()),
-            running = literal(TaskState::Running.as_str()),
-            waiting = literal(TaskState::Waiting.as_str()),
-            job_running = literal(JobState::Running.as_str()),
-        );
         let mut depth = QueueDepth::default();
-        for row in sqlx::query(trusted(sql)).fetch_all(&self.pool).await? {
+        for row in sqlx::query(sql(self.backend, "live_tasks")?).fetch_all(&self.pool).await? {
             let stage = parse("stage", &row.try_get::<String, _>("stage")?)?;
             let state = parse("task state", &row.try_get::<String, _>("state")?)?;
             let n: i64 = row.try_get("n")?;
             depth.tasks.push((stage, state, n.max(0) as u64));
         }
-        for row in sqlx::query("SELECT state, COUNT(*) AS n FROM jobs GROUP BY state").fetch_all(&self.pool).await? {
+        for row in sqlx::query(sql(self.backend, "jobs_by_state")?).fetch_all(&self.pool).await? {
             let state = parse("job state", &row.try_get::<String, _>("state")?)?;
             let n: i64 = row.try_get("n")?;
             depth.jobs.push((state, n.max(0) as u64));

@@ -32,32 +32,21 @@ impl Store {
     /// Up to `limit` of a job's permanently failed tasks: those that ran and failed, by key, then
     /// those failed by an upstream task, by key. (`progress` counts them all.)
     pub async fn failed_tasks(&self, job_id: &str, limit: u32) -> Result<Vec<FailedTask>> {
-        let mut out = Vec::new();
-        for cond in ["attempt > 0", "attempt = 0"] {
-            let left = i64::from(limit) - out.len() as i64;
-            if left <= 0 {
-                break;
-            }
-            // `cond` is one of the two constants above.
-            let sql = format!(
-                "SELECT key, stage, attempt, last_error FROM tasks WHERE job_id = $1 AND state = $2 AND {cond} \
-                 ORDER BY key LIMIT $3"
-            );
-            let rows = sqlx::query(crate::trusted(sql))
-                .bind(job_id)
-                .bind(TaskState::Failed.as_str())
-                .bind(left)
-                .fetch_all(&self.pool)
-                .await?;
-            for row in rows {
-                out.push(FailedTask {
+        let rows = sqlx::query(crate::sql::sql(self.backend, "failed_tasks")?)
+            .bind(job_id)
+            .bind(TaskState::Failed.as_str())
+            .bind(i64::from(limit))
+            .fetch_all(&self.pool)
+            .await?;
+        rows.iter()
+            .map(|row| {
+                Ok(FailedTask {
                     key: row.try_get("key")?,
                     stage: parse("stage", &row.try_get::<String, _>("stage")?)?,
                     attempts: to_u32("attempt", row.try_get("attempt")?)?,
                     last_error: row.try_get::<Option<String>, _>("last_error")?.unwrap_or_default(),
-                });
-            }
-        }
-        Ok(out)
+                })
+            })
+            .collect()
     }
 }

@@ -14,7 +14,8 @@ use sqlx::Row;
 use vint_core::contract::{self, BadParams};
 use vint_core::plan::NewTask;
 
-use crate::{Result, Store, trusted};
+use crate::sql::sql;
+use crate::{Result, Store};
 
 /// One value per table: rows (`TableRows`) or bytes per row (`PerRow`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
@@ -176,14 +177,10 @@ impl PerRow {
 impl Store {
     /// Rows in each table, over every job: what `TableRows::submit` and `TableRows::task` predict.
     pub async fn table_rows(&self) -> Result<TableRows> {
+        let row = sqlx::query(sql(self.backend, "table_rows")?).fetch_one(&self.pool).await?;
         let mut counts = [0u64; 8];
-        for (count, table) in counts.iter_mut().zip(TableRows::TABLES) {
-            let sql = match table {
-                "outputs.files" => "SELECT CAST(COALESCE(SUM(count), 0) AS BIGINT) AS n FROM outputs".to_string(),
-                table => format!("SELECT COUNT(*) AS n FROM {table}"),
-            };
-            let n: i64 = sqlx::query(trusted(sql)).fetch_one(&self.pool).await?.try_get("n")?;
-            *count = n.max(0) as u64;
+        for (i, count) in counts.iter_mut().enumerate() {
+            *count = row.try_get::<i64, _>(i)?.max(0) as u64;
         }
         Ok(TableRows::from_values(counts))
     }

@@ -8,11 +8,8 @@ use sqlx::{Any, Row, Transaction};
 use vint_core::plan::NewTask;
 use vint_core::{AttemptOutcome, JobState, TaskState};
 
-use crate::{JobAsset, JobRecord, NewJob, Progress, Result, Store, StoreError, TaskRecord, parse, to_u32, trusted};
-
-const JOB_COLUMNS: &str = "id, name, seed, spec_toml, plan_json, state, created_ms, finished_ms";
-pub(crate) const TASK_COLUMNS: &str = "id, job_id, key, stage, state, params_json, attempt, max_attempts, \
-     not_before_ms, lease_owner, lease_deadline_ms, last_error, engine_json, result_json, reused_from";
+use crate::sql::sql;
+use crate::{JobAsset, JobRecord, NewJob, Progress, Result, Store, StoreError, TaskRecord, parse, to_u32};
 
 fn job_from_row(row: &AnyRow) -> Result<JobRecord> {
     Ok(JobRecord {
@@ -60,21 +57,18 @@ impl Store {
             return Ok((existing, false));
         }
         let mut tx = self.pool.begin().await?;
-        let inserted = sqlx::query(
-            "INSERT INTO jobs (id, name, seed, spec_toml, plan_json, idempotency_key, state, created_ms) \
-             VALUES ($1, $2, $3, $4, $5, $6, $7, $8) ON CONFLICT (idempotency_key) DO NOTHING",
-        )
-        .bind(&job.id)
-        .bind(&job.name)
-        .bind(job.seed as i64)
-        .bind(&job.spec_toml)
-        .bind(&job.plan_json)
-        .bind(&job.idempotency_key)
-        .bind(JobState::Running.as_str())
-        .bind(now_ms)
-        .execute(&mut *tx)
-        .await?
-        .rows_affected();
+        let inserted = sqlx::query(sql(self.backend, "insert_job")?)
+            .bind(&job.id)
+            .bind(&job.name)
+            .bind(job.seed as i64)
+            .bind(&job.spec_toml)
+            .bind(&job.plan_json)
+            .bind(&job.idempotency_key)
+            .bind(JobState::Running.as_str())
+            .bind(now_ms)
+            .execute(&mut *tx)
+            .await?
+            .rows_affected();
         if inserted == 0 {
             // A concurrent submit with the same key won the race.
             tx.rollback().await?;
@@ -82,18 +76,15 @@ impl Store {
             return existing.map(|j| (j, false)).ok_or_else(|| StoreError::NotFound("job after conflict".into()));
         }
         for a in &job.assets {
-            sqlx::query(
-                "INSERT INTO job_assets (job_id, path, sha256, size, media_type, object_key) \
-                 VALUES ($1, $2, $3, $4, $5, $6)",
-            )
-            .bind(&job.id)
-            .bind(&a.path)
-            .bind(&a.sha256)
-            .bind(a.size as i64)
-            .bind(&a.media_type)
-            .bind(&a.object_key)
-            .execute(&mut *tx)
-            .await?;
+            sqlx::query(sql(self.backend, "insert_job_asset")?)
+                .bind(&job.id)
+                .bind(&a.path)
+                .bind(&a.sha256)
+                .bind(a.size as i64)
+                .bind(&a.media_type)
+                .bind(&a.object_key)
+                .execute(&mut *tx)
+                .await?;
         }
         self.insert_tasks(&mut tx, &job.id, tasks, now_ms).await?;
         tx.commit().await?;
@@ -102,56 +93,41 @@ impl Store {
     }
 
     async fn job_by_idempotency_key(&self, key: &str) -> Result<Option<JobRecord>> {
-        let sql = format!("SELECT {JOB_COLUMNS} FROM jobs WHERE idempotency_key = $1");
-        let row = sqlx::query(trusted(sql)).bind(key).fetch_optional(&self.pool).await?;
+        let row =
+            sqlx::query(sql(self.backend, "job_by_idempotency_key")?).bind(key).fetch_optional(&self.pool).await?;
         row.as_ref().map(job_from_row).transpose()
     }
 
     /// The user files a job's spec names, by path.
     pub async fn job_assets(&self, job_id: &str) -> Result<Vec<JobAsset>> {
-        let rows = sqlx::query(
-            "SELECT path, sha256, size, media_type, object_key FROM job_assets WHERE job_id = $1 ORDER BY path",
-        )
-        .bind(job_id)
-        .fetch_all(&self.pool)
-        .await?;
+        let rows = sqlx::query(sql(self.backend, "job_assets")?).bind(job_id).fetch_all(&self.pool).await?;
         rows.iter().map(asset_from_row).collect()
     }
 
     /// Submitted user files with this content, as (job id, file), optionally within one job.
     pub async fn user_files_with(&self, sha256: &str, job_id: Option<&str>) -> Result<Vec<(String, JobAsset)>> {
-        let rows = sqlx::query(
-            "SELECT job_id, path, sha256, size, media_type, object_key FROM job_assets \
-             WHERE sha256 = $1 AND ($2 = '' OR job_id = $2) ORDER BY job_id, path",
-        )
-        .bind(sha256)
-        .bind(job_id.unwrap_or(""))
-        .fetch_all(&self.pool)
-        .await?;
+        let rows = sqlx::query(sql(self.backend, "user_files_with")?)
+            .bind(sha256)
+            .bind(job_id.unwrap_or(""))
+            .fetch_all(&self.pool)
+            .await?;
         rows.iter().map(|row| Ok((row.try_get("job_id")?, asset_from_row(row)?))).collect()
     }
 
     pub async fn job(&self, job_id: &str) -> Result<Option<JobRecord>> {
-        let sql = format!("SELECT {JOB_COLUMNS} FROM jobs WHERE id = $1");
-        let row = sqlx::query(trusted(sql)).bind(job_id).fetch_optional(&self.pool).await?;
+        let row = sqlx::query(sql(self.backend, "job_by_id")?).bind(job_id).fetch_optional(&self.pool).await?;
         row.as_ref().map(job_from_row).transpose()
     }
 
     /// Most recent jobs first.
     pub async fn list_jobs(&self, limit: u32) -> Result<Vec<JobRecord>> {
-        let sql = format!("SELECT {JOB_COLUMNS} FROM jobs ORDER BY created_ms DESC, id LIMIT $1");
-        let rows = sqlx::query(trusted(sql)).bind(i64::from(limit)).fetch_all(&self.pool).await?;
+        let rows =
+            sqlx::query(sql(self.backend, "jobs_newest_first")?).bind(i64::from(limit)).fetch_all(&self.pool).await?;
         rows.iter().map(job_from_row).collect()
     }
 
     pub async fn progress(&self, job_id: &str) -> Result<Progress> {
-        let rows = sqlx::query(
-            "SELECT stage, state, COUNT(*) AS n, COUNT(reused_from) AS reused FROM tasks WHERE job_id = $1 \
-             GROUP BY stage, state",
-        )
-        .bind(job_id)
-        .fetch_all(&self.pool)
-        .await?;
+        let rows = sqlx::query(sql(self.backend, "progress_counts")?).bind(job_id).fetch_all(&self.pool).await?;
         let mut p = Progress::default();
         for row in rows {
             let stage = parse("stage", &row.try_get::<String, _>("stage")?)?;
@@ -164,15 +140,12 @@ impl Store {
             }
         }
         // A package task's outputs row counts the samples it made (migration 0013).
-        let samples: i64 = sqlx::query(
-            "SELECT CAST(COALESCE(SUM(o.samples), 0) AS BIGINT) AS n FROM tasks t JOIN outputs o ON o.task_id = t.id \
-             WHERE t.job_id = $1 AND t.stage = $2",
-        )
-        .bind(job_id)
-        .bind(vint_core::Stage::Package.as_str())
-        .fetch_one(&self.pool)
-        .await?
-        .try_get("n")?;
+        let samples: i64 = sqlx::query(sql(self.backend, "progress_samples")?)
+            .bind(job_id)
+            .bind(vint_core::Stage::Package.as_str())
+            .fetch_one(&self.pool)
+            .await?
+            .try_get("n")?;
         p.samples = samples as u64;
         Ok(p)
     }
@@ -181,7 +154,7 @@ impl Store {
     /// lease (their completion is refused). Returns the job as it is afterwards.
     pub async fn cancel_job(&self, job_id: &str, now_ms: i64) -> Result<JobRecord> {
         let mut tx = self.pool.begin().await?;
-        let changed = sqlx::query("UPDATE jobs SET state = $1, finished_ms = $2 WHERE id = $3 AND state = $4")
+        let changed = sqlx::query(sql(self.backend, "end_job")?)
             .bind(JobState::Cancelled.as_str())
             .bind(now_ms)
             .bind(job_id)
@@ -191,29 +164,22 @@ impl Store {
             .rows_affected();
         if changed == 1 {
             // The running attempts end as cancelled (written once, as every attempt).
-            sqlx::query(
-                "INSERT INTO attempts (task_id, attempt, worker_id, started_ms, ended_ms, outcome) \
-                 SELECT id, attempt, lease_owner, COALESCE(leased_ms, $1), $1, $2 FROM tasks \
-                 WHERE job_id = $3 AND state = $4",
-            )
-            .bind(now_ms)
-            .bind(AttemptOutcome::Cancelled.as_str())
-            .bind(job_id)
-            .bind(TaskState::Running.as_str())
-            .execute(&mut *tx)
-            .await?;
-            sqlx::query(
-                "UPDATE tasks SET state = $1, lease_owner = NULL, lease_deadline_ms = NULL, updated_ms = $2 \
-                 WHERE job_id = $3 AND state IN ($4, $5, $6)",
-            )
-            .bind(TaskState::Cancelled.as_str())
-            .bind(now_ms)
-            .bind(job_id)
-            .bind(TaskState::Waiting.as_str())
-            .bind(TaskState::Queued.as_str())
-            .bind(TaskState::Running.as_str())
-            .execute(&mut *tx)
-            .await?;
+            sqlx::query(sql(self.backend, "cancel_running_attempts")?)
+                .bind(now_ms)
+                .bind(AttemptOutcome::Cancelled.as_str())
+                .bind(job_id)
+                .bind(TaskState::Running.as_str())
+                .execute(&mut *tx)
+                .await?;
+            sqlx::query(sql(self.backend, "cancel_live_tasks")?)
+                .bind(TaskState::Cancelled.as_str())
+                .bind(now_ms)
+                .bind(job_id)
+                .bind(TaskState::Waiting.as_str())
+                .bind(TaskState::Queued.as_str())
+                .bind(TaskState::Running.as_str())
+                .execute(&mut *tx)
+                .await?;
         }
         tx.commit().await?;
         self.job(job_id).await?.ok_or_else(|| StoreError::NotFound(format!("job {job_id}")))
@@ -236,17 +202,8 @@ impl Store {
     }
 
     async fn finalize(&self, among: Option<String>, now_ms: i64) -> Result<Vec<String>> {
-        let restrict = match among {
-            Some(_) => format!(" AND j.id IN ({})", self.backend.json_text_array("$6")),
-            None => String::new(),
-        };
-        let sql = format!(
-            "SELECT j.id, \
-               (SELECT COUNT(*) FROM tasks t WHERE t.job_id = j.id AND t.state = $1) AS failed \
-             FROM jobs j WHERE j.state = $2{restrict} AND NOT EXISTS \
-               (SELECT 1 FROM tasks t WHERE t.job_id = j.id AND t.state IN ($3, $4, $5))"
-        );
-        let mut query = sqlx::query(trusted(sql))
+        let statement = if among.is_some() { "finished_jobs_among" } else { "finished_jobs" };
+        let mut query = sqlx::query(sql(self.backend, statement)?)
             .bind(TaskState::Failed.as_str())
             .bind(JobState::Running.as_str())
             .bind(TaskState::Waiting.as_str())
@@ -261,7 +218,7 @@ impl Store {
             let id: String = row.try_get("id")?;
             let failed: i64 = row.try_get("failed")?;
             let state = if failed > 0 { JobState::Failed } else { JobState::Succeeded };
-            let n = sqlx::query("UPDATE jobs SET state = $1, finished_ms = $2 WHERE id = $3 AND state = $4")
+            let n = sqlx::query(sql(self.backend, "end_job")?)
                 .bind(state.as_str())
                 .bind(now_ms)
                 .bind(&id)
@@ -277,8 +234,7 @@ impl Store {
     }
 
     pub async fn task(&self, task_id: &str) -> Result<Option<TaskRecord>> {
-        let sql = format!("SELECT {TASK_COLUMNS} FROM tasks WHERE id = $1");
-        let row = sqlx::query(trusted(sql)).bind(task_id).fetch_optional(&self.pool).await?;
+        let row = sqlx::query(sql(self.backend, "task_by_id")?).bind(task_id).fetch_optional(&self.pool).await?;
         row.as_ref().map(task_from_row).transpose()
     }
 
@@ -287,15 +243,12 @@ impl Store {
         if ids.is_empty() {
             return Ok(Vec::new());
         }
-        let list = json_text(ids)?;
-        let sql = format!("SELECT {TASK_COLUMNS} FROM tasks WHERE id IN ({})", self.backend.json_text_array("$1"));
-        let rows = sqlx::query(trusted(sql)).bind(list).fetch_all(&self.pool).await?;
+        let rows = sqlx::query(sql(self.backend, "tasks_by_ids")?).bind(json_text(ids)?).fetch_all(&self.pool).await?;
         rows.iter().map(task_from_row).collect()
     }
 
     pub async fn tasks_of_job(&self, job_id: &str) -> Result<Vec<TaskRecord>> {
-        let sql = format!("SELECT {TASK_COLUMNS} FROM tasks WHERE job_id = $1 ORDER BY key");
-        let rows = sqlx::query(trusted(sql)).bind(job_id).fetch_all(&self.pool).await?;
+        let rows = sqlx::query(sql(self.backend, "tasks_of_job")?).bind(job_id).fetch_all(&self.pool).await?;
         rows.iter().map(task_from_row).collect()
     }
 
@@ -316,9 +269,7 @@ impl Store {
         let deps: BTreeSet<String> = tasks.iter().flat_map(|t| t.deps.iter().map(|d| task_id(job_id, d))).collect();
         let mut succeeded = BTreeSet::new();
         if !deps.is_empty() {
-            let sql =
-                format!("SELECT id FROM tasks WHERE state = $1 AND id IN ({})", self.backend.json_text_array("$2"));
-            let rows = sqlx::query(trusted(sql))
+            let rows = sqlx::query(sql(self.backend, "tasks_in_state_among")?)
                 .bind(TaskState::Succeeded.as_str())
                 .bind(json_text(&deps)?)
                 .fetch_all(&mut **tx)
@@ -339,25 +290,7 @@ impl Store {
                 })
             })
             .collect();
-        let sql = format!(
-            "INSERT INTO tasks (id, job_id, key, stage, priority, params_json, state, deps_pending, max_attempts, \
-             created_ms, updated_ms) SELECT n.id, $1, n.key, n.stage, n.priority, n.params, n.state, n.pending, $2, $3, $3 \
-             FROM {rows} WHERE true ON CONFLICT (id) DO NOTHING RETURNING id",
-            rows = self.backend.json_rows(
-                "$4",
-                "n",
-                &[
-                    ("id", "text"),
-                    ("key", "text"),
-                    ("stage", "text"),
-                    ("priority", "bigint"),
-                    ("params", "text"),
-                    ("state", "text"),
-                    ("pending", "bigint")
-                ],
-            ),
-        );
-        let inserted: BTreeSet<String> = sqlx::query(trusted(sql))
+        let inserted: BTreeSet<String> = sqlx::query(sql(self.backend, "insert_tasks")?)
             .bind(job_id)
             .bind(i64::from(self.retry.max_attempts))
             .bind(now_ms)
@@ -374,12 +307,7 @@ impl Store {
             .flat_map(|(id, t)| t.deps.iter().map(move |d| json!({"task": id, "dep": task_id(job_id, d)})))
             .collect();
         if !edges.is_empty() {
-            let sql = format!(
-                "INSERT INTO task_deps (task_id, depends_on) SELECT e.task, e.dep FROM {} WHERE true \
-                 ON CONFLICT DO NOTHING",
-                self.backend.json_rows("$1", "e", &[("task", "text"), ("dep", "text")]),
-            );
-            sqlx::query(trusted(sql)).bind(json_text(&edges)?).execute(&mut **tx).await?;
+            sqlx::query(sql(self.backend, "insert_task_deps")?).bind(json_text(&edges)?).execute(&mut **tx).await?;
         }
         Ok(())
     }

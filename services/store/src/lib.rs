@@ -8,10 +8,11 @@
 //! This crate is the only place in vint that speaks SQL. One `Store` type serves both backends
 //! through sqlx's `Any` driver: **Postgres** for clusters (many coordinators and workers, leasing
 //! with `FOR UPDATE SKIP LOCKED`) and **SQLite** for the embedded default (one process, one
-//! connection, so every transaction is serialized). The SQL is shared; where the dialects differ —
-//! row locks and reading a JSON array as rows — five `Backend` helpers write the clause
-//! (`skip_locked`, `skip_locked_of`, `lock_row`, `json_text_array`, `json_rows`). Both run the
-//! same test suite.
+//! connection, so every transaction is serialized). Every statement is a named block of a file in
+//! `sql/postgres/` or `sql/sqlite/` (`sql.rs`): the two directories hold the same files and names,
+//! each statement spelled in its dialect (row locks, reading a JSON array as rows, one statement
+//! of data-modifying CTEs where SQLite takes several), and code asks for one by name. Both run
+//! the same test suite.
 //!
 //! Every transition follows `vint_core::state`; completion and failure are fenced on the lease
 //! holder and attempt, so a worker whose lease expired can change nothing. States, stages and
@@ -39,12 +40,15 @@ mod outputs;
 mod queue;
 mod records;
 mod reuse;
+mod sql;
 
 use std::str::FromStr;
 use std::time::Duration;
 
 use sqlx::any::{AnyPoolOptions, install_default_drivers};
 use sqlx::{AnyPool, Executor, Row};
+
+use crate::sql::sql;
 
 pub use dashboard::{ColumnType, DashboardTable, DashboardView, MAX_ROWS as DASHBOARD_MAX_ROWS, UnknownView};
 pub use depth::{LIVE_TASK_STATES, QueueDepth};
@@ -58,66 +62,6 @@ pub use reuse::StoredResult;
 pub enum Backend {
     Postgres,
     Sqlite,
-}
-
-impl Backend {
-    /// The row-locking clause of the dequeue query. SQLite has a single writer and needs none.
-    fn skip_locked(self) -> &'static str {
-        match self {
-            Backend::Postgres => "FOR UPDATE SKIP LOCKED",
-            Backend::Sqlite => "",
-        }
-    }
-
-    /// A set of text values from a JSON array of strings bound as `param`, for `x IN (…)`: one
-    /// statement for a batch, where sqlx's `Any` driver cannot bind arrays.
-    fn json_text_array(self, param: &str) -> String {
-        match self {
-            Backend::Postgres => format!("SELECT jsonb_array_elements_text({param}::jsonb)"),
-            Backend::Sqlite => format!("SELECT value FROM json_each({param})"),
-        }
-    }
-
-    /// A derived table `alias` with one row per object of the JSON array bound as `param`, with
-    /// columns `cols` (name, SQL type `text` or `bigint`): how one statement takes a whole batch.
-    fn json_rows(self, param: &str, alias: &str, cols: &[(&str, &str)]) -> String {
-        match self {
-            Backend::Postgres => {
-                let cols: Vec<String> = cols.iter().map(|(name, ty)| format!("{name} {ty}")).collect();
-                format!("jsonb_to_recordset({param}::jsonb) AS {alias}({})", cols.join(", "))
-            }
-            Backend::Sqlite => {
-                let cols: Vec<String> =
-                    cols.iter().map(|(name, _)| format!("json_extract(value, '$.{name}') AS {name}")).collect();
-                format!("(SELECT {} FROM json_each({param})) AS {alias}", cols.join(", "))
-            }
-        }
-    }
-
-    /// Bytes from the hex text `expr` (packed outputs travel in JSON parameters as hex).
-    fn bytes_from_hex(self, expr: &str) -> String {
-        match self {
-            Backend::Postgres => format!("decode({expr}, 'hex')"),
-            Backend::Sqlite => format!("unhex({expr})"),
-        }
-    }
-
-    /// The clause that locks a row read before it is updated in the same transaction.
-    fn lock_row(self) -> &'static str {
-        match self {
-            Backend::Postgres => "FOR UPDATE",
-            Backend::Sqlite => "",
-        }
-    }
-
-    /// Locks the rows of `table_alias` a query selects, skipping those another transaction holds
-    /// (Postgres; SQLite has one writer).
-    fn skip_locked_of(self, table_alias: &str) -> String {
-        match self {
-            Backend::Postgres => format!("FOR UPDATE OF {table_alias} SKIP LOCKED"),
-            Backend::Sqlite => String::new(),
-        }
-    }
 }
 
 /// The URL the pool connects with: `url`, plus `sslmode=disable` when it names a loopback host
@@ -171,6 +115,9 @@ pub enum StoreError {
     /// A write the store refuses: what, and the rule it breaks.
     #[error("{0}")]
     Invalid(String),
+    /// A statement this build's SQL files lack (`sql.rs`; its tests make this unreachable).
+    #[error("SQL statement: {0}")]
+    Statement(String),
 }
 
 pub type Result<T, E = StoreError> = std::result::Result<T, E>;
@@ -219,21 +166,7 @@ impl Store {
             Backend::Postgres => {
                 AnyPoolOptions::new()
                     .max_connections(16)
-                    .after_connect(|conn, _| {
-                        Box::pin(async move {
-                            // Plan each execution with its values: task states are skewed (a
-                            // job's few failed or running tasks among millions succeeded), and a
-                            // generic plan estimates every state alike. Measured on a 2 M-sample
-                            // job: with cached generic plans, the per-batch check whether a job
-                            // finished and the progress counts grew to 0.5 s each and samples/s
-                            // fell from 2,400 to 1,300 as the job went on; a run with custom plans
-                            // held ~2,800 to the end (docs/benchmarks.md). Every statement
-                            // here is a few index lookups per row of a batch: no JIT either.
-                            conn.execute("SET plan_cache_mode = force_custom_plan").await?;
-                            conn.execute("SET jit = off").await?;
-                            Ok(())
-                        })
-                    })
+                    .after_connect(|conn, _| Box::pin(on_connect(conn, Backend::Postgres)))
                     .connect(&postgres_url(url, std::env::var("PGSSLMODE").ok().as_deref()))
                     .await?
             }
@@ -244,15 +177,7 @@ impl Store {
                 AnyPoolOptions::new()
                     .max_connections(1)
                     .acquire_timeout(Duration::from_secs(60))
-                    .after_connect(|conn, _| {
-                        Box::pin(async move {
-                            conn.execute("PRAGMA journal_mode = WAL").await?;
-                            conn.execute("PRAGMA synchronous = NORMAL").await?;
-                            conn.execute("PRAGMA foreign_keys = ON").await?;
-                            conn.execute("PRAGMA busy_timeout = 10000").await?;
-                            Ok(())
-                        })
-                    })
+                    .after_connect(|conn, _| Box::pin(on_connect(conn, Backend::Sqlite)))
                     .connect(&url)
                     .await?
             }
@@ -290,22 +215,12 @@ impl Store {
 
     /// The versions of the migrations applied to the database (none before the first).
     async fn applied_migrations(&self) -> Result<Vec<i64>> {
-        let exists = match self.backend {
-            Backend::Postgres => {
-                "SELECT COUNT(*) AS n FROM pg_tables WHERE tablename = '_sqlx_migrations' \
-                                  AND schemaname = current_schema()"
-            }
-            Backend::Sqlite => {
-                "SELECT COUNT(*) AS n FROM sqlite_master WHERE type = 'table' AND name = '_sqlx_migrations'"
-            }
-        };
+        let exists = sql(self.backend, "migrations_table_exists")?;
         let n: i64 = sqlx::query(exists).fetch_one(&self.pool).await?.try_get("n")?;
         if n == 0 {
             return Ok(Vec::new());
         }
-        let rows = sqlx::query("SELECT version FROM _sqlx_migrations WHERE success ORDER BY version")
-            .fetch_all(&self.pool)
-            .await?;
+        let rows = sqlx::query(sql(self.backend, "applied_migrations")?).fetch_all(&self.pool).await?;
         rows.iter().map(|row| Ok(row.try_get::<i64, _>("version")?)).collect()
     }
 
@@ -324,13 +239,13 @@ impl Store {
         if self.backend != Backend::Postgres {
             return Ok(None);
         }
-        let row = sqlx::query("SELECT ssl FROM pg_stat_ssl WHERE pid = pg_backend_pid()").fetch_one(&self.pool).await?;
+        let row = sqlx::query(sql(self.backend, "connection_encrypted")?).fetch_one(&self.pool).await?;
         Ok(Some(row.try_get::<bool, _>("ssl")?))
     }
 
     /// Whether the database answers a trivial query: the coordinator's health.
     pub async fn ping(&self) -> Result<()> {
-        sqlx::query("SELECT 1").execute(&self.pool).await?;
+        sqlx::query(sql(self.backend, "ping")?).execute(&self.pool).await?;
         Ok(())
     }
 
@@ -339,18 +254,13 @@ impl Store {
     }
 }
 
-/// SQL assembled from constants of this crate (column lists, dialect clauses, enum names),
-/// never from caller text; values always travel as bind parameters.
-fn trusted(sql: String) -> sqlx::AssertSqlSafe<String> {
-    sqlx::AssertSqlSafe(sql)
-}
-
-/// An enum's name (`TaskState::as_str`, `Stage::as_str`) as an SQL string literal, for the few
-/// statements whose text must name a state or stage: Postgres and SQLite use a partial index
-/// (`tasks_ready`, `tasks_leased`) only for a query that names the index's state literally, not
-/// through a bound parameter. `'static` keeps caller text out.
-fn literal(name: &'static str) -> String {
-    format!("'{name}'")
+/// Runs the dialect's `on_connect` statements (settings) on a new connection, one by one.
+async fn on_connect(conn: &mut sqlx::AnyConnection, backend: Backend) -> std::result::Result<(), sqlx::Error> {
+    let text = sql(backend, "on_connect").map_err(|e| sqlx::Error::Configuration(e.to_string().into()))?;
+    for statement in text.split(';').map(str::trim).filter(|s| !s.is_empty()) {
+        conn.execute(statement).await?;
+    }
+    Ok(())
 }
 
 fn parse<T: FromStr>(what: &str, s: &str) -> Result<T> {

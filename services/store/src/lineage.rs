@@ -8,7 +8,8 @@ use sqlx::any::AnyRow;
 
 use vint_core::sample::SampleId;
 
-use crate::{ArtifactRecord, JobAsset, LineageEntry, Result, Store, StoreError, outputs, trusted};
+use crate::sql::sql;
+use crate::{ArtifactRecord, JobAsset, LineageEntry, Result, Store, StoreError, outputs};
 
 /// The files of a row with a task's `task_id`, `key` and packed `files` (`outputs.rs`).
 pub(crate) fn outputs_from_row(row: &AnyRow) -> Result<Vec<ArtifactRecord>> {
@@ -30,9 +31,6 @@ fn outputs_from_rows(rows: &[AnyRow]) -> Result<Vec<ArtifactRecord>> {
 /// The `task_key` lineage gives a job's user files (they come with the submission, not a task).
 pub const ASSET_TASK_KEY: &str = "asset";
 
-/// The packed outputs of the tasks a query selects (alias `t`), in the rows' order.
-const OUTPUTS_SELECT: &str = "SELECT o.task_id, t.key, o.files FROM tasks t JOIN outputs o ON o.task_id = t.id";
-
 impl Store {
     /// The task and, recursively, every task it depends on: producer first, then inputs'
     /// producers breadth-first.
@@ -46,21 +44,14 @@ impl Store {
                 continue;
             }
             let task = self.task(&id).await?.ok_or_else(|| StoreError::NotFound(format!("task {id}")))?;
-            let depends_on: Vec<String> =
-                sqlx::query("SELECT depends_on FROM task_deps WHERE task_id = $1 ORDER BY depends_on")
-                    .bind(&id)
-                    .fetch_all(&self.pool)
-                    .await?
-                    .iter()
-                    .map(|r| r.try_get("depends_on"))
-                    .collect::<Result<_, _>>()?;
-            let rows = sqlx::query(
-                "SELECT o.task_id, t.key, o.files FROM task_deps d JOIN outputs o ON o.task_id = d.depends_on \
-                 JOIN tasks t ON t.id = o.task_id WHERE d.task_id = $1 ORDER BY t.key",
-            )
-            .bind(&id)
-            .fetch_all(&self.pool)
-            .await?;
+            let depends_on: Vec<String> = sqlx::query(sql(self.backend, "task_dependencies")?)
+                .bind(&id)
+                .fetch_all(&self.pool)
+                .await?
+                .iter()
+                .map(|r| r.try_get("depends_on"))
+                .collect::<Result<_, _>>()?;
+            let rows = sqlx::query(sql(self.backend, "task_inputs")?).bind(&id).fetch_all(&self.pool).await?;
             let mut inputs = outputs_from_rows(&rows)?;
             // A user file the task's parameters name (by hash) is an input too, "from" the job.
             if !job_assets.contains_key(&task.job_id) {
@@ -85,15 +76,17 @@ impl Store {
     }
 
     pub async fn artifacts_of_task(&self, task_id: &str) -> Result<Vec<ArtifactRecord>> {
-        let sql = format!("{OUTPUTS_SELECT} WHERE t.id = $1");
-        outputs_from_rows(&sqlx::query(trusted(sql)).bind(task_id).fetch_all(&self.pool).await?)
+        outputs_from_rows(&sqlx::query(sql(self.backend, "task_outputs")?).bind(task_id).fetch_all(&self.pool).await?)
     }
 
     /// The files of a job's tasks of `stage`, in task-key order (only a succeeded task has an
     /// `outputs` row).
     async fn stage_outputs(&self, job_id: &str, stage: vint_core::Stage) -> Result<Vec<ArtifactRecord>> {
-        let sql = format!("{OUTPUTS_SELECT} WHERE t.job_id = $1 AND t.stage = $2 ORDER BY t.key");
-        let rows = sqlx::query(trusted(sql)).bind(job_id).bind(stage.as_str()).fetch_all(&self.pool).await?;
+        let rows = sqlx::query(sql(self.backend, "stage_outputs")?)
+            .bind(job_id)
+            .bind(stage.as_str())
+            .fetch_all(&self.pool)
+            .await?;
         outputs_from_rows(&rows)
     }
 
@@ -105,12 +98,11 @@ impl Store {
         if outputs::digest_bytes(sha256).is_none() {
             return Ok(Vec::new());
         }
-        let holds = match self.backend {
-            crate::Backend::Postgres => "position(decode($1, 'hex') in o.files) > 0",
-            crate::Backend::Sqlite => "instr(o.files, unhex($1)) > 0",
-        };
-        let sql = format!("{OUTPUTS_SELECT} WHERE {holds} AND ($2 = '' OR t.job_id = $2) ORDER BY t.stage, t.id");
-        let rows = sqlx::query(trusted(sql)).bind(sha256).bind(job_id.unwrap_or("")).fetch_all(&self.pool).await?;
+        let rows = sqlx::query(sql(self.backend, "outputs_holding")?)
+            .bind(sha256)
+            .bind(job_id.unwrap_or(""))
+            .fetch_all(&self.pool)
+            .await?;
         Ok(outputs_from_rows(&rows)?.into_iter().filter(|a| a.sha256 == sha256).collect())
     }
 
@@ -166,10 +158,7 @@ impl Store {
             return Ok(None);
         };
         let jobs =
-            sqlx::query("SELECT id, plan_json FROM jobs WHERE ($1 = '' OR id = $1) ORDER BY created_ms DESC, id")
-                .bind(job_id.unwrap_or(""))
-                .fetch_all(&self.pool)
-                .await?;
+            sqlx::query(sql(self.backend, "job_plans")?).bind(job_id.unwrap_or("")).fetch_all(&self.pool).await?;
         let dir = format!("{sample_id}/");
         for job in &jobs {
             let job_id: String = job.try_get("id")?;
@@ -178,15 +167,19 @@ impl Store {
             let rows = match plan {
                 Some(plan) => {
                     let key = plan.chunk_of(&id.object, &id.hand, id.grasp_index).package_key();
-                    let sql = format!("{OUTPUTS_SELECT} WHERE t.id = $1");
-                    sqlx::query(trusted(sql)).bind(format!("{job_id}/{key}")).fetch_all(&self.pool).await?
+                    sqlx::query(sql(self.backend, "task_outputs")?)
+                        .bind(format!("{job_id}/{key}"))
+                        .fetch_all(&self.pool)
+                        .await?
                 }
                 None => {
                     let prefix = format!("{}/{}/{}/", vint_core::Stage::Package.as_str(), id.object, id.hand);
                     let pattern = format!("{}%", prefix.replace('\\', "\\\\").replace('%', "\\%").replace('_', "\\_"));
-                    let sql =
-                        format!("{OUTPUTS_SELECT} WHERE t.job_id = $1 AND t.key LIKE $2 ESCAPE '\\' ORDER BY t.key");
-                    sqlx::query(trusted(sql)).bind(&job_id).bind(pattern).fetch_all(&self.pool).await?
+                    sqlx::query(sql(self.backend, "outputs_with_key_prefix")?)
+                        .bind(&job_id)
+                        .bind(pattern)
+                        .fetch_all(&self.pool)
+                        .await?
                 }
             };
             for row in &rows {
@@ -206,8 +199,9 @@ impl Store {
     /// (artifact rows, distinct contents) of a job: with content addressing, retries and copies
     /// add rows but never new objects for the same content.
     pub async fn artifact_stats(&self, job_id: &str) -> Result<(u64, u64)> {
-        let sql = format!("{OUTPUTS_SELECT} WHERE t.job_id = $1");
-        let files = outputs_from_rows(&sqlx::query(trusted(sql)).bind(job_id).fetch_all(&self.pool).await?)?;
+        let files = outputs_from_rows(
+            &sqlx::query(sql(self.backend, "job_outputs")?).bind(job_id).fetch_all(&self.pool).await?,
+        )?;
         let distinct: BTreeSet<&str> = files.iter().map(|a| a.sha256.as_str()).collect();
         Ok((files.len() as u64, distinct.len() as u64))
     }

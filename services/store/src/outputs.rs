@@ -29,7 +29,8 @@ use std::collections::BTreeMap;
 use sqlx::Row;
 
 use crate::jobs::json_text;
-use crate::{ArtifactRecord, Backend, NewArtifact, Result, Store, StoreError, trusted};
+use crate::sql::sql;
+use crate::{ArtifactRecord, NewArtifact, Result, Store, StoreError};
 
 const VERSION: u8 = 1;
 const DIGEST_BYTES: usize = 32;
@@ -150,19 +151,18 @@ impl Store {
     /// migrations; a database without the table (new, or upgraded already) is left as it is. An
     /// interrupted upgrade resumes where it stopped.
     pub(crate) async fn pack_legacy_artifacts(&self) -> Result<u64> {
-        let exists = match self.backend {
-            Backend::Postgres => {
-                "SELECT COUNT(*) AS n FROM pg_tables WHERE tablename = 'artifacts' AND schemaname = current_schema()"
-            }
-            Backend::Sqlite => "SELECT COUNT(*) AS n FROM sqlite_master WHERE type = 'table' AND name = 'artifacts'",
-        };
-        if sqlx::query(exists).fetch_one(&self.pool).await?.try_get::<i64, _>("n")? == 0 {
+        if sqlx::query(sql(self.backend, "legacy_artifacts_exists")?)
+            .fetch_one(&self.pool)
+            .await?
+            .try_get::<i64, _>("n")?
+            == 0
+        {
             return Ok(0);
         }
         let mut packed = 0u64;
         loop {
             let mut tx = self.pool.begin().await?;
-            let ids: Vec<String> = sqlx::query("SELECT DISTINCT task_id FROM artifacts ORDER BY task_id LIMIT $1")
+            let ids: Vec<String> = sqlx::query(sql(self.backend, "legacy_artifact_tasks")?)
                 .bind(UPGRADE_BATCH)
                 .fetch_all(&mut *tx)
                 .await?
@@ -173,12 +173,10 @@ impl Store {
                 break;
             }
             let ids_json = json_text(&ids)?;
-            let sql = format!(
-                "SELECT task_id, name, sha256, size, media_type, object_key FROM artifacts WHERE task_id IN ({})",
-                self.backend.json_text_array("$1"),
-            );
             let mut by_task: BTreeMap<String, Vec<NewArtifact>> = BTreeMap::new();
-            for row in sqlx::query(trusted(sql)).bind(&ids_json).fetch_all(&mut *tx).await? {
+            for row in
+                sqlx::query(sql(self.backend, "legacy_artifacts_of")?).bind(&ids_json).fetch_all(&mut *tx).await?
+            {
                 by_task.entry(row.try_get("task_id")?).or_default().push(NewArtifact {
                     name: row.try_get("name")?,
                     sha256: row.try_get("sha256")?,
@@ -194,19 +192,15 @@ impl Store {
                     "bytes": total_size(files), "samples": sample_ids(files.iter().map(|f| f.name.as_str())).len(),
                 }));
             }
-            let sql = format!(
-                "INSERT INTO outputs (task_id, files, count, bytes, samples) SELECT o.task, {}, o.count, o.bytes, \
-                 o.samples FROM {} WHERE true ON CONFLICT (task_id) DO NOTHING",
-                self.backend.bytes_from_hex("o.files"),
-                self.backend.json_rows("$1", "o", crate::queue::OUTPUT_COLUMNS),
-            );
-            sqlx::query(trusted(sql)).bind(json_text(&rows)?).execute(&mut *tx).await?;
-            let sql = format!("DELETE FROM artifacts WHERE task_id IN ({})", self.backend.json_text_array("$1"));
-            sqlx::query(trusted(sql)).bind(&ids_json).execute(&mut *tx).await?;
+            sqlx::query(sql(self.backend, "insert_packed_legacy_outputs")?)
+                .bind(json_text(&rows)?)
+                .execute(&mut *tx)
+                .await?;
+            sqlx::query(sql(self.backend, "delete_legacy_artifacts")?).bind(&ids_json).execute(&mut *tx).await?;
             tx.commit().await?;
             packed += by_task.len() as u64;
         }
-        sqlx::query("DROP TABLE artifacts").execute(&self.pool).await?;
+        sqlx::query(sql(self.backend, "drop_legacy_artifacts")?).execute(&self.pool).await?;
         Ok(packed)
     }
 }

@@ -12,7 +12,8 @@ use sqlx::Row;
 use vint_core::TaskState;
 
 use crate::jobs::json_text;
-use crate::{NewArtifact, Result, Store, trusted};
+use crate::sql::sql;
+use crate::{NewArtifact, Result, Store};
 
 /// A finished task's result under a reuse key: what a task with the same key takes instead of
 /// running.
@@ -37,13 +38,11 @@ impl Store {
             .iter()
             .map(|(id, attempt, key)| serde_json::json!({"id": id, "attempt": attempt, "key": key}))
             .collect();
-        let sql = format!(
-            "INSERT INTO task_keys (task_id, content_key) SELECT k.id, k.key FROM {} JOIN tasks t ON t.id = k.id \
-             WHERE t.attempt = k.attempt AND t.state = $2 \
-             ON CONFLICT (task_id) DO UPDATE SET content_key = excluded.content_key",
-            self.backend.json_rows("$1", "k", &[("id", "text"), ("attempt", "bigint"), ("key", "text")]),
-        );
-        sqlx::query(trusted(sql)).bind(json_text(&rows)?).bind(TaskState::Running.as_str()).execute(&self.pool).await?;
+        sqlx::query(sql(self.backend, "set_content_keys")?)
+            .bind(json_text(&rows)?)
+            .bind(TaskState::Running.as_str())
+            .execute(&self.pool)
+            .await?;
         Ok(())
     }
 
@@ -53,12 +52,7 @@ impl Store {
         if keys.is_empty() {
             return Ok(HashMap::new());
         }
-        let sql = format!(
-            "SELECT t.id, k.content_key, t.result_json, t.engine_json FROM task_keys k JOIN tasks t ON t.id = k.task_id \
-             WHERE k.content_key IN ({}) AND t.state = $2 ORDER BY t.id",
-            self.backend.json_text_array("$1"),
-        );
-        let rows = sqlx::query(trusted(sql))
+        let rows = sqlx::query(sql(self.backend, "tasks_with_keys")?)
             .bind(json_text(keys)?)
             .bind(TaskState::Succeeded.as_str())
             .fetch_all(&self.pool)
@@ -85,12 +79,8 @@ impl Store {
             return Ok(by_key);
         }
         let ids: Vec<&str> = by_key.values().map(|r| r.task_id.as_str()).collect();
-        let sql = format!(
-            "SELECT o.task_id, t.key, o.files FROM outputs o JOIN tasks t ON t.id = o.task_id \
-             WHERE o.task_id IN ({})",
-            self.backend.json_text_array("$1"),
-        );
-        let rows = sqlx::query(trusted(sql)).bind(json_text(&ids)?).fetch_all(&self.pool).await?;
+        let rows =
+            sqlx::query(sql(self.backend, "outputs_of_tasks")?).bind(json_text(&ids)?).fetch_all(&self.pool).await?;
         let mut outputs: HashMap<String, Vec<NewArtifact>> = HashMap::new();
         for row in &rows {
             for a in crate::lineage::outputs_from_row(row)? {
@@ -114,20 +104,14 @@ impl Store {
     /// refused, a crashed attempt's outputs) and may be collected.
     pub async fn referenced_object_keys(&self) -> Result<std::collections::HashSet<String>> {
         let mut keys = std::collections::HashSet::new();
-        for row in sqlx::query("SELECT object_key FROM job_assets").fetch_all(&self.pool).await? {
+        for row in sqlx::query(sql(self.backend, "asset_object_keys")?).fetch_all(&self.pool).await? {
             keys.insert(row.try_get::<String, _>("object_key")?);
         }
         // Read in pages by task id: the packed files of a 2 M-sample job are ~1.4 GB. (Only the
         // hashes are wanted: the task's id stands in for its key.)
         let mut after = String::new();
         loop {
-            let rows = sqlx::query(
-                "SELECT o.task_id, o.task_id AS key, o.files FROM outputs o WHERE o.task_id > $1 \
-                 ORDER BY o.task_id LIMIT 1000",
-            )
-            .bind(&after)
-            .fetch_all(&self.pool)
-            .await?;
+            let rows = sqlx::query(sql(self.backend, "outputs_page")?).bind(&after).fetch_all(&self.pool).await?;
             let Some(last) = rows.last() else { break };
             after = last.try_get("task_id")?;
             for row in &rows {
@@ -139,10 +123,7 @@ impl Store {
 
     /// A task's reuse key, if a lease wrote one.
     pub async fn content_key(&self, task_id: &str) -> Result<Option<String>> {
-        let row = sqlx::query("SELECT content_key FROM task_keys WHERE task_id = $1")
-            .bind(task_id)
-            .fetch_optional(&self.pool)
-            .await?;
+        let row = sqlx::query(sql(self.backend, "content_key")?).bind(task_id).fetch_optional(&self.pool).await?;
         row.map(|r| r.try_get::<String, _>("content_key")).transpose().map_err(Into::into)
     }
 }

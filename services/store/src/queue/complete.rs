@@ -8,7 +8,8 @@ use vint_core::{AttemptOutcome, TaskState};
 
 use super::lease_lost;
 use crate::jobs::json_text;
-use crate::{Backend, Completion, Result, Store, StoreError, outputs, trusted};
+use crate::sql::sql;
+use crate::{Backend, Completion, Result, Store, StoreError, outputs};
 
 /// How completed tasks came by their outputs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -21,11 +22,11 @@ enum Kind {
 }
 
 impl Kind {
-    /// What a completion of this kind sets on the task's row besides its result.
-    fn set_clause(self) -> &'static str {
+    /// The Postgres statement that completes a batch of this kind, and the SQLite fence.
+    fn statements(self) -> (&'static str, &'static str) {
         match self {
-            Kind::Ran => "",
-            Kind::Reused => "reused_from = c.reused, attempt = tasks.attempt - 1, ",
+            Kind::Ran => ("complete_ran", "fence_ran"),
+            Kind::Reused => ("complete_reused", "fence_reused"),
         }
     }
 }
@@ -104,7 +105,7 @@ impl Store {
         let mut tx = self.pool.begin().await?;
         let done = match self.backend {
             Backend::Postgres => record_completions_pg(&mut tx, candidates, kind, now_ms).await?,
-            Backend::Sqlite => record_completions(&mut tx, self.backend, candidates, kind, now_ms).await?,
+            Backend::Sqlite => record_completions(&mut tx, candidates, kind, now_ms).await?,
         };
         if done.is_empty() {
             tx.rollback().await?;
@@ -152,18 +153,6 @@ fn output_rows<'a>(completions: impl Iterator<Item = &'a Completion>) -> Result<
     json_text(&rows)
 }
 
-const FENCE_COLUMNS: &[(&str, &str)] = &[
-    ("id", "text"),
-    ("worker", "text"),
-    ("attempt", "bigint"),
-    ("engine", "text"),
-    ("result", "text"),
-    ("timings", "text"),
-    ("reused", "text"),
-];
-pub(crate) const OUTPUT_COLUMNS: &[(&str, &str)] =
-    &[("task", "text"), ("files", "text"), ("count", "bigint"), ("bytes", "bigint"), ("samples", "bigint")];
-
 /// Each item's outcome: completed when it was the first of its task in the batch and its fence
 /// held (`done`), refused when the store could not pack its outputs (`refused`), its lease lost
 /// otherwise.
@@ -197,38 +186,7 @@ async fn record_completions_pg(
     kind: Kind,
     now_ms: i64,
 ) -> Result<HashMap<String, String>> {
-    let pg = Backend::Postgres;
-    let sql = format!(
-        "WITH c AS (SELECT * FROM {fences}), \
-         done AS (UPDATE tasks SET state = $1, lease_owner = NULL, lease_deadline_ms = NULL, engine_json = c.engine, \
-           result_json = c.result, {reuse}updated_ms = $3 FROM c WHERE tasks.id = c.id AND tasks.state = $2 \
-           AND tasks.lease_owner = c.worker AND tasks.attempt = c.attempt AND tasks.lease_deadline_ms >= $3 \
-           RETURNING tasks.id, tasks.job_id, tasks.attempt, tasks.leased_ms), \
-         {ended}
-         outputs AS (INSERT INTO outputs (task_id, files, count, bytes, samples) \
-           SELECT o.task, decode(o.files, 'hex'), o.count, o.bytes, o.samples FROM {outputs} \
-           JOIN done ON done.id = o.task), \
-         finished AS (SELECT d.task_id, COUNT(*) AS n FROM done JOIN task_deps d ON d.depends_on = done.id \
-           GROUP BY d.task_id), \
-         waiting AS (SELECT t.id, finished.n FROM tasks t JOIN finished ON finished.task_id = t.id ORDER BY t.id \
-           FOR UPDATE OF t), \
-         unblocked AS (UPDATE tasks SET deps_pending = tasks.deps_pending - w.n, \
-           state = CASE WHEN tasks.state = $7 AND tasks.deps_pending - w.n = 0 THEN $8 ELSE tasks.state END, \
-           updated_ms = $3 FROM waiting w WHERE tasks.id = w.id) \
-         SELECT id, job_id FROM done",
-        fences = pg.json_rows("$4", "c", FENCE_COLUMNS),
-        outputs = pg.json_rows("$6", "o", OUTPUT_COLUMNS),
-        reuse = kind.set_clause(),
-        ended = match kind {
-            Kind::Ran =>
-                "ended AS (INSERT INTO attempts (task_id, attempt, worker_id, started_ms, ended_ms, outcome, \
-                engine_json, timings_json) SELECT done.id, done.attempt, c.worker, COALESCE(done.leased_ms, $3), $3, $5, \
-                c.engine, c.timings FROM done JOIN c ON c.id = done.id), ",
-            // $5 is still bound: a statement may leave a parameter unused only if it is typed.
-            Kind::Reused => "ended AS (SELECT CAST($5 AS TEXT) AS outcome), ",
-        },
-    );
-    let rows = sqlx::query(trusted(sql))
+    let rows = sqlx::query(sql(Backend::Postgres, kind.statements().0)?)
         .bind(TaskState::Succeeded.as_str())
         .bind(TaskState::Running.as_str())
         .bind(now_ms)
@@ -246,21 +204,12 @@ async fn record_completions_pg(
 /// statement each.
 async fn record_completions(
     tx: &mut Transaction<'static, Any>,
-    backend: Backend,
     candidates: &[&(Completion, Vec<NewTask>)],
     kind: Kind,
     now_ms: i64,
 ) -> Result<HashMap<String, String>> {
-    // The fence: only running tasks leased to the caller, at this attempt, before the deadline.
-    let sql = format!(
-        "UPDATE tasks SET state = $1, lease_owner = NULL, lease_deadline_ms = NULL, engine_json = c.engine, \
-         result_json = c.result, {reuse}updated_ms = $3 FROM {rows} WHERE tasks.id = c.id AND tasks.state = $2 \
-         AND tasks.lease_owner = c.worker AND tasks.attempt = c.attempt AND tasks.lease_deadline_ms >= $3 \
-         RETURNING tasks.id, tasks.job_id",
-        rows = backend.json_rows("$4", "c", FENCE_COLUMNS),
-        reuse = kind.set_clause(),
-    );
-    let done: HashMap<String, String> = sqlx::query(trusted(sql))
+    let lite = Backend::Sqlite;
+    let done: HashMap<String, String> = sqlx::query(sql(lite, kind.statements().1)?)
         .bind(TaskState::Succeeded.as_str())
         .bind(TaskState::Running.as_str())
         .bind(now_ms)
@@ -278,50 +227,26 @@ async fn record_completions(
     let ids: Vec<&str> = accepted.iter().map(|(c, _)| c.fence.task_id.as_str()).collect();
     let ids_json = json_text(&ids)?;
     if accepted.iter().any(|(c, _)| !c.outputs.is_empty()) {
-        let sql = format!(
-            "INSERT INTO outputs (task_id, files, count, bytes, samples) SELECT o.task, {}, o.count, o.bytes, \
-             o.samples FROM {}",
-            backend.bytes_from_hex("o.files"),
-            backend.json_rows("$1", "o", OUTPUT_COLUMNS),
-        );
         let outputs = output_rows(accepted.iter().map(|(c, _)| c))?;
-        sqlx::query(trusted(sql)).bind(outputs).execute(&mut **tx).await?;
+        sqlx::query(sql(lite, "insert_outputs")?).bind(outputs).execute(&mut **tx).await?;
     }
     // The attempts, written once now that they end (the task's row still holds leased_ms).
     if kind == Kind::Ran {
-        let sql = format!(
-            "INSERT INTO attempts (task_id, attempt, worker_id, started_ms, ended_ms, outcome, engine_json, \
-             timings_json) SELECT e.id, e.attempt, e.worker, COALESCE(t.leased_ms, $1), $1, $2, e.engine, e.timings \
-             FROM {} JOIN tasks t ON t.id = e.id",
-            backend.json_rows("$3", "e", FENCE_COLUMNS),
-        );
-        sqlx::query(trusted(sql))
+        sqlx::query(sql(lite, "insert_succeeded_attempts")?)
             .bind(now_ms)
             .bind(AttemptOutcome::Succeeded.as_str())
             .bind(fence_rows(&accepted)?)
             .execute(&mut **tx)
             .await?;
     }
-    unblock_dependents(tx, backend, &ids_json, now_ms).await?;
+    unblock_dependents(tx, &ids_json, now_ms).await?;
     Ok(done)
 }
 
 /// Counts the success of the tasks in `ids_json` (a JSON array of ids) in their dependents, and
 /// queues those with no dependency left: one statement for a batch.
-async fn unblock_dependents(
-    tx: &mut Transaction<'static, Any>,
-    backend: Backend,
-    ids_json: &str,
-    now_ms: i64,
-) -> Result<()> {
-    let sql = format!(
-        "UPDATE tasks SET deps_pending = deps_pending - n.done, \
-         state = CASE WHEN state = $1 AND deps_pending - n.done = 0 THEN $2 ELSE state END, updated_ms = $3 \
-         FROM (SELECT task_id, COUNT(*) AS done FROM task_deps WHERE depends_on IN ({}) GROUP BY task_id) AS n \
-         WHERE tasks.id = n.task_id",
-        backend.json_text_array("$4"),
-    );
-    sqlx::query(trusted(sql))
+async fn unblock_dependents(tx: &mut Transaction<'static, Any>, ids_json: &str, now_ms: i64) -> Result<()> {
+    sqlx::query(sql(Backend::Sqlite, "unblock_dependents")?)
         .bind(TaskState::Waiting.as_str())
         .bind(TaskState::Queued.as_str())
         .bind(now_ms)

@@ -6,7 +6,8 @@ use vint_core::state::retry_backoff_ms;
 use vint_core::{AttemptOutcome, TaskState};
 
 use super::{end_attempt, lease_lost};
-use crate::{Fence, Result, Store, StoreError, literal, to_u32, trusted};
+use crate::sql::sql;
+use crate::{Backend, Fence, Result, Store, StoreError, to_u32};
 
 /// Why an attempt ends without success.
 #[derive(Clone, Copy, Debug)]
@@ -27,11 +28,7 @@ impl Store {
 
     /// Returns tasks whose lease expired to the queue (or fails them when out of attempts).
     pub async fn reap_expired(&self, now_ms: i64) -> Result<u64> {
-        let sql = format!(
-            "SELECT id, lease_owner, attempt FROM tasks WHERE state = {running} AND lease_deadline_ms < $1",
-            running = literal(TaskState::Running.as_str()),
-        );
-        let rows = sqlx::query(trusted(sql)).bind(now_ms).fetch_all(&self.pool).await?;
+        let rows = sqlx::query(sql(self.backend, "expired_leases")?).bind(now_ms).fetch_all(&self.pool).await?;
         let mut reaped = 0;
         for row in rows {
             let owner: Option<String> = row.try_get("lease_owner")?;
@@ -60,13 +57,8 @@ impl Store {
         let mut tx = self.pool.begin().await?;
         // The reaper fails a lease precisely because its deadline passed.
         let reported = matches!(failure, Failure::Reported { .. });
-        let sql = format!(
-            "SELECT attempt, max_attempts FROM tasks WHERE id = $1 AND state = $2 AND lease_owner = $3 \
-             AND attempt = $4{deadline} {lock_row}",
-            deadline = if reported { " AND lease_deadline_ms >= $5" } else { "" },
-            lock_row = self.backend.lock_row(),
-        );
-        let mut q = sqlx::query(trusted(sql))
+        let fence = if reported { "fence_reported_failure" } else { "fence_expired_lease" };
+        let mut q = sqlx::query(sql(self.backend, fence)?)
             .bind(&f.task_id)
             .bind(TaskState::Running.as_str())
             .bind(&f.worker_id)
@@ -90,32 +82,26 @@ impl Store {
             Failure::Reported { .. } if will_retry => AttemptOutcome::Retry,
             Failure::Reported { .. } => AttemptOutcome::Failed,
         };
-        end_attempt(&mut tx, f, now_ms, outcome, Some(message), None).await?;
+        end_attempt(&mut tx, self.backend, f, now_ms, outcome, Some(message), None).await?;
         if will_retry {
             let backoff = retry_backoff_ms(attempts, self.retry.backoff_base_ms, self.retry.backoff_cap_ms);
-            sqlx::query(
-                "UPDATE tasks SET state = $1, lease_owner = NULL, lease_deadline_ms = NULL, last_error = $2, \
-                 not_before_ms = $3, updated_ms = $4 WHERE id = $5",
-            )
-            .bind(TaskState::Queued.as_str())
-            .bind(message)
-            .bind(now_ms + backoff)
-            .bind(now_ms)
-            .bind(&f.task_id)
-            .execute(&mut *tx)
-            .await?;
+            sqlx::query(sql(self.backend, "requeue_task")?)
+                .bind(TaskState::Queued.as_str())
+                .bind(message)
+                .bind(now_ms + backoff)
+                .bind(now_ms)
+                .bind(&f.task_id)
+                .execute(&mut *tx)
+                .await?;
         } else {
-            sqlx::query(
-                "UPDATE tasks SET state = $1, lease_owner = NULL, lease_deadline_ms = NULL, last_error = $2, \
-                 updated_ms = $3 WHERE id = $4",
-            )
-            .bind(TaskState::Failed.as_str())
-            .bind(message)
-            .bind(now_ms)
-            .bind(&f.task_id)
-            .execute(&mut *tx)
-            .await?;
-            fail_dependents(&mut tx, &f.task_id, now_ms).await?;
+            sqlx::query(sql(self.backend, "fail_task")?)
+                .bind(TaskState::Failed.as_str())
+                .bind(message)
+                .bind(now_ms)
+                .bind(&f.task_id)
+                .execute(&mut *tx)
+                .await?;
+            fail_dependents(&mut tx, self.backend, &f.task_id, now_ms).await?;
         }
         tx.commit().await?;
         if !will_retry {
@@ -126,20 +112,22 @@ impl Store {
 }
 
 /// Fails, transitively, every waiting task that depends on `task_id`.
-async fn fail_dependents(tx: &mut Transaction<'static, Any>, task_id: &str, now_ms: i64) -> Result<()> {
+async fn fail_dependents(
+    tx: &mut Transaction<'static, Any>,
+    backend: Backend,
+    task_id: &str,
+    now_ms: i64,
+) -> Result<()> {
     let mut frontier = vec![task_id.to_string()];
     while let Some(failed) = frontier.pop() {
-        let rows = sqlx::query(
-            "UPDATE tasks SET state = $1, last_error = $2, updated_ms = $3 WHERE state = $4 \
-             AND id IN (SELECT task_id FROM task_deps WHERE depends_on = $5) RETURNING id",
-        )
-        .bind(TaskState::Failed.as_str())
-        .bind(format!("upstream task {failed} failed"))
-        .bind(now_ms)
-        .bind(TaskState::Waiting.as_str())
-        .bind(&failed)
-        .fetch_all(&mut **tx)
-        .await?;
+        let rows = sqlx::query(sql(backend, "fail_waiting_dependents")?)
+            .bind(TaskState::Failed.as_str())
+            .bind(format!("upstream task {failed} failed"))
+            .bind(now_ms)
+            .bind(TaskState::Waiting.as_str())
+            .bind(&failed)
+            .fetch_all(&mut **tx)
+            .await?;
         for row in rows {
             frontier.push(row.try_get("id")?);
         }

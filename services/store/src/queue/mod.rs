@@ -16,9 +16,8 @@ use sqlx::{Any, Row, Transaction};
 use vint_core::{AttemptOutcome, TaskState};
 
 use crate::jobs::task_from_row;
-use crate::{Backend, Fence, Result, Store, StoreError, literal, parse, to_u32, trusted};
-
-pub(crate) use complete::OUTPUT_COLUMNS;
+use crate::sql::sql;
+use crate::{Backend, Fence, Result, Store, StoreError, parse, to_u32};
 
 impl Store {
     /// Keeps the planner's statistics of the tables a running job grows (Postgres): analyzes each
@@ -32,33 +31,28 @@ impl Store {
         if self.backend != Backend::Postgres {
             return Ok(Vec::new());
         }
-        let stale: Vec<String> = sqlx::query(
-            "SELECT s.relname::text AS relname FROM pg_stat_user_tables s JOIN pg_class c ON c.oid = s.relid \
-             WHERE s.relname IN ('tasks', 'task_deps', 'attempts', 'outputs') \
-             AND s.n_live_tup > 1000 + 2 * greatest(c.reltuples, 0) ORDER BY s.relname",
-        )
-        .fetch_all(&self.pool)
-        .await?
-        .iter()
-        .map(|row| row.try_get::<String, _>("relname"))
-        .collect::<std::result::Result<_, _>>()?;
+        let stale: Vec<String> = sqlx::query(sql(self.backend, "stale_statistics")?)
+            .fetch_all(&self.pool)
+            .await?
+            .iter()
+            .map(|row| row.try_get::<String, _>("relname"))
+            .collect::<std::result::Result<_, _>>()?;
         for table in &stale {
-            // The names come from the fixed list above.
-            sqlx::query(trusted(format!("ANALYZE {table}"))).execute(&self.pool).await?;
+            let statement = match table.as_str() {
+                "tasks" => "analyze_tasks",
+                "task_deps" => "analyze_task_deps",
+                "attempts" => "analyze_attempts",
+                "outputs" => "analyze_outputs",
+                other => return Err(StoreError::Corrupt(format!("statistics of an unexpected table {other:?}"))),
+            };
+            sqlx::query(sql(self.backend, statement)?).execute(&self.pool).await?;
         }
         Ok(stale)
     }
 
     /// The task's attempts, oldest first.
     pub async fn attempts(&self, task_id: &str) -> Result<Vec<crate::AttemptRecord>> {
-        // Ended attempts are rows of `attempts`; a running one is its task's row.
-        let sql = format!(
-            "SELECT task_id, attempt, worker_id, started_ms, ended_ms, outcome, error FROM attempts \
-             WHERE task_id = $1 UNION ALL SELECT id, attempt, lease_owner, COALESCE(leased_ms, updated_ms), NULL, \
-             NULL, NULL FROM tasks WHERE id = $1 AND state = {running} ORDER BY attempt",
-            running = literal(TaskState::Running.as_str()),
-        );
-        let rows = sqlx::query(trusted(sql)).bind(task_id).fetch_all(&self.pool).await?;
+        let rows = sqlx::query(sql(self.backend, "task_attempts")?).bind(task_id).fetch_all(&self.pool).await?;
         rows.iter()
             .map(|r| {
                 Ok(crate::AttemptRecord {
@@ -79,8 +73,10 @@ impl Store {
 
     /// Running tasks, for tests and operators.
     pub async fn running_tasks(&self) -> Result<Vec<crate::TaskRecord>> {
-        let sql = format!("SELECT {} FROM tasks WHERE state = $1 ORDER BY id", crate::jobs::TASK_COLUMNS);
-        let rows = sqlx::query(trusted(sql)).bind(TaskState::Running.as_str()).fetch_all(&self.pool).await?;
+        let rows = sqlx::query(sql(self.backend, "tasks_in_state")?)
+            .bind(TaskState::Running.as_str())
+            .fetch_all(&self.pool)
+            .await?;
         rows.iter().map(task_from_row).collect()
     }
 }
@@ -91,6 +87,7 @@ pub(super) fn lease_lost(f: &Fence) -> StoreError {
 
 pub(super) async fn end_attempt(
     tx: &mut Transaction<'static, Any>,
+    backend: Backend,
     f: &Fence,
     now_ms: i64,
     outcome: AttemptOutcome,
@@ -99,19 +96,15 @@ pub(super) async fn end_attempt(
 ) -> Result<()> {
     let (engine, timings) = engine_and_timings.unzip();
     // Before the task's row leaves `running`: it holds when the attempt started.
-    sqlx::query(
-        "INSERT INTO attempts (task_id, attempt, worker_id, started_ms, ended_ms, outcome, error, engine_json, \
-         timings_json) SELECT id, attempt, lease_owner, COALESCE(leased_ms, $1), $1, $2, $3, $4, $5 FROM tasks \
-         WHERE id = $6 AND attempt = $7",
-    )
-    .bind(now_ms)
-    .bind(outcome.as_str())
-    .bind(error)
-    .bind(engine)
-    .bind(timings)
-    .bind(&f.task_id)
-    .bind(i64::from(f.attempt))
-    .execute(&mut **tx)
-    .await?;
+    sqlx::query(sql(backend, "insert_ended_attempt")?)
+        .bind(now_ms)
+        .bind(outcome.as_str())
+        .bind(error)
+        .bind(engine)
+        .bind(timings)
+        .bind(&f.task_id)
+        .bind(i64::from(f.attempt))
+        .execute(&mut **tx)
+        .await?;
     Ok(())
 }

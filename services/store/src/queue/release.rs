@@ -4,7 +4,8 @@ use sqlx::Row;
 use vint_core::{AttemptOutcome, TaskState};
 
 use crate::jobs::json_text;
-use crate::{Result, Store, to_u32, trusted};
+use crate::sql::sql;
+use crate::{Result, Store, to_u32};
 
 impl Store {
     /// Gives back leases `worker_id` holds without finishing them (the worker is shutting down):
@@ -22,15 +23,8 @@ impl Store {
         let rows: Vec<serde_json::Value> =
             held.iter().map(|(id, attempt)| serde_json::json!({"id": id, "attempt": attempt})).collect();
         let mut tx = self.pool.begin().await?;
-        let sql = format!(
-            "UPDATE tasks SET state = $1, lease_owner = NULL, lease_deadline_ms = NULL, not_before_ms = $2, \
-             max_attempts = max_attempts + 1, updated_ms = $2 FROM {held} WHERE tasks.id = r.id AND tasks.state = $3 \
-             AND tasks.lease_owner = $4 AND tasks.attempt = r.attempt AND tasks.lease_deadline_ms >= $2 \
-             RETURNING tasks.id, tasks.attempt, tasks.leased_ms",
-            held = self.backend.json_rows("$5", "r", &[("id", "text"), ("attempt", "bigint")]),
-        );
         // (task id, attempt, when it was leased)
-        let mut released: Vec<(String, i64, i64)> = sqlx::query(trusted(sql))
+        let mut released: Vec<(String, i64, i64)> = sqlx::query(sql(self.backend, "release_leases")?)
             .bind(TaskState::Queued.as_str())
             .bind(now_ms)
             .bind(TaskState::Running.as_str())
@@ -53,12 +47,7 @@ impl Store {
             .iter()
             .map(|(id, attempt, started)| serde_json::json!({"id": id, "attempt": attempt, "started": started}))
             .collect();
-        let sql = format!(
-            "INSERT INTO attempts (task_id, attempt, worker_id, started_ms, ended_ms, outcome, error) \
-             SELECT r.id, r.attempt, $1, r.started, $2, $3, $4 FROM {}",
-            self.backend.json_rows("$5", "r", &[("id", "text"), ("attempt", "bigint"), ("started", "bigint")]),
-        );
-        sqlx::query(trusted(sql))
+        sqlx::query(sql(self.backend, "insert_released_attempts")?)
             .bind(worker_id)
             .bind(now_ms)
             .bind(AttemptOutcome::Released.as_str())

@@ -1,0 +1,33 @@
+-- The upgrade that packs the rows of the table `artifacts` (one a file, before migration 0013)
+-- into `outputs` (`outputs.rs`), a batch of tasks a transaction, then drops the table.
+
+-- name: legacy_artifacts_exists
+-- Whether the table `artifacts` exists (`n` is 0 or 1).
+SELECT COUNT(*) AS n FROM sqlite_master WHERE type = 'table' AND name = 'artifacts';
+
+-- name: legacy_artifact_tasks
+-- Up to $1 tasks with rows in `artifacts`, by id.
+SELECT DISTINCT task_id FROM artifacts ORDER BY task_id LIMIT $1;
+
+-- name: legacy_artifacts_of
+-- The `artifacts` rows of the tasks of the JSON array $1.
+SELECT task_id, name, sha256, size, media_type, object_key FROM artifacts
+WHERE task_id IN (SELECT value FROM json_each($1));
+
+-- name: insert_packed_legacy_outputs
+-- Packed outputs, the JSON rows $1 (task, files as hex, count, bytes, samples); a task packed
+-- already (an upgrade resumed) is left as it is.
+INSERT INTO outputs (task_id, files, count, bytes, samples)
+SELECT json_extract(value, '$.task'), unhex(json_extract(value, '$.files')), json_extract(value, '$.count'),
+       json_extract(value, '$.bytes'), json_extract(value, '$.samples')
+FROM json_each($1)
+WHERE true
+ON CONFLICT (task_id) DO NOTHING;
+
+-- name: delete_legacy_artifacts
+-- The `artifacts` rows of the tasks of the JSON array $1, packed now.
+DELETE FROM artifacts WHERE task_id IN (SELECT value FROM json_each($1));
+
+-- name: drop_legacy_artifacts
+-- The emptied table.
+DROP TABLE artifacts;
