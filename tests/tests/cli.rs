@@ -232,6 +232,37 @@ fn with_json_every_error_is_json_on_stdout_with_the_same_exit_code() {
     }
 }
 
+/// `--out` holding a file named `manifest.jsonl` that vint did not write (a common name in ML
+/// datasets) is refused before anything runs, and nothing in it is touched.
+#[test]
+fn run_and_convert_refuse_an_out_directory_that_is_not_a_vint_dataset_and_delete_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("captions");
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::write(out.join("manifest.jsonl"), "{\"image\": \"a.jpg\", \"caption\": \"a mug\"}\n").unwrap();
+    std::fs::write(out.join("data.txt"), "precious").unwrap();
+    let native = dir.path().join("native");
+    std::fs::create_dir_all(&native).unwrap();
+    for args in [
+        vec![
+            "run",
+            tiny_spec().to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--state",
+            dir.path().join("state").to_str().unwrap(),
+        ],
+        vec!["convert", native.to_str().unwrap(), "--out", out.to_str().unwrap(), "--format", "bop"],
+    ] {
+        let o = vintctl(&args);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", stderr(&o));
+        let text = stderr(&o);
+        assert!(text.contains("refusing to replace it") && text.contains("nothing was changed"), "{args:?}: {text}");
+        assert_eq!(std::fs::read_to_string(out.join("data.txt")).unwrap(), "precious");
+        assert!(out.join("manifest.jsonl").exists());
+    }
+}
+
 #[test]
 fn bare_vintctl_shows_how_to_start() {
     let o = vintctl(&[]);

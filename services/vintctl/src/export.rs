@@ -10,7 +10,7 @@
 //! never sees half a dataset. Every file is verified against its hash as it is read from storage.
 //! It is given the samples (the coordinator lists them) and the store; it talks to no one else.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, anyhow};
@@ -176,42 +176,129 @@ fn refuse_overlap(native: &Path, out: &Path) -> Result<(), Failure> {
 fn staging_dir(out: &Path, what: &str) -> Result<PathBuf, Failure> {
     let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
-    let staging = parent.join(format!(
-        ".{}.partial-{what}-{}",
-        out.file_name().and_then(|n| n.to_str()).unwrap_or("dataset"),
-        std::process::id()
-    ));
+    let staging = sibling(out, &format!("partial-{what}"));
     if staging.exists() {
         std::fs::remove_dir_all(&staging).with_context(|| format!("removing stale {}", staging.display()))?;
     }
     Ok(staging)
 }
 
-/// Moves the finished dataset at `staging` to `out`, replacing what was there.
+/// Moves the finished dataset at `staging` to `out`. A dataset already there is checked again
+/// (it may have changed while this one was written), moved aside, replaced, and only then
+/// removed: a failure before the last step leaves it where it was.
 fn replace_with(staging: &Path, out: &Path) -> Result<(), Failure> {
-    if out.exists() {
-        std::fs::remove_dir_all(out).with_context(|| format!("replacing {}", out.display()))?;
+    if !out.exists() {
+        std::fs::rename(staging, out).with_context(|| format!("moving the dataset into {}", out.display()))?;
+        return Ok(());
     }
-    std::fs::rename(staging, out).with_context(|| format!("moving the dataset into {}", out.display()))?;
+    check_destination(out)?;
+    let aside = sibling(out, "replaced");
+    if aside.exists() {
+        std::fs::remove_dir_all(&aside).with_context(|| format!("removing stale {}", aside.display()))?;
+    }
+    std::fs::rename(out, &aside).with_context(|| format!("moving the dataset at {} aside", out.display()))?;
+    if let Err(e) = std::fs::rename(staging, out) {
+        let _ = std::fs::rename(&aside, out);
+        return Err(anyhow::Error::new(e).context(format!("moving the dataset into {}", out.display())).into());
+    }
+    if let Err(e) = std::fs::remove_dir_all(&aside) {
+        tracing::warn!(path = %aside.display(), error = %e, "could not remove the replaced dataset");
+    }
     Ok(())
 }
 
-/// Refuses to replace a non-empty directory that is not a vint dataset.
+/// A hidden sibling of `out` for `what` (staging, a replaced dataset), named by this process.
+fn sibling(out: &Path, what: &str) -> PathBuf {
+    let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    parent.join(format!(
+        ".{}.{what}-{}",
+        out.file_name().and_then(|n| n.to_str()).unwrap_or("dataset"),
+        std::process::id()
+    ))
+}
+
+/// Refuses `--out` unless it is absent, an empty directory, or a dataset vint wrote: a directory
+/// whose `manifest.jsonl` is one of ours (the native layout's lines, or a converted format's
+/// `{path, sha256, size}` lines) and lists every file the directory holds. A directory that merely
+/// holds a file named `manifest.jsonl` (a common name among ML datasets), or a dataset someone
+/// added files to, is refused with the first file that would be lost; nothing is changed.
 pub fn check_destination(out: &Path) -> Result<(), Failure> {
-    if !out.exists() {
-        return Ok(());
-    }
-    if !out.is_dir() {
+    let refuse = |why: String| {
+        bad_input(anyhow!("--out {}: {why}; refusing to replace it (nothing was changed)", out.display()))
+    };
+    let Ok(meta) = std::fs::symlink_metadata(out) else { return Ok(()) };
+    if !meta.is_dir() {
         return Err(bad_input(anyhow!("--out {}: exists and is not a directory", out.display())));
     }
-    let empty = std::fs::read_dir(out).map(|mut d| d.next().is_none()).unwrap_or(false);
-    if !empty && !out.join("manifest.jsonl").exists() {
-        return Err(bad_input(anyhow!(
-            "--out {}: is a non-empty directory without manifest.jsonl; refusing to replace it",
-            out.display()
-        )));
+    let mut held = Vec::new();
+    held_files(out, out, &mut held).with_context(|| format!("listing {}", out.display()))?;
+    if held.is_empty() {
+        return Ok(());
+    }
+    let manifest = match std::fs::read_to_string(out.join("manifest.jsonl")) {
+        Ok(text) => text,
+        Err(_) => return Err(refuse("is a non-empty directory without a manifest.jsonl".into())),
+    };
+    let listed = manifest_paths(&manifest)
+        .map_err(|why| refuse(format!("its manifest.jsonl is not one vint writes ({why})")))?;
+    held.sort();
+    if let Some(extra) = held.iter().find(|p| p.as_str() != "manifest.jsonl" && !listed.contains(p.as_str())) {
+        return Err(refuse(format!("holds {extra:?}, which its manifest.jsonl does not list")));
     }
     Ok(())
+}
+
+/// Every file under `dir` (symbolic links included, not followed), as a path relative to `root`.
+fn held_files(root: &Path, dir: &Path, out: &mut Vec<String>) -> std::io::Result<()> {
+    for entry in std::fs::read_dir(dir)? {
+        let entry = entry?;
+        let path = entry.path();
+        if entry.file_type()?.is_dir() {
+            held_files(root, &path, out)?;
+        } else {
+            let rel = path.strip_prefix(root).unwrap_or(&path);
+            out.push(rel.to_string_lossy().replace('\\', "/"));
+        }
+    }
+    Ok(())
+}
+
+/// The paths a vint manifest lists, or why it is not one: a native line names its files in its
+/// entry's directory (the dataset's at the root, a model's in `models/`, a grasp's or a sample's
+/// under its id), a converted format's line names one path.
+fn manifest_paths(text: &str) -> Result<BTreeSet<String>, String> {
+    let mut paths = BTreeSet::new();
+    for (n, line) in text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty()) {
+        let value: Value = serde_json::from_str(line).map_err(|e| format!("line {}: {e}", n + 1))?;
+        if let Some(path) = value.get("path").and_then(Value::as_str) {
+            if value.get("sha256").and_then(Value::as_str).is_none()
+                || value.get("size").and_then(Value::as_u64).is_none()
+            {
+                return Err(format!("line {}: a path without its sha256 and size", n + 1));
+            }
+            paths.insert(path.to_string());
+            continue;
+        }
+        let Some(files) = value.get("files").and_then(Value::as_object) else {
+            return Err(format!("line {}: neither a path nor files", n + 1));
+        };
+        let dir = if value.get("model").is_some() {
+            "models"
+        } else if let Some(id) = value.get("grasp_id").or_else(|| value.get("sample_id")).and_then(Value::as_str) {
+            id
+        } else if value.get("dataset").is_some() {
+            ""
+        } else {
+            return Err(format!("line {}: files of no dataset, model, grasp or sample", n + 1));
+        };
+        for name in files.keys() {
+            paths.insert(if dir.is_empty() { name.clone() } else { format!("{dir}/{name}") });
+        }
+    }
+    if paths.is_empty() {
+        return Err("it lists no file".into());
+    }
+    Ok(paths)
 }
 
 /// What a manifest line lists: an object's model, a grasp record's or a sample's directory.
@@ -428,4 +515,90 @@ fn object_record(grasps: &[GraspId], object: &str, dir: &Path) -> Result<Value, 
     let text = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
     let record: Value = serde_json::from_slice(&text).with_context(|| format!("parsing {}", path.display()))?;
     Ok(record["object"].clone())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn write(dir: &Path, rel: &str, text: &str) {
+        let path = dir.join(rel);
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        std::fs::write(path, text).unwrap();
+    }
+
+    fn native_manifest() -> &'static str {
+        concat!(
+            r#"{"dataset":"d","files":{"dataset.json":{"sha256":"aa","size":2,"media_type":"application/json"}}}"#,
+            "\n",
+            r#"{"model":"box","files":{"obj_000001.ply":{"sha256":"bb","size":2,"media_type":"model/ply"}}}"#,
+            "\n",
+            r#"{"sample_id":"s1","files":{"rgb.png":{"sha256":"cc","size":2,"media_type":"image/png"}}}"#,
+            "\n",
+        )
+    }
+
+    #[test]
+    fn a_directory_with_a_foreign_manifest_is_refused_and_keeps_its_files() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out");
+        write(&out, "manifest.jsonl", "{\"id\": 7, \"text\": \"a caption\"}\n");
+        write(&out, "data.txt", "precious");
+        let e = check_destination(&out).unwrap_err();
+        assert_eq!(e.code, 2);
+        let message = format!("{:#}", e.error);
+        assert!(message.contains("not one vint writes") && message.contains("nothing was changed"), "{message}");
+        assert_eq!(std::fs::read_to_string(out.join("data.txt")).unwrap(), "precious");
+    }
+
+    #[test]
+    fn a_vint_dataset_is_replaceable_until_a_file_it_does_not_list_is_added() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out");
+        write(&out, "manifest.jsonl", native_manifest());
+        write(&out, "dataset.json", "{}");
+        write(&out, "models/obj_000001.ply", "ply");
+        write(&out, "s1/rgb.png", "png");
+        check_destination(&out).unwrap();
+        write(&out, "s1/notes.txt", "mine");
+        let message = format!("{:#}", check_destination(&out).unwrap_err().error);
+        assert!(message.contains("\"s1/notes.txt\"") && message.contains("does not list"), "{message}");
+    }
+
+    #[test]
+    fn a_converted_dataset_lists_its_paths_and_an_empty_or_absent_directory_is_free() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("bop");
+        write(&out, "manifest.jsonl", "{\"path\":\"train/000001/scene_gt.json\",\"sha256\":\"aa\",\"size\":2}\n");
+        write(&out, "train/000001/scene_gt.json", "{}");
+        check_destination(&out).unwrap();
+        check_destination(&dir.path().join("absent")).unwrap();
+        std::fs::create_dir_all(dir.path().join("empty/sub")).unwrap();
+        check_destination(&dir.path().join("empty")).unwrap();
+        write(&dir.path().join("plain"), "data.txt", "x");
+        let message = format!("{:#}", check_destination(&dir.path().join("plain")).unwrap_err().error);
+        assert!(message.contains("without a manifest.jsonl"), "{message}");
+    }
+
+    #[test]
+    fn replacing_a_dataset_moves_it_aside_first_and_leaves_no_sibling_behind() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out");
+        write(&out, "manifest.jsonl", "{\"path\":\"a.txt\",\"sha256\":\"aa\",\"size\":1}\n");
+        write(&out, "a.txt", "old");
+        let staging = dir.path().join("staging");
+        write(&staging, "manifest.jsonl", "{\"path\":\"b.txt\",\"sha256\":\"bb\",\"size\":1}\n");
+        write(&staging, "b.txt", "new");
+        replace_with(&staging, &out).unwrap();
+        assert_eq!(std::fs::read_to_string(out.join("b.txt")).unwrap(), "new");
+        assert!(!out.join("a.txt").exists());
+        let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(left, [std::ffi::OsString::from("out")]);
+        // A file added to the dataset meanwhile stops the replacement, and both stay as they were.
+        write(&out, "added.txt", "mine");
+        write(&staging, "manifest.jsonl", "{\"path\":\"c.txt\",\"sha256\":\"cc\",\"size\":1}\n");
+        assert!(replace_with(&staging, &out).is_err());
+        assert_eq!(std::fs::read_to_string(out.join("added.txt")).unwrap(), "mine");
+        assert!(staging.join("manifest.jsonl").exists());
+    }
 }

@@ -11,6 +11,7 @@ use std::path::PathBuf;
 use vint_core::SpecErrors;
 
 /// A failure and the exit code it deserves.
+#[derive(Debug)]
 pub struct Failure {
     pub code: u8,
     pub error: anyhow::Error,
