@@ -209,7 +209,8 @@ async fn metrics_parse_as_prometheus_text_and_count_what_the_store_holds() {
     }
     assert!(exprs >= 9 && queries >= 10, "{exprs} PromQL and {queries} SQL queries");
 
-    // Health is the database's: gone, the coordinator answers 503 and says why.
+    // Health is the database's: gone, the coordinator answers 503 and says so, without the
+    // database's own words (they name it; the log has them).
     store.close().await;
     let admin = postgres_admin_url();
     let name = database.rsplit('/').next().unwrap();
@@ -222,6 +223,8 @@ async fn metrics_parse_as_prometheus_text_and_count_what_the_store_holds() {
         http_get(http, "/healthz").is_some_and(|(status, _, body)| status == 503 && body.contains("database"))
     })
     .await;
+    let (_, _, body) = http_get(http, "/healthz").unwrap();
+    assert!(!body.contains(name), "/healthz repeats the database's error: {body}");
 }
 
 /// The `vint_*` metric names a PromQL expression reads.

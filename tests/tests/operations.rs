@@ -108,6 +108,34 @@ fn the_coordinator_never_prints_the_database_password() {
     assert!(redacted.contains("vint_no_such_role:***@") && redacted.contains("password=***"), "{redacted}");
 }
 
+/// Clap prints a flag's environment value in `--help` unless told not to: the database URL (its
+/// password), the tokens file and the store (an S3 URL may carry credentials) are hidden in every
+/// binary that takes them.
+#[test]
+fn help_never_prints_a_secret_from_the_environment() {
+    let url = url_with_password("hunter2");
+    for (binary, args) in
+        [("vint-coordinator", &["--help"][..]), ("vint-worker", &["--help"]), ("vintctl", &["export", "--help"])]
+    {
+        let o = Command::new(bin(binary))
+            .args(args)
+            .env("VINT_DATABASE_URL", &url)
+            .env("VINT_STORE", "s3://bucket?secret=hunter2")
+            .env("VINT_AUTH_TOKENS", "/secrets/hunter2")
+            .env("VINT_TOKEN", "hunter2")
+            .stdin(Stdio::null())
+            .output()
+            .expect("run --help");
+        assert!(o.status.success(), "{binary} {args:?}: {}", stderr(&o));
+        let (out, err) = (stdout(&o), stderr(&o));
+        assert!(out.contains("--"), "{binary} {args:?} printed no help: {out}");
+        assert!(
+            !out.contains("hunter2") && !err.contains("hunter2"),
+            "{binary} {args:?} printed a secret:\n{out}{err}"
+        );
+    }
+}
+
 async fn health(url: &str, service: &str) -> Result<ServingStatus, tonic::Status> {
     let unavailable = |e: tonic::transport::Error| tonic::Status::unavailable(e.to_string());
     let channel = tonic::transport::Endpoint::from_shared(url.to_string()).map_err(unavailable)?;

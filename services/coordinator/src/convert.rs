@@ -9,9 +9,14 @@ pub fn status(e: StoreError) -> Status {
         StoreError::LeaseLost { .. } => Status::failed_precondition(e.to_string()),
         StoreError::NotFound(_) => Status::not_found(e.to_string()),
         StoreError::Invalid(_) => Status::invalid_argument(e.to_string()),
+        // The database's own words stay in the log: they can name tables, roles and hosts.
+        other if other.is_transient() => {
+            tracing::warn!(error = %other, "store unavailable");
+            Status::unavailable("the coordinator's database is unavailable; try again")
+        }
         other => {
             tracing::error!(error = %other, "store error");
-            Status::internal(other.to_string())
+            Status::internal("internal error in the coordinator's store (its log has the details)")
         }
     }
 }

@@ -26,7 +26,11 @@ impl vint_telemetry::HealthCheck for DatabaseHealth {
     async fn check(&self) -> vint_telemetry::Health {
         match tokio::time::timeout(DATABASE_CHECK_TIMEOUT, self.0.ping()).await {
             Ok(Ok(())) => Ok(()),
-            Ok(Err(e)) => Err(format!("the database does not answer: {e}")),
+            // The details go to the log, not to an unauthenticated caller.
+            Ok(Err(e)) => {
+                tracing::warn!(error = %e, "health check: the database does not answer");
+                Err("the database does not answer (the coordinator's log says why)".to_string())
+            }
             Err(_) => Err(format!("the database did not answer within {DATABASE_CHECK_TIMEOUT:?}")),
         }
     }

@@ -120,6 +120,34 @@ pub enum StoreError {
     Statement(String),
 }
 
+impl StoreError {
+    /// Whether the error is the database's passing state rather than the request's fault: a lost
+    /// or refused connection, a pool with no connection free in time, a transaction the database
+    /// chose to abort (serialization failure, deadlock), a server shutting down or full, a SQLite
+    /// database locked by another process. The same request may succeed when tried again.
+    pub fn is_transient(&self) -> bool {
+        let StoreError::Database(e) = self else { return false };
+        match e {
+            sqlx::Error::Io(_)
+            | sqlx::Error::Tls(_)
+            | sqlx::Error::PoolTimedOut
+            | sqlx::Error::PoolClosed
+            | sqlx::Error::WorkerCrashed
+            | sqlx::Error::Protocol(_) => true,
+            sqlx::Error::Database(db) => db.code().is_some_and(|code| transient_code(&code)),
+            _ => false,
+        }
+    }
+}
+
+/// SQLSTATEs (Postgres) and result codes (SQLite) of a transient failure: connection exceptions
+/// (class 08), serialization failure and deadlock (40001, 40P01), too many connections (53300),
+/// operator intervention (class 57: admin or crash shutdown, cannot connect now); SQLITE_BUSY (5)
+/// and SQLITE_LOCKED (6).
+fn transient_code(code: &str) -> bool {
+    code.starts_with("08") || code.starts_with("57") || matches!(code, "40001" | "40P01" | "53300" | "5" | "6")
+}
+
 pub type Result<T, E = StoreError> = std::result::Result<T, E>;
 
 /// Retry policy applied when a task fails retryably or its lease expires.
@@ -269,6 +297,25 @@ fn parse<T: FromStr>(what: &str, s: &str) -> Result<T> {
 
 fn to_u32(what: &str, v: i64) -> Result<u32> {
     u32::try_from(v).map_err(|_| StoreError::Corrupt(format!("{what} {v}")))
+}
+
+#[cfg(test)]
+mod transient_tests {
+    use super::*;
+
+    #[test]
+    fn connection_pool_and_abort_errors_are_transient_the_request_s_own_are_not() {
+        assert!(StoreError::Database(sqlx::Error::PoolTimedOut).is_transient());
+        assert!(StoreError::Database(sqlx::Error::Io(std::io::ErrorKind::ConnectionReset.into())).is_transient());
+        assert!(!StoreError::Database(sqlx::Error::RowNotFound).is_transient());
+        assert!(!StoreError::NotFound("job x".into()).is_transient());
+        for code in ["08006", "57P01", "57P03", "40001", "40P01", "53300", "5", "6"] {
+            assert!(transient_code(code), "{code}");
+        }
+        for code in ["23505", "42P01", "22P02", "19", "1"] {
+            assert!(!transient_code(code), "{code}");
+        }
+    }
 }
 
 #[cfg(test)]

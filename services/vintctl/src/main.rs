@@ -198,7 +198,7 @@ enum Command {
         out: PathBuf,
         /// Artifact store URL the workers wrote to (file:///… or s3://…); default: the
         /// coordinator's own --store.
-        #[arg(long, env = "VINT_STORE")]
+        #[arg(long, env = "VINT_STORE", hide_env_values = true)]
         store: Option<String>,
         #[command(flatten)]
         format: FormatArgs,
@@ -243,7 +243,7 @@ enum Command {
         out: PathBuf,
         /// For a job id: the artifact store its workers wrote to (file:///… or s3://…); default:
         /// the coordinator's own --store.
-        #[arg(long, env = "VINT_STORE")]
+        #[arg(long, env = "VINT_STORE", hide_env_values = true)]
         store: Option<String>,
     },
     /// A contact sheet of a native dataset (PNG): per sample one row of RGB, depth, noisy depth,
@@ -261,7 +261,7 @@ enum Command {
         samples: u32,
         /// For a job id: the artifact store its workers wrote to (file:///… or s3://…); default:
         /// the coordinator's own --store.
-        #[arg(long, env = "VINT_STORE")]
+        #[arg(long, env = "VINT_STORE", hide_env_values = true)]
         store: Option<String>,
     },
     /// Compare two exported datasets with a tolerance per kind of file (pixels, depth in metres,

@@ -42,6 +42,44 @@ pub enum IdentityError {
     Failed(String),
 }
 
+/// Variables an engine process inherits from the worker, by exact name: the process basics and
+/// the engines' own settings. Everything else is left out: the worker holds the coordinator's token
+/// and the object store's credentials (`VINT_TOKEN`, `AWS_*`, `VINT_STORE`), and an engine, which
+/// parses users' files, needs neither (the worker does all store and coordinator I/O).
+const ENGINE_ENV: &[&str] = &[
+    "PATH",
+    "HOME",
+    "USER",
+    "LANG",
+    "LANGUAGE",
+    "TZ",
+    "TMPDIR",
+    "LD_LIBRARY_PATH",
+    "VIRTUAL_ENV",
+    "VINT_RENDER_DEVICE",
+    "VINT_RENDER_THREADS",
+];
+
+/// Prefixes of the variables an engine inherits: locale, GPU selection and drivers (CUDA, NVIDIA,
+/// the OpenGL/EGL choice of MuJoCo), and the thread counts of its numeric libraries.
+const ENGINE_ENV_PREFIXES: &[&str] =
+    &["LC_", "CUDA_", "NVIDIA_", "MUJOCO_", "PYOPENGL_", "EGL_", "OMP_", "MKL_", "OPENBLAS_", "XDG_"];
+
+/// A process of `program` for the engines in `engines_dir`, given only the part of `vars` (the
+/// worker's environment) `ENGINE_ENV` and `ENGINE_ENV_PREFIXES` allow.
+fn engine_process(
+    program: &std::path::Path,
+    engines_dir: &std::path::Path,
+    vars: impl IntoIterator<Item = (std::ffi::OsString, std::ffi::OsString)>,
+) -> Command {
+    let allowed = vars.into_iter().filter(|(name, _)| {
+        name.to_str().is_some_and(|n| ENGINE_ENV.contains(&n) || ENGINE_ENV_PREFIXES.iter().any(|p| n.starts_with(p)))
+    });
+    let mut command = Command::new(program);
+    command.env_clear().envs(allowed).env("PYTHONPATH", engines_dir);
+    command
+}
+
 /// Longest `python -m vint_engines identity` may take (it imports no engine library).
 const IDENTITY_TIMEOUT: Duration = Duration::from_secs(60);
 
@@ -49,9 +87,8 @@ const IDENTITY_TIMEOUT: Duration = Duration::from_secs(60);
 /// the hash of the code the stage can import and of the pinned libraries' installed versions),
 /// the part of a task's reuse key that says which code made its outputs.
 pub async fn identities(cmd: &EngineCommand) -> Result<std::collections::HashMap<Stage, String>, IdentityError> {
-    let run = Command::new(&cmd.python)
+    let run = engine_process(&cmd.python, &cmd.engines_dir, std::env::vars_os())
         .args(["-m", "vint_engines", "identity"])
-        .env("PYTHONPATH", &cmd.engines_dir)
         .stdin(Stdio::null())
         .kill_on_drop(true)
         .output();
@@ -175,9 +212,8 @@ pub struct Engine {
 impl Engine {
     /// Starts the engine for `stage` and waits for its hello.
     pub async fn start(stage: Stage, cmd: &EngineCommand) -> Result<Engine, EngineError> {
-        let mut child = Command::new(&cmd.python)
+        let mut child = engine_process(&cmd.python, &cmd.engines_dir, std::env::vars_os())
             .args(["-m", "vint_engines", "serve", "--stage", stage.as_str()])
-            .env("PYTHONPATH", &cmd.engines_dir)
             .env("PYTHONUNBUFFERED", "1")
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
@@ -356,6 +392,32 @@ fn parse_vm_rss(status: &str) -> Option<u64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// An engine parses users' files: it must not hold the worker's secrets.
+    #[tokio::test]
+    async fn an_engine_process_gets_the_allowed_variables_and_no_secret() {
+        let vars = [
+            ("PATH", "/usr/bin:/bin"),
+            ("CUDA_VISIBLE_DEVICES", "0"),
+            ("VINT_RENDER_DEVICE", "cpu"),
+            ("VINT_TOKEN", "s3cret"),
+            ("AWS_SECRET_ACCESS_KEY", "s3cret"),
+            ("VINT_STORE", "s3://bucket"),
+            ("VINT_DATABASE_URL", "postgres://u:s3cret@h/db"),
+        ]
+        .map(|(k, v)| (k.into(), v.into()));
+        let out = engine_process(std::path::Path::new("/usr/bin/env"), std::path::Path::new("/engines"), vars)
+            .output()
+            .await
+            .unwrap();
+        assert!(out.status.success());
+        let mut seen: Vec<String> = String::from_utf8(out.stdout).unwrap().lines().map(str::to_string).collect();
+        seen.sort();
+        assert_eq!(
+            seen,
+            ["CUDA_VISIBLE_DEVICES=0", "PATH=/usr/bin:/bin", "PYTHONPATH=/engines", "VINT_RENDER_DEVICE=cpu"]
+        );
+    }
 
     #[test]
     fn vm_rss_is_read_in_bytes() {

@@ -16,7 +16,7 @@ use vint_store::{RetryPolicy, Store, StoreError};
 #[command(version, about = "vint coordinator: schedules grasp, render, noise and package tasks over gRPC")]
 struct Args {
     /// Database URL: postgres://… (cluster) or sqlite://… (single machine).
-    #[arg(long, env = "VINT_DATABASE_URL")]
+    #[arg(long, env = "VINT_DATABASE_URL", hide_env_values = true)]
     database: String,
     /// Address to listen on. Without --auth-tokens only a loopback address is accepted (see
     /// --insecure-listen-any).
@@ -28,7 +28,7 @@ struct Args {
     http_listen: Option<SocketAddr>,
     /// Tokens file: one `ROLE TOKEN` per line, ROLE one of submit, worker, read (docs/security.md).
     /// Every call must then carry a token whose role allows it.
-    #[arg(long, env = "VINT_AUTH_TOKENS")]
+    #[arg(long, env = "VINT_AUTH_TOKENS", hide_env_values = true)]
     auth_tokens: Option<PathBuf>,
     /// Listen on a non-loopback address without --auth-tokens: anyone who reaches the port may
     /// submit, cancel and report tasks.
@@ -42,7 +42,7 @@ struct Args {
     tls_key: Option<PathBuf>,
     /// Artifact store the workers use (file:///… or s3://…): where the user files of submitted
     /// specs are stored. Without it, specs that name files of their own are refused.
-    #[arg(long, env = "VINT_STORE")]
+    #[arg(long, env = "VINT_STORE", hide_env_values = true)]
     store: Option<String>,
     /// Default lease length in milliseconds.
     #[arg(long, default_value_t = 30_000)]

@@ -27,7 +27,7 @@ struct Args {
     #[arg(long, env = "VINT_TLS_CA")]
     tls_ca: Option<PathBuf>,
     /// Artifact store URL: file:///abs/dir or s3://bucket[/prefix].
-    #[arg(long, env = "VINT_STORE")]
+    #[arg(long, env = "VINT_STORE", hide_env_values = true)]
     store: String,
     /// Stages to serve, comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "grasp,render,noise,package")]
