@@ -63,7 +63,7 @@ impl fmt::Display for GraspId {
 }
 
 #[derive(Debug, thiserror::Error)]
-#[error("grasp id {0:?} is not of the form OBJECT.HAND.gNNNNNN")]
+#[error("grasp id {0:?} is not of the form OBJECT.HAND.gNNNNNN (OBJECT and HAND: 1 to 64 of a-z, 0-9 and _)")]
 pub struct BadGraspId(pub String);
 
 impl FromStr for GraspId {
@@ -75,11 +75,18 @@ impl FromStr for GraspId {
             return Err(bad());
         };
         let grasp_index = grasp.strip_prefix('g').and_then(|g| g.parse().ok()).ok_or_else(bad)?;
-        if object.is_empty() || hand.is_empty() {
+        // Ids become directory and tar member names: only the names a spec may give (no `/`, no
+        // `..`, nothing absolute), whoever wrote the manifest or the row they are read from.
+        if !is_name(object) || !is_name(hand) {
             return Err(bad());
         }
         Ok(GraspId { object: object.to_string(), hand: hand.to_string(), grasp_index })
     }
+}
+
+/// A name as a spec gives objects and hands: 1 to 64 of `a-z`, `0-9` and `_`.
+fn is_name(s: &str) -> bool {
+    !s.is_empty() && s.len() <= 64 && s.bytes().all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_')
 }
 
 #[cfg(test)]
@@ -105,7 +112,19 @@ mod tests {
 
     #[test]
     fn malformed_sample_ids_are_rejected() {
-        for bad in ["", "a.b.c", "a.b.g1.x1", "a.b.gx.v1", ".b.g1.v1", "a.b.g1.v1.extra"] {
+        for bad in [
+            "",
+            "a.b.c",
+            "a.b.g1.x1",
+            "a.b.gx.v1",
+            ".b.g1.v1",
+            "a.b.g1.v1.extra",
+            "../../etc.b.g1.v1",
+            "/etc/passwd.trx3.g000001.v01",
+            "a/b.trx3.g000001.v01",
+            "a.tr x3.g000001.v01",
+            "Mug.trx3.g000001.v01",
+        ] {
             assert!(bad.parse::<SampleId>().is_err(), "{bad}");
         }
     }
