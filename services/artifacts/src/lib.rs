@@ -3,7 +3,9 @@
 //!
 //! An artifact's key is derived from its SHA-256 (`sha256/ab/abcdef…`), never chosen by a caller,
 //! so keys cannot escape the store and a retried upload of the same content is a no-op: writes use
-//! `PutMode::Create` and treat "already exists" as success. Reads verify the hash.
+//! `PutMode::Create`, and an object that already exists is read back and checked against its hash:
+//! intact, the write is done; corrupt (a disk's bit rot, a truncated copy), it is rewritten with
+//! the bytes being stored, so storing the content again repairs it. Reads verify the hash.
 //!
 //! A key that arrives from outside (a worker's completion, a row read back from the database) is
 //! checked by `check_key` against the one shape the store makes; every object location passes
@@ -158,7 +160,15 @@ impl ArtifactStore {
         let mut tries = 0;
         loop {
             match self.inner.put_opts(&location, PutPayload::from(bytes.clone()), opts.clone()).await {
-                Ok(_) | Err(object_store::Error::AlreadyExists { .. }) => break,
+                Ok(_) => break,
+                Err(object_store::Error::AlreadyExists { .. }) => {
+                    if !self.holds_intact(&location, &sha256).await? {
+                        tracing::warn!(%key, "a stored object does not match its hash; rewriting it");
+                        let overwrite = PutOptions { mode: PutMode::Overwrite, ..Default::default() };
+                        self.inner.put_opts(&location, PutPayload::from(bytes.clone()), overwrite).await?;
+                    }
+                    break;
+                }
                 Err(e @ object_store::Error::Generic { .. }) if tries < PUT_RETRIES => {
                     tries += 1;
                     tracing::warn!(%key, error = %e, "upload failed; trying again");
@@ -168,6 +178,15 @@ impl ArtifactStore {
             }
         }
         Ok(StoredObject { sha256, size, key })
+    }
+
+    /// Whether the object at `location` exists and hashes to `sha256`.
+    async fn holds_intact(&self, location: &ObjectPath, sha256: &str) -> Result<bool> {
+        match self.inner.get(location).await {
+            Ok(found) => Ok(sha256_hex(&found.bytes().await?) == sha256),
+            Err(object_store::Error::NotFound { .. }) => Ok(false),
+            Err(e) => Err(e.into()),
+        }
     }
 
     /// Stores a file's content (artifacts are at most a few MB: images and arrays of one view).
@@ -262,6 +281,18 @@ mod tests {
         let a = store.put_bytes(Bytes::from_static(b"mask")).await.unwrap();
         std::fs::write(dir.path().join(&a.key), b"MASK").unwrap();
         assert!(matches!(store.get(&a.sha256).await, Err(ArtifactError::HashMismatch { .. })));
+    }
+
+    #[tokio::test]
+    async fn storing_the_content_again_repairs_a_corrupt_object() {
+        let (store, dir) = local();
+        let a = store.put_bytes(Bytes::from_static(b"depth image")).await.unwrap();
+        std::fs::write(dir.path().join(&a.key), b"depth imagE").unwrap();
+        assert!(matches!(store.get(&a.sha256).await, Err(ArtifactError::HashMismatch { .. })));
+        let again = store.put_bytes(Bytes::from_static(b"depth image")).await.unwrap();
+        assert_eq!(again, a);
+        assert_eq!(store.get(&a.sha256).await.unwrap(), Bytes::from_static(b"depth image"));
+        assert_eq!(store.count_objects().await.unwrap(), 1);
     }
 
     /// An in-memory store whose first `failures` puts fail as a dropped connection would, after
