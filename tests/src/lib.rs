@@ -349,6 +349,11 @@ pub fn manifest_sha256(dir: &Path) -> String {
 }
 
 /// Polls `cond` every 20 ms until it holds or `timeout` passes.
+/// Milliseconds since the Unix epoch: the clock the coordinator stamps leases with.
+pub fn now_ms() -> i64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis() as i64)
+}
+
 pub async fn wait_for<F, Fut>(timeout: Duration, what: &str, mut cond: F)
 where
     F: FnMut() -> Fut,

@@ -123,10 +123,12 @@ store_test!(wrong_worker_or_attempt_cannot_complete, |store: Store| async move {
     submit_chain(&store, "j").await;
     let leased = store.lease("w1", &[Stage::Grasp], 1, 1_000, 0).await.unwrap();
     let mut other = fence(&leased[0], "w2");
-    assert!(store.complete(&completion(other.clone(), &[]), &[], 1).await.is_err());
+    let refused = store.complete(&completion(other.clone(), &[]), &[], 1).await;
+    assert!(matches!(refused, Err(StoreError::LeaseLost { ref worker_id, .. }) if worker_id == "w2"), "{refused:?}");
     other.worker_id = "w1".into();
     other.attempt += 1;
-    assert!(store.complete(&completion(other, &[]), &[], 1).await.is_err());
+    let refused = store.complete(&completion(other, &[]), &[], 1).await;
+    assert!(matches!(refused, Err(StoreError::LeaseLost { attempt: 2, .. })), "{refused:?}");
     assert_eq!(state_of(&store, "j/grasp/a").await, TaskState::Running);
 });
 
@@ -247,7 +249,8 @@ store_test!(cancel_stops_leasing_and_fences_running_attempts, |store: Store| asy
     let cancelled = store.cancel_job("j", 1).await.unwrap();
     assert_eq!(cancelled.state, JobState::Cancelled);
     assert!(store.lease("w", &[Stage::Grasp], 10, 10_000, 2).await.unwrap().is_empty());
-    assert!(store.complete(&completion(fence(&leased[0], "w"), &[]), &[], 3).await.is_err());
+    let refused = store.complete(&completion(fence(&leased[0], "w"), &[]), &[], 3).await;
+    assert!(matches!(refused, Err(StoreError::LeaseLost { .. })), "{refused:?}");
     assert_eq!(store.progress("j").await.unwrap().count(TaskState::Cancelled), 2);
 });
 
