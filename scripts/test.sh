@@ -296,6 +296,6 @@ step "deploy manifests" deploy_checks
 step "cargo clippy" cargo clippy --workspace --all-targets -- -D warnings
 step "cargo build --bins" cargo build --workspace --bins
 step "cargo test" cargo test --workspace "$@"
-step "pytest (engines)" .venv/bin/python -m pytest workers/engines/tests -q
+step "pytest (engines)" .venv/bin/python -m pytest workers/engines/tests -q --durations=15
 step "bench smokes" .venv/bin/python -m pytest tests/python/test_bench_smoke.py tests/python/test_packed_outputs.py tests/python/test_dispatch_report.py -q --durations=0
 printf '\ntest.sh: all %d checks passed in %ds\n' "$STEPS" $((SECONDS - total)) >&2

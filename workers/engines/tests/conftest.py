@@ -18,6 +18,8 @@ ENGINES_DIR = Path(__file__).resolve().parents[1]
 if str(ENGINES_DIR) not in sys.path:
     sys.path.insert(0, str(ENGINES_DIR))
 
+from timeouts import pytest_configure, pytest_runtest_protocol  # noqa: E402, F401  (hooks: time limits)
+
 
 class EngineProcess:
     """A worker's view of an engine: a child process spoken to in frames (written independently of

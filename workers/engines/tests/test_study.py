@@ -66,14 +66,16 @@ def test_coarser_timesteps_cost_less_and_do_not_beat_the_reference(quick_study: 
     _, summary = read_csv(quick_study / "grasp_study_summary.csv")
     by_name = {s["config"]: s for s in summary if s["hand"] == "all"}
     reference, coarsest = by_name[REFERENCE.name], by_name[COARSEST.name]
-    # 32× fewer steps must show up as less time per trial, whatever the acceptance.
+    # A 32× coarser timestep must take fewer physics steps per trial, whatever the acceptance (the
+    # time it saves is measured, not asserted: the study's wall_s and cpu_s columns).
     _, rows = read_csv(quick_study / "grasp_study.csv")
 
-    def mean_wall(config: str) -> float:
-        walls = [float(r["wall_s"]) for r in rows if r["config"] == config]
-        return sum(walls) / len(walls)
+    def mean_steps(config: str) -> float:
+        steps = [int(r["steps"]) for r in rows if r["config"] == config]
+        assert steps and min(steps) > 0, config
+        return sum(steps) / len(steps)
 
-    assert mean_wall(coarsest["config"]) < mean_wall(reference["config"]) / 3
+    assert mean_steps(coarsest["config"]) < mean_steps(reference["config"]) / 3
     # A coarse step that reproduced the reference exactly would mean the timestep never applied.
     assert float(coarsest["pos_err_mm_median"] or "inf") > 0.0
     assert float(by_name[DEFAULT.name]["label_agreement_pct"]) >= 50.0

@@ -123,6 +123,7 @@ class TrialOutcome:
     max_penetration_m: float
     timestep_used: float
     retries: int
+    steps: int
     wall_s: float
     cpu_s: float
 
@@ -140,17 +141,21 @@ def object_in_palm(record: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
 
 
 class PenetrationProbe:
-    """A MuJoCo control callback recording the deepest contact (m) over every simulated step.
+    """A MuJoCo control callback recording the deepest contact (m) over every simulated step, and
+    how many steps it saw: the physics work of a trial, the cost a coarser timestep saves.
 
     MuJoCo calls it from `mj_forward` too, which the trial uses at time 0 to try out hand
     placements before simulating: only states after the first step (time > 0) count."""
 
     def __init__(self) -> None:
         self.deepest = 0.0
+        self.steps = 0
 
     def __call__(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
-        if data.ncon and data.time > 0.0:
-            self.deepest = max(self.deepest, -float(np.min(data.contact.dist)))
+        if data.time > 0.0:
+            self.steps += 1
+            if data.ncon:
+                self.deepest = max(self.deepest, -float(np.min(data.contact.dist)))
 
 
 def run_one(scene: GraspScene, data: mujoco.MjData, physics: Physics, skin: Skin, seed: int) -> TrialOutcome:
@@ -176,6 +181,7 @@ def run_one(scene: GraspScene, data: mujoco.MjData, physics: Physics, skin: Skin
         max_penetration_m=max(probe.deepest, 0.0),
         timestep_used=float(stability.get("timestep_used", physics.timestep)),
         retries=int(stability.get("retries", 0)),
+        steps=probe.steps,
         wall_s=wall,
         cpu_s=cpu,
     )
@@ -279,6 +285,7 @@ def row(
         "max_penetration_mm": 1e3 * outcome.max_penetration_m,
         "timestep_used_ms": 1e3 * outcome.timestep_used,
         "retries": outcome.retries,
+        "steps": outcome.steps,
         "wall_s": outcome.wall_s,
         "cpu_s": outcome.cpu_s,
     }

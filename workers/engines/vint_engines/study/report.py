@@ -40,6 +40,7 @@ TRIAL_COLUMNS = (
     "max_penetration_mm",
     "timestep_used_ms",
     "retries",
+    "steps",
     "wall_s",
     "cpu_s",
 )
