@@ -232,6 +232,44 @@ fn with_json_every_error_is_json_on_stdout_with_the_same_exit_code() {
     }
 }
 
+/// A spec valid field by field whose product is huge (4 objects × 2 hands × 10⁶ trials in chunks
+/// of one: 8·10⁶ grasp tasks) is refused by validate, plan and a coordinator before anything is
+/// planned or stored, each limit named with its count and the flag that raises it.
+#[test]
+fn a_spec_over_the_limits_is_refused_before_it_is_planned_naming_the_limit_and_its_flag() {
+    let tmp = tempfile::tempdir().unwrap();
+    let spec = tmp.path().join("huge.toml");
+    std::fs::write(
+        &spec,
+        "hands = [\"trx3\", \"allegro\"]\nobjects = [\"mug\", \"bowl\", \"banana\", \"sugar_box\"]\n\
+         [dataset]\nname = \"huge\"\nseed = 1\n[grasp]\ntrials_per_pair = 1000000\nchunk_size = 1\n",
+    )
+    .unwrap();
+    let spec = spec.to_str().unwrap();
+    for command in ["validate", "plan"] {
+        let o = vintctl(&[command, spec]);
+        assert_eq!(o.status.code(), Some(2), "{command}: {}", stderr(&o));
+        let text = stderr(&o);
+        assert!(text.contains("tasks per job") && text.contains("--max-tasks-per-job"), "{command}: {text}");
+    }
+    let o = vintctl(&["--json", "validate", spec]);
+    let over = &json_of(&stdout(&o))["over_limits"];
+    assert!(over.as_array().is_some_and(|o| o.iter().any(|l| l["flag"] == "--max-tasks-per-job")), "{over}");
+    let raised = ["--max-tasks-per-job", "100000000", "--max-samples-per-job", "1000000000"];
+    let o = vintctl(&[&["validate", spec][..], &raised[..]].concat());
+    assert!(o.status.success(), "raised limits: {}", stderr(&o));
+
+    let port = free_port();
+    let database = format!("sqlite://{}", tmp.path().join("c.db").display());
+    let _coordinator = start_coordinator(&database, port, &tmp.path().join("logs"), "c");
+    let o = vintctl(&["submit", spec, "--coordinator", &format!("http://127.0.0.1:{port}")]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let text = stderr(&o);
+    assert!(text.contains("over this coordinator's limits") && text.contains("--max-tasks-per-job"), "{text}");
+    let jobs = vintctl(&["--json", "jobs", "--coordinator", &format!("http://127.0.0.1:{port}")]);
+    assert!(!stdout(&jobs).contains("huge"), "a refused spec left a job: {}", stdout(&jobs));
+}
+
 /// `--out` holding a file named `manifest.jsonl` that vint did not write (a common name in ML
 /// datasets) is refused before anything runs, and nothing in it is touched.
 #[test]

@@ -221,6 +221,16 @@ impl JobService for JobApi {
         let req = request.into_inner();
         let spec =
             DatasetSpec::parse(&req.spec_toml).map_err(|e| Status::invalid_argument(format!("invalid spec:\n{e}")))?;
+        // Limits first: nothing is planned, stored or allocated for a spec over one.
+        let cost = vint_core::cost::of(&spec).map_err(|e| Status::invalid_argument(e.to_string()))?;
+        let over = vint_core::limits::check(&self.config.limits, &spec, &cost);
+        if !over.is_empty() {
+            let lines: Vec<String> = over.iter().map(ToString::to_string).collect();
+            return Err(Status::invalid_argument(format!(
+                "spec over this coordinator's limits:\n{}",
+                lines.join("\n")
+            )));
+        }
         let files = checked_assets(&spec, req.assets)?;
         let assets = self.store_assets(files).await?;
         let key = if req.idempotency_key.is_empty() {

@@ -20,10 +20,13 @@ pub mod forecast;
 mod health;
 mod http;
 mod jobs_api;
+mod limit_flags;
 mod metrics;
 mod planner;
 mod reuse;
 pub mod tls;
+
+pub use limit_flags::LimitFlags;
 mod work_api;
 
 use std::net::SocketAddr;
@@ -64,6 +67,8 @@ pub struct CoordinatorConfig {
     pub shutdown_grace: Duration,
     /// How often the gRPC health service asks the database whether it answers.
     pub health_interval: Duration,
+    /// What one job may ask for; a submission over any limit is refused before it is planned.
+    pub limits: vint_core::limits::Limits,
 }
 
 impl Default for CoordinatorConfig {
@@ -78,6 +83,7 @@ impl Default for CoordinatorConfig {
             tls: None,
             shutdown_grace: Duration::from_secs(10),
             health_interval: Duration::from_secs(5),
+            limits: vint_core::limits::Limits::default(),
         }
     }
 }

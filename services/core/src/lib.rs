@@ -9,6 +9,7 @@ pub mod budget;
 pub mod catalog;
 pub mod contract;
 pub mod cost;
+pub mod limits;
 pub mod plan;
 pub mod reuse;
 pub mod sample;

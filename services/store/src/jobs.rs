@@ -252,11 +252,24 @@ impl Store {
         rows.iter().map(task_from_row).collect()
     }
 
-    /// Inserts planned tasks with their dependency edges, a batch in three statements. A task
-    /// whose dependencies have all succeeded starts queued; otherwise it waits, counting those
-    /// that have not (a dependency in this batch has not). Keys already present are skipped, so
-    /// re-planning is harmless.
+    /// Inserts planned tasks with their dependency edges, `INSERT_BATCH` tasks at a time (each
+    /// batch three statements, its rows one bounded JSON parameter). A task whose dependencies have
+    /// all succeeded starts queued; otherwise it waits, counting those that have not (a dependency
+    /// inserted with it has not). Keys already present are skipped, so re-planning is harmless.
     pub(crate) async fn insert_tasks(
+        &self,
+        tx: &mut Transaction<'static, Any>,
+        job_id: &str,
+        tasks: &[NewTask],
+        now_ms: i64,
+    ) -> Result<()> {
+        for batch in tasks.chunks(INSERT_BATCH) {
+            self.insert_task_batch(tx, job_id, batch, now_ms).await?;
+        }
+        Ok(())
+    }
+
+    async fn insert_task_batch(
         &self,
         tx: &mut Transaction<'static, Any>,
         job_id: &str,
@@ -312,6 +325,10 @@ impl Store {
         Ok(())
     }
 }
+
+/// Tasks one statement inserts: a job's initial tasks (one grasp task a chunk; 16,276 for the
+/// recipe) go in several statements, each parameter a few MB at most, in one transaction.
+const INSERT_BATCH: usize = 5_000;
 
 /// A value as JSON text, to bind as one parameter.
 pub(crate) fn json_text<T: serde::Serialize + ?Sized>(value: &T) -> Result<String> {

@@ -34,6 +34,28 @@ async fn state_of(store: &Store, task_id: &str) -> TaskState {
     store.task(task_id).await.unwrap().unwrap().state
 }
 
+// More tasks than one insert statement takes (5,000): a chain whose links cross batches still
+// counts each task's one pending dependency, and only its head is queued.
+store_test!(a_job_larger_than_one_insert_batch_is_inserted_whole_with_its_edges, |store: Store| async move {
+    let keys: Vec<String> = (0..12_001).map(|i| format!("grasp/{i:05}")).collect();
+    let tasks: Vec<NewTask> = keys
+        .iter()
+        .enumerate()
+        .map(|(i, k)| {
+            let deps: Vec<&str> = if i == 0 { vec![] } else { vec![keys[i - 1].as_str()] };
+            task(k, Stage::Grasp, &deps)
+        })
+        .collect();
+    store.submit_job(&job("j"), &tasks, 0).await.unwrap();
+    let all = store.tasks_of_job("j").await.unwrap();
+    assert_eq!(all.len(), 12_001);
+    let progress = store.progress("j").await.unwrap();
+    assert_eq!(progress.count(TaskState::Queued), 1);
+    assert_eq!(progress.count(TaskState::Waiting), 12_000);
+    assert_eq!(store.table_rows().await.unwrap().task_deps, 12_000);
+    assert_eq!(store.lineage("j/grasp/00001").await.unwrap()[0].depends_on, ["j/grasp/00000"]);
+});
+
 store_test!(submit_is_idempotent, |store: Store| async move {
     let (a, created_a) = store.submit_job(&job("j1"), &[task("grasp/a", Stage::Grasp, &[])], 0).await.unwrap();
     let mut again = job("j2");

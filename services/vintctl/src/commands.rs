@@ -9,6 +9,7 @@ use serde_json::json;
 use vint_artifacts::ArtifactStore;
 use vint_connect::Remote;
 use vint_core::JobState;
+use vint_core::limits::Limits;
 use vint_proto::v1 as pb;
 use vint_proto::v1::get_lineage_request::Subject;
 
@@ -19,7 +20,24 @@ use crate::report::{self, JsonProgress, ProgressView};
 use crate::spec_file::load_spec;
 use crate::{CliResult, Failure, bad_input, export};
 
-pub fn validate(path: &Path, json: bool) -> CliResult {
+/// Refuses (exit 2) a spec over any of `limits`, naming each with its count, the limit and the
+/// flag that raises it; `--json` prints them as `over_limits`.
+pub fn check_limits(path: &Path, spec: &vint_core::DatasetSpec, limits: &Limits) -> CliResult {
+    let cost = vint_core::cost::of(spec).map_err(|e| bad_input(anyhow!("{}: {e}", path.display())))?;
+    let over = vint_core::limits::check(limits, spec, &cost);
+    if over.is_empty() {
+        return Ok(());
+    }
+    let lines: Vec<String> = over.iter().map(|o| format!("  {o}")).collect();
+    let report = json!({
+        "valid": false,
+        "over_limits": over.iter().map(|o| json!({"what": o.what, "count": o.count, "limit": o.limit, "flag": o.flag})).collect::<Vec<_>>(),
+    });
+    Err(bad_input(anyhow!("{}: over a coordinator's limits:\n{}", path.display(), lines.join("\n")))
+        .with_report(report))
+}
+
+pub fn validate(path: &Path, limits: &Limits, json: bool) -> CliResult {
     let loaded = match load_spec(path) {
         Ok(loaded) => loaded,
         Err(f) => {
@@ -32,6 +50,7 @@ pub fn validate(path: &Path, json: bool) -> CliResult {
         }
     };
     let spec = &loaded.spec;
+    check_limits(path, spec, limits)?;
     let estimate = Estimate::of(spec).map_err(|e| bad_input(anyhow!("{}: {e}", path.display())))?;
     if json {
         report::print_json(&json!({
@@ -45,8 +64,9 @@ pub fn validate(path: &Path, json: bool) -> CliResult {
 
 /// `vintctl plan`: the spec's cost before anything runs. An invalid spec fails as `validate`'s
 /// does (exit 2, every problem named).
-pub fn plan(path: &Path, json: bool) -> CliResult {
+pub fn plan(path: &Path, limits: &Limits, json: bool) -> CliResult {
     let loaded = load_spec(path)?;
+    check_limits(path, &loaded.spec, limits)?;
     let plan = crate::plan::Plan::of(&loaded.spec).map_err(|e| bad_input(anyhow!("{}: {e}", path.display())))?;
     if json {
         report::print_json(&json!(plan));

@@ -33,11 +33,14 @@ pub struct Local<'a> {
     pub workers: u32,
     /// Whether workers reuse finished tasks' results (their `--no-reuse` when not).
     pub reuse: bool,
+    /// The embedded coordinator's limits on the job.
+    pub limits: vint_core::limits::Limits,
 }
 
 pub async fn run(spec_path: &Path, out: &Path, target: Target, local: &Local<'_>, json: bool) -> CliResult {
-    let Local { state, workers, reuse } = *local;
+    let Local { state, workers, reuse, limits } = *local;
     let LoadedSpec { text, spec, assets } = load_spec(spec_path)?;
+    crate::commands::check_limits(spec_path, &spec, &limits)?;
     export::check_destination(out)?;
     if workers == 0 || workers > 64 {
         return Err(bad_input(anyhow!("--workers: must be 1..=64, got {workers}")));
@@ -53,7 +56,7 @@ pub async fn run(spec_path: &Path, out: &Path, target: Target, local: &Local<'_>
     let (listener, addr) = vint_coordinator::bind(SocketAddr::from((Ipv4Addr::LOCALHOST, 0))).await?;
     let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
     // The coordinator stores the spec's user files where the local workers read artifacts.
-    let config = CoordinatorConfig { artifacts: Some(artifacts.clone()), ..CoordinatorConfig::default() };
+    let config = CoordinatorConfig { artifacts: Some(artifacts.clone()), limits, ..CoordinatorConfig::default() };
     let server = tokio::spawn(vint_coordinator::serve(store.clone(), config, listener, async {
         let _ = stop_rx.await;
     }));

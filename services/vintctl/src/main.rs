@@ -78,6 +78,9 @@ enum Command {
     Validate {
         /// The spec file (TOML; see examples/tiny.toml).
         spec: PathBuf,
+        /// The limits to judge it by: a coordinator's defaults unless raised (or lowered) here.
+        #[command(flatten)]
+        limits: vint_coordinator::LimitFlags,
     },
     /// What a spec will cost before anything runs: tasks per stage, database rows and bytes, object
     /// store bytes and CPU-hours per stage (no server needed). With --against JOB: per stage, how
@@ -94,6 +97,9 @@ enum Command {
         /// A cluster's database URL, instead of --state (with --against).
         #[arg(long, requires = "against")]
         database: Option<String>,
+        /// The limits to judge it by: a coordinator's defaults unless raised (or lowered) here.
+        #[command(flatten)]
+        limits: vint_coordinator::LimitFlags,
     },
     /// Run a spec on this machine: embedded coordinator, SQLite, local object store and workers.
     Run {
@@ -115,6 +121,9 @@ enum Command {
         no_reuse: bool,
         #[command(flatten)]
         format: FormatArgs,
+        /// What the job may ask for (the embedded coordinator's limits).
+        #[command(flatten)]
+        limits: vint_coordinator::LimitFlags,
     },
     /// Submit a spec to a coordinator and print the job id.
     Submit {
@@ -364,17 +373,17 @@ fn getting_started(json: bool) -> ExitCode {
 
 async fn dispatch(command: Command, json: bool, coordinator: &vint_connect::Remote) -> CliResult {
     match command {
-        Command::Validate { spec } => commands::validate(&spec, json),
-        Command::Plan { spec, against: None, .. } => commands::plan(&spec, json),
-        Command::Plan { spec, against: Some(job), state, database } => {
+        Command::Validate { spec, limits } => commands::validate(&spec, &limits.limits(), json),
+        Command::Plan { spec, against: None, limits, .. } => commands::plan(&spec, &limits.limits(), json),
+        Command::Plan { spec, against: Some(job), state, database, .. } => {
             let records = match &database {
                 Some(database) => state_dir::Records::Urls { database, store: "" },
                 None => state_dir::Records::State(&state),
             };
             against::plan_against(&spec, &job, &records, json).await
         }
-        Command::Run { spec, out, state, workers, no_reuse, format } => {
-            let local = embedded::Local { state: &state, workers, reuse: !no_reuse };
+        Command::Run { spec, out, state, workers, no_reuse, format, limits } => {
+            let local = embedded::Local { state: &state, workers, reuse: !no_reuse, limits: limits.limits() };
             embedded::run(&spec, &out, format.target(), &local, json).await
         }
         Command::Gc { state, database, store, min_age_s, dry_run } => {

@@ -44,6 +44,9 @@ struct Args {
     /// specs are stored. Without it, specs that name files of their own are refused.
     #[arg(long, env = "VINT_STORE", hide_env_values = true)]
     store: Option<String>,
+    /// What one job may ask for (a submission over a limit is refused, naming the flag).
+    #[command(flatten)]
+    limits: vint_coordinator::LimitFlags,
     /// Default lease length in milliseconds.
     #[arg(long, default_value_t = 30_000)]
     lease_ms: i64,
@@ -184,6 +187,7 @@ async fn run(args: Args, security: Security) -> anyhow::Result<()> {
     };
     let config = CoordinatorConfig {
         default_lease_ms: args.lease_ms,
+        limits: args.limits.limits(),
         artifacts,
         tokens: security.tokens,
         tls: security.tls,
