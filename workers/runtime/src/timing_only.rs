@@ -383,7 +383,7 @@ async fn answer_batch(shared: &Shared, tasks: Vec<pb::LeasedTask>) -> f64 {
             }
         }
     }
-    let deadline = tasks.iter().map(|t| t.lease_deadline_ms).min().unwrap_or(0);
+    let deadline = tasks.iter().map(|t| shared.held.deadline_ms(t)).min().unwrap_or(0);
     let by_id: HashMap<&str, &pb::LeasedTask> = tasks.iter().map(|t| (t.task_id.as_str(), t)).collect();
     for calls in split_by_size(completions) {
         let request = pb::CompleteTasksRequest { tasks: calls };
