@@ -6,10 +6,10 @@
 //! a result of the stage's contract and output files of the real names and sizes (each stage's
 //! own `fake` in `vint_core::contract`, from the sizes measured on real runs). The bytes of a file
 //! are a constant payload per (kind, size), stored once in the object store and referenced by its
-//! hash, so the object store sees every put and content addressing dedupes the rest; a package task references its
-//! render and noise inputs by hash exactly as the real stage does. A grasp trial is accepted when
-//! its seed (derived from the job seed and the trial's identity) falls below `accept_rate`, so a
-//! run is deterministic. Every completion's `engine_json` names the mode, so lineage says which
+//! hash, so the object store sees every put and content addressing dedupes the rest; a package
+//! task references its render and noise inputs by hash exactly as the real stage does. A grasp
+//! trial is accepted when its seed (derived from the job seed and the trial's identity) falls
+//! below `accept_rate`, so a run is deterministic. Every completion's `engine_json` names the mode, so lineage says which
 //! artifacts came from it.
 //!
 //! Tasks go in batches both ways: one `LeaseTasks` for up to `batch` tasks and one
@@ -339,10 +339,7 @@ async fn serve_loop(shared: Arc<Shared>, slot: u32, mut stop: watch::Receiver<bo
 
 /// Gives back the leases of a batch not started.
 async fn give_back(shared: &Shared, tasks: &[pb::LeasedTask]) {
-    let held: Vec<pb::TaskAttempt> =
-        tasks.iter().map(|t| pb::TaskAttempt { task_id: t.task_id.clone(), attempt: t.attempt }).collect();
-    crate::worker::release(&shared.client, &shared.config.worker_id, &held).await;
-    shared.held.forget_all(tasks);
+    crate::worker::release(&shared.client, &shared.config.worker_id, &shared.held, tasks).await;
 }
 
 /// Answers a batch; returns the completion RPC's round trip in milliseconds.

@@ -455,10 +455,7 @@ impl Worker {
 
     /// Gives the leases of `tasks` back.
     async fn release(&self, tasks: &[pb::LeasedTask]) {
-        let held: Vec<pb::TaskAttempt> =
-            tasks.iter().map(|t| pb::TaskAttempt { task_id: t.task_id.clone(), attempt: t.attempt }).collect();
-        release(&self.client, &self.config.worker_id, &held).await;
-        self.held.forget_all(tasks);
+        release(&self.client, &self.config.worker_id, &self.held, tasks).await;
     }
 
     async fn fail(&mut self, task: &pb::LeasedTask, failure: TaskFailure) {
@@ -646,21 +643,29 @@ pub(crate) async fn heartbeat_loop(
 /// lease not given back still expires.
 const RELEASE_TIMEOUT: Duration = Duration::from_secs(5);
 
-/// Gives back `held` leases of `worker_id` (one RPC, bounded by `RELEASE_TIMEOUT`); logs what
-/// could not be.
-pub(crate) async fn release(client: &WorkServiceClient<AuthChannel>, worker_id: &str, held: &[pb::TaskAttempt]) {
-    if held.is_empty() {
+/// Gives back the leases of `tasks` that `worker_id` holds (one RPC, bounded by `RELEASE_TIMEOUT`)
+/// and stops holding them; logs what could not be given back.
+pub(crate) async fn release(
+    client: &WorkServiceClient<AuthChannel>,
+    worker_id: &str,
+    leases: &HeldLeases,
+    tasks: &[pb::LeasedTask],
+) {
+    if tasks.is_empty() {
         return;
     }
-    let request = pb::ReleaseTasksRequest { worker_id: worker_id.to_string(), tasks: held.to_vec() };
+    let held: Vec<pb::TaskAttempt> =
+        tasks.iter().map(|t| pb::TaskAttempt { task_id: t.task_id.clone(), attempt: t.attempt }).collect();
+    let request = pb::ReleaseTasksRequest { worker_id: worker_id.to_string(), tasks: held };
     match tokio::time::timeout(RELEASE_TIMEOUT, client.clone().release_tasks(request)).await {
         Ok(Ok(resp)) => {
             let released = resp.into_inner().released.len();
-            tracing::info!(released, lost = held.len().saturating_sub(released), "leases given back");
+            tracing::info!(released, lost = tasks.len().saturating_sub(released), "leases given back");
         }
         Ok(Err(s)) => tracing::warn!(error = %s.message(), "could not give the leases back; they will expire instead"),
         Err(_) => tracing::warn!("the coordinator did not take the leases back in time; they will expire instead"),
     }
+    leases.forget_all(tasks);
 }
 
 /// Retries an RPC through transient coordinator outages until a minute past the lease's deadline
