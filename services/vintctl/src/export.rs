@@ -230,8 +230,7 @@ pub fn check_destination(out: &Path) -> Result<(), Failure> {
     if !meta.is_dir() {
         return Err(bad_input(anyhow!("--out {}: exists and is not a directory", out.display())));
     }
-    let mut held = Vec::new();
-    held_files(out, out, &mut held).with_context(|| format!("listing {}", out.display()))?;
+    let held = formats::relative_files(out)?;
     if held.is_empty() {
         return Ok(());
     }
@@ -241,24 +240,8 @@ pub fn check_destination(out: &Path) -> Result<(), Failure> {
     };
     let listed = manifest_paths(&manifest)
         .map_err(|why| refuse(format!("its manifest.jsonl is not one vint writes ({why})")))?;
-    held.sort();
-    if let Some(extra) = held.iter().find(|p| p.as_str() != "manifest.jsonl" && !listed.contains(p.as_str())) {
+    if let Some((extra, _)) = held.iter().find(|(p, _)| p != "manifest.jsonl" && !listed.contains(p.as_str())) {
         return Err(refuse(format!("holds {extra:?}, which its manifest.jsonl does not list")));
-    }
-    Ok(())
-}
-
-/// Every file under `dir` (symbolic links included, not followed), as a path relative to `root`.
-fn held_files(root: &Path, dir: &Path, out: &mut Vec<String>) -> std::io::Result<()> {
-    for entry in std::fs::read_dir(dir)? {
-        let entry = entry?;
-        let path = entry.path();
-        if entry.file_type()?.is_dir() {
-            held_files(root, &path, out)?;
-        } else {
-            let rel = path.strip_prefix(root).unwrap_or(&path);
-            out.push(rel.to_string_lossy().replace('\\', "/"));
-        }
     }
     Ok(())
 }

@@ -74,16 +74,7 @@ struct ManifestLine<'a> {
 /// Writes `dir/manifest.jsonl`: a line `{"path", "sha256", "size"}` for every file under `dir`, in
 /// path order; returns its bytes (equal outputs have equal manifests).
 pub fn write_manifest(dir: &Path) -> anyhow::Result<Vec<u8>> {
-    let mut paths = Vec::new();
-    collect_files(dir, &mut paths)?;
-    let mut rel: Vec<(String, PathBuf)> = paths
-        .into_iter()
-        .filter_map(|p| {
-            let r = p.strip_prefix(dir).ok()?.to_str()?.replace('\\', "/");
-            Some((r, p))
-        })
-        .collect();
-    rel.sort();
+    let rel = relative_files(dir)?;
     let mut manifest = Vec::new();
     let mut buf = vec![0u8; 1 << 16];
     for (path, full) in &rel {
@@ -103,6 +94,20 @@ pub fn write_manifest(dir: &Path) -> anyhow::Result<Vec<u8>> {
     }
     std::fs::write(dir.join("manifest.jsonl"), &manifest).context("writing manifest.jsonl")?;
     Ok(manifest)
+}
+
+/// Every file under `dir` (a symbolic link counts as a file, not followed), as its path relative to
+/// `dir` with `/` separators and its full path, in path order. A name that is not UTF-8 is kept,
+/// lossily: none is ever passed over (`export::check_destination` must see every file).
+pub fn relative_files(dir: &Path) -> anyhow::Result<Vec<(String, PathBuf)>> {
+    let mut paths = Vec::new();
+    collect_files(dir, &mut paths)?;
+    let mut rel: Vec<(String, PathBuf)> = paths
+        .into_iter()
+        .map(|p| (p.strip_prefix(dir).unwrap_or(&p).to_string_lossy().replace('\\', "/"), p))
+        .collect();
+    rel.sort();
+    Ok(rel)
 }
 
 fn collect_files(dir: &Path, out: &mut Vec<PathBuf>) -> anyhow::Result<()> {
