@@ -44,31 +44,26 @@ impl Store {
             .bind(&stages_seen)
             .fetch_all(&self.pool)
             .await?;
-        let mut leased = Vec::with_capacity(rows.len());
+        let mut leased = rows.iter().map(leased_from_row).collect::<Result<Vec<_>>>()?;
         match backend {
             // The lease statement read every leased task's inputs.
             Backend::Postgres => {
-                for row in &rows {
-                    let mut task = leased_from_row(row)?;
+                for (task, row) in leased.iter_mut().zip(&rows) {
                     let inputs: Vec<InputRow> = serde_json::from_str(&row.try_get::<String, _>("inputs_json")?)
                         .map_err(|e| StoreError::Corrupt(format!("inputs of task {}: {e}", task.id)))?;
                     for input in inputs {
                         task.inputs.extend(input.into_records()?);
                     }
-                    leased.push(task);
                 }
             }
-            Backend::Sqlite => {
-                if rows.is_empty() {
-                    return Ok(Vec::new());
-                }
-                leased = rows.iter().map(leased_from_row).collect::<Result<Vec<_>>>()?;
+            Backend::Sqlite if !leased.is_empty() => {
                 let ids: Vec<&str> = leased.iter().map(|t| t.id.as_str()).collect();
                 let mut inputs = self.lease_inputs(&ids).await?;
                 for t in &mut leased {
                     t.inputs = inputs.remove(&t.id).unwrap_or_default();
                 }
             }
+            Backend::Sqlite => {}
         }
         leased.sort_by(|a, b| a.id.cmp(&b.id));
         Ok(leased)
