@@ -7,7 +7,7 @@ import os
 import struct
 import subprocess
 import sys
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -25,8 +25,8 @@ class EngineProcess:
     """A worker's view of an engine: a child process spoken to in frames (written independently of
     `vint_engines.protocol`, so the tests check the wire format rather than trust it)."""
 
-    def __init__(self, stage: str, cwd: Path) -> None:
-        env = {**os.environ, "PYTHONPATH": str(ENGINES_DIR)}
+    def __init__(self, stage: str, cwd: Path, env: Mapping[str, str] | None = None) -> None:
+        env = {**os.environ, "PYTHONPATH": str(ENGINES_DIR), **(env or {})}
         # stderr goes to a file: a chatty engine (Blender) must never block on a full pipe.
         self.log_path = cwd / f"{stage}-{id(self)}.stderr"
         with self.log_path.open("wb") as log:
@@ -116,8 +116,8 @@ def spawn_engine(tmp_path: Path) -> Iterator[Any]:
     """Start engines as the worker does; they are killed at the end of the test."""
     started: list[EngineProcess] = []
 
-    def spawn(stage: str) -> EngineProcess:
-        engine = EngineProcess(stage, tmp_path)
+    def spawn(stage: str, env: Mapping[str, str] | None = None) -> EngineProcess:
+        engine = EngineProcess(stage, tmp_path, env)
         started.append(engine)
         return engine
 

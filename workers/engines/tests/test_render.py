@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from conftest import EngineProcess, new_dir, trx3_grasps
 from geometry import distance_to_mesh
+from hdri_files import write_opencv_exr
 
 from vint_engines.grasp.engine import GraspEngine
 from vint_engines.objects import load_catalog
@@ -382,6 +383,36 @@ def test_a_user_hdri_is_checked_before_any_view_renders(
     reply = engine.task("depth_only", depth_only, out, [grasps[0]])
     assert reply["ok"] is True, reply
     assert json.loads((out / "v01_camera.json").read_text())["environment"]["asset"] == sha
+
+
+def test_a_user_hdri_declaring_gigapixels_is_refused_before_blender_reads_it(
+    engine: EngineProcess, grasps: tuple[Path, int], workdir: Path
+) -> None:
+    """A 50-byte .hdr that says 200000 × 200000 (Blender would ask for 640 GB) fails the task, not
+    retryable, naming the file and the limit; a small OpenEXR file of the user's lights the view."""
+    huge = workdir / "staged" / "huge" / "lab.hdr"
+    huge.parent.mkdir(parents=True)
+    huge.write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 200000 +X 200000\n" + bytes(64))
+    sha = hashlib.sha256(huge.read_bytes()).hexdigest()
+    out = new_dir(workdir, "huge_hdri")
+    params = {**base(grasps), **user_hdri_params("lab", huge, sha, "assets/huge.hdr"), "views": TWO_VIEWS}
+    reply = engine.task("huge", params, out, [grasps[0], (sha, huge)])
+    assert reply["ok"] is False and reply["retryable"] is False, reply
+    assert "'lab'" in reply["error"] and "assets/huge.hdr" in reply["error"], reply["error"]
+    assert "200000 × 200000" in reply["error"] and "limit of 33554432 (8192 × 4096)" in reply["error"]
+    assert not any(out.iterdir())
+
+    exr = write_opencv_exr(workdir / "staged" / "exr" / "lab.exr", (0.002, 0.002, 0.5))
+    sha = hashlib.sha256(exr.read_bytes()).hexdigest()
+    out = new_dir(workdir, "exr_hdri")
+    params = {**base(grasps), **user_hdri_params("lab", exr, sha, "assets/lab.exr"), "views": TWO_VIEWS[1:]}
+    reply = engine.task("exr", params, out, [grasps[0], (sha, exr)])
+    assert reply["ok"] is True, reply
+    background = np.load(out / "v01_depth.npy") == 0
+    b, g, r = (
+        cv2.imread(str(out / "v01_rgb.png")).astype(float)[..., c][background].mean() for c in range(3)
+    )
+    assert r > 4 * g and r > 4 * b, (b, g, r)
 
 
 def base(grasps: tuple[Path, int]) -> dict[str, Any]:

@@ -18,9 +18,11 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
 from pathlib import Path
 
+from vint_engines import memory
 from vint_engines.preview import DEFAULT_SAMPLES
 from vint_engines.protocol import BadInput, Engine, ProtocolError, serve
 from vint_engines.stages import engine_module, python_stages
@@ -140,10 +142,28 @@ def main(argv: list[str] | None = None) -> int:
         level=logging.INFO,
         format=f"%(asctime)s vint-{args.stage} %(levelname)s %(message)s",
     )
+    log = logging.getLogger("vint_engines")
+    try:  # before the stage's libraries are imported: their allocations count too
+        limit = memory.limit_mib(os.environ)
+        if limit is not None:
+            memory.apply_limit(limit)
+    except memory.LimitError as exc:
+        log.error("cannot start: %s", exc)
+        return 2
     try:
-        return serve(args.stage, lambda: make_engine(args.stage))
+        return serve(args.stage, lambda: make_engine(args.stage), limit)
     except ProtocolError as exc:
-        logging.getLogger("vint_engines").error("protocol error, exiting: %s", exc)
+        log.error("protocol error, exiting: %s", exc)
+        return 3
+    except MemoryError as exc:
+        if limit is None:
+            raise
+        log.error(
+            "the engine does not fit in %s=%d MiB (starting or between tasks): %r",
+            memory.LIMIT_VARIABLE,
+            limit,
+            exc,
+        )
         return 3
 
 

@@ -7,9 +7,13 @@ Engines report impossible tasks by raising `BadInput` (parameters that break the
 `contract.py`, or inputs that make the task impossible: a malformed user file, say): not
 retryable, because the same task would fail the same way. Any other exception — a `TypeError` or
 `KeyError` is a bug in the engine, an `OSError` a full disk — is retryable, and its reply carries a
-crash report (the exception and the innermost frames of its traceback). A broken frame or an
-unexpected message is a `ProtocolError`, which ends the process with a non-zero status: the worker
-then fails the task in flight as retryable and starts a new engine.
+crash report (the exception and the innermost frames of its traceback). A `MemoryError` under the
+engine's memory limit (`memory.py`) is not retryable either: the same task needs the same memory
+again; the engine answers it and serves on (the failed allocation never happened, and the worker
+replaces an engine whose resident memory grows past its own limit). Without a limit it is the
+node that is short, and another time may do: retryable. A broken frame or an unexpected message is
+a `ProtocolError`, which ends the process with a non-zero status: the worker then fails the task
+in flight as retryable and starts a new engine.
 """
 
 from __future__ import annotations
@@ -26,7 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO, Protocol
 
-from vint_engines import contract
+from vint_engines import contract, memory
 from vint_engines.errors import BadInput, ProtocolError  # engines import both from here
 
 log = logging.getLogger("vint_engines")
@@ -162,8 +166,9 @@ def claim_stdio() -> tuple[BinaryIO, BinaryIO]:
 # Serve loop
 
 
-def serve(stage: str, make_engine: Callable[[], Engine]) -> int:
-    """Run the protocol until shutdown or EOF (exit status 0); ProtocolError propagates."""
+def serve(stage: str, make_engine: Callable[[], Engine], memory_limit_mib: int | None = None) -> int:
+    """Run the protocol until shutdown or EOF (exit status 0); ProtocolError propagates.
+    `memory_limit_mib` is the limit the process runs under (`memory.py`), for failure messages."""
     frames_in, frames_out = claim_stdio()
     started = time.perf_counter()
     engine = make_engine()
@@ -182,12 +187,12 @@ def serve(stage: str, make_engine: Callable[[], Engine]) -> int:
                 return 0
             if kind != "task":
                 raise ProtocolError(f"unexpected message type {kind!r}")
-            write_frame(frames_out, run_task(stage, engine, message))
+            write_frame(frames_out, run_task(stage, engine, message, memory_limit_mib))
     finally:
         engine.close()
 
 
-def run_task(stage: str, engine: Engine, message: Json) -> Json:
+def run_task(stage: str, engine: Engine, message: Json, memory_limit_mib: int | None = None) -> Json:
     """Run one task message and build its result message; never raises for task failures."""
     task_id = message.get("task_id")
     if not isinstance(task_id, str) or not task_id:
@@ -211,6 +216,13 @@ def run_task(stage: str, engine: Engine, message: Json) -> Json:
     except BadInput as exc:
         log.warning("task %s failed (not retryable): %s", task_id, exc)
         return failure(task_id, str(exc), retryable=False)
+    except MemoryError as exc:
+        if memory_limit_mib is None:
+            log.exception("task %s failed (retryable): the node is short of memory", task_id)
+            return failure(task_id, crash_report(exc), retryable=True)
+        error = memory.exceeded(memory_limit_mib, exc)
+        log.warning("task %s failed (not retryable): %s", task_id, error)
+        return failure(task_id, error, retryable=False)
     except Exception as exc:
         log.exception("task %s failed (retryable): engine bug or transient trouble", task_id)
         return failure(task_id, crash_report(exc), retryable=True)

@@ -65,6 +65,9 @@ const ENGINE_ENV: &[&str] = &[
 const ENGINE_ENV_PREFIXES: &[&str] =
     &["LC_", "CUDA_", "NVIDIA_", "MUJOCO_", "PYOPENGL_", "EGL_", "OMP_", "MKL_", "OPENBLAS_", "XDG_"];
 
+/// The variable an engine reads its memory limit from (MiB; unset for none).
+const MEMORY_LIMIT_VAR: &str = "VINT_ENGINE_MEMORY_LIMIT_MIB";
+
 /// A process of `program` for the engines in `engines_dir`, given only the part of `vars` (the
 /// worker's environment) `ENGINE_ENV` and `ENGINE_ENV_PREFIXES` allow.
 fn engine_process(
@@ -119,6 +122,10 @@ pub struct EngineCommand {
     pub start_timeout: Duration,
     /// When a warm engine is replaced by a fresh one.
     pub recycle: RecyclePolicy,
+    /// Most memory (MiB) an engine process may allocate (`RLIMIT_DATA`, which the engine sets on
+    /// itself at start from `VINT_ENGINE_MEMORY_LIMIT_MIB`): one task that asks for more fails
+    /// with an error naming the limit instead of taking the node's memory; `None` for no limit.
+    pub memory_limit_mib: Option<u64>,
 }
 
 /// Limits past which the worker replaces a warm engine with a fresh process, between tasks: a
@@ -212,7 +219,11 @@ pub struct Engine {
 impl Engine {
     /// Starts the engine for `stage` and waits for its hello.
     pub async fn start(stage: Stage, cmd: &EngineCommand) -> Result<Engine, EngineError> {
-        let mut child = engine_process(&cmd.python, &cmd.engines_dir, std::env::vars_os())
+        let mut command = engine_process(&cmd.python, &cmd.engines_dir, std::env::vars_os());
+        if let Some(mib) = cmd.memory_limit_mib {
+            command.env(MEMORY_LIMIT_VAR, mib.to_string());
+        }
+        let mut child = command
             .args(["-m", "vint_engines", "serve", "--stage", stage.as_str()])
             .env("PYTHONUNBUFFERED", "1")
             .stdin(Stdio::piped())

@@ -16,6 +16,7 @@ fn command() -> EngineCommand {
         task_timeout: Duration::from_secs(60),
         start_timeout: Duration::from_secs(60),
         recycle: RecyclePolicy::default(),
+        memory_limit_mib: None,
     }
 }
 
@@ -163,5 +164,48 @@ async fn a_reply_that_breaks_the_stage_contract_is_a_protocol_error() {
             assert!(detail.contains("noise result does not follow the contract"), "{detail}");
         }
         other => panic!("expected a protocol error, got {other:?}"),
+    }
+}
+
+/// Test double: a `vint_engines` package whose engine says hello, reads its first task and then
+/// hangs (never answers), as a deadlocked renderer would.
+const ENGINE_THAT_HANGS: &str = r#"
+import json, struct, sys, time
+
+body = json.dumps({"type": "hello", "stage": "noise", "engine": {"name": "engine-that-hangs"}}).encode()
+sys.stdout.buffer.write(struct.pack(">I", len(body)) + body)
+sys.stdout.buffer.flush()
+header = sys.stdin.buffer.read(4)
+sys.stdin.buffer.read(struct.unpack(">I", header)[0])
+while True:
+    time.sleep(3600)
+"#;
+
+#[tokio::test]
+async fn a_hung_engine_is_killed_at_its_task_timeout_and_reported_as_timed_out() {
+    let dir = tempfile::tempdir().unwrap();
+    let package = dir.path().join("hangs").join("vint_engines");
+    std::fs::create_dir_all(&package).unwrap();
+    std::fs::write(package.join("__init__.py"), "").unwrap();
+    std::fs::write(package.join("__main__.py"), ENGINE_THAT_HANGS).unwrap();
+    let cmd =
+        EngineCommand { engines_dir: dir.path().join("hangs"), task_timeout: Duration::from_secs(1), ..command() };
+    let mut engine = Engine::start(Stage::Noise, &cmd).await.unwrap();
+    let pid = engine.pid().expect("a running engine has a pid");
+    let (params, inputs, out) = noise_task(dir.path());
+    let started = std::time::Instant::now();
+    match engine.run("t-1", &params, &inputs, &out).await {
+        Err(EngineError::TimedOut { stage, detail }) => {
+            assert_eq!(stage, Stage::Noise);
+            assert!(detail.contains("t-1"), "{detail}");
+        }
+        other => panic!("expected a timeout, got {other:?}"),
+    }
+    assert!(started.elapsed() < Duration::from_secs(30), "the timeout did not end the wait");
+    // The hung process is gone (killed and reaped), not left running beside its replacement.
+    let gone = std::time::Instant::now() + Duration::from_secs(10);
+    while std::path::Path::new(&format!("/proc/{pid}")).exists() {
+        assert!(std::time::Instant::now() < gone, "the hung engine {pid} still runs");
+        tokio::time::sleep(Duration::from_millis(50)).await;
     }
 }

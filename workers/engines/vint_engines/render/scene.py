@@ -47,6 +47,7 @@ from vint_engines.protocol import BadInput
 from vint_engines.render import clutter, cycles, dressing, materials, meshes
 from vint_engines.render.camera import CameraPose, Intrinsics
 from vint_engines.render.cycles import PathTracing
+from vint_engines.render.hdri_file import check_hdri
 from vint_engines.render.passes import (
     add_pass_outputs,
     read_colour,
@@ -239,11 +240,13 @@ class BlenderScene:
         """Load `hdri` unless an HDRI with its key is loaded already (a user's file is known by
         its content, so the same file staged for another task is not read again). A user's file
         is copied into the scratch directory first: the image must outlive the task's staged
-        inputs. BadInput when Blender cannot read the file as an image."""
+        inputs. BadInput when its header declares too large an image or is malformed (read before
+        Blender allocates what it declares: `hdri_file.py`), or Blender cannot read it."""
         if hdri.key in self._environment_images:
             return
         path = hdri.path
         if hdri.staged:
+            check_hdri(hdri.path, hdri.label)
             path = self.scratch / "hdri" / f"{hdri.key}{hdri.path.suffix.lower()}"
             path.parent.mkdir(exist_ok=True)
             shutil.copyfile(hdri.path, path)

@@ -54,6 +54,11 @@ struct Args {
     /// (0: never). Blender and MuJoCo hold their scenes between tasks; this bounds any slow leak.
     #[arg(long, env = "VINT_ENGINE_MAX_RSS_MIB", default_value_t = 8_192)]
     engine_max_rss_mib: u64,
+    /// Most memory (MiB) one engine process may allocate, set on it as RLIMIT_DATA: a task that
+    /// asks for more fails (permanently, naming the limit) instead of exhausting the node (0: no
+    /// limit).
+    #[arg(long, env = "VINT_ENGINE_MEMORY_LIMIT_MIB", default_value_t = 16_384)]
+    engine_memory_limit_mib: u64,
     /// Run every task leased, even one whose result (same stage, engine identity, parameters and
     /// input contents) is already in the store; what this worker makes is then not reusable.
     /// By default the worker declares its engines' identities and such tasks are reused.
@@ -162,6 +167,7 @@ async fn main() -> anyhow::Result<()> {
                 max_tasks: Some(args.engine_max_tasks).filter(|&n| n > 0),
                 max_rss_bytes: Some(args.engine_max_rss_mib << 20).filter(|&n| n > 0),
             },
+            memory_limit_mib: Some(args.engine_memory_limit_mib).filter(|&n| n > 0),
         },
         max_idle_poll,
         batch: args.batch.unwrap_or(1),

@@ -15,9 +15,11 @@ compiled model into the scene. Conventions, each checked (a violation is `BadInp
   `conaffinity` both 0 is visual (the renderer draws those when the hand has any); every other
   geom collides — a mesh through MuJoCo's convex hull of it — and carries the skin. A mesh's file
   (`<mesh file=…>`, found as MuJoCo does, through `meshdir`/`assetdir` and `strippath`, relative to
-  the MJCF) is one of the job's files, staged with the MJCF (`mesh_file_path` is the rule; the
-  client follows the same one, `vint_core::asset::mjcf_mesh_files`). Textures are dropped (a
-  material keeps its rgba); height fields and skins from files are refused.
+  the MJCF) is one of the job's files, staged with the MJCF (`mjcf_files.mesh_file_path` is the
+  rule; the client follows the same one, `services/vintctl/src/mjcf.rs`). Textures are dropped (a
+  material keeps its rgba). Any other file reference (includes, models, height fields, skins),
+  a path that leaves the spec's directory and a DOCTYPE are refused before MuJoCo reads the text
+  (`mjcf_files.py`).
 - Optional `<custom><numeric>` entries: `vint_open` and `vint_closed` (one target per hinge, in
   the model's joint order; default: each actuator's ctrlrange low and high end), `vint_grasp_centre`
   (x y on the palmar face; default 0 0), `vint_palm_half` (half extents; default: the palm geoms'
@@ -37,6 +39,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from vint_engines.grasp.hands.mjcf_files import check_references, mesh_file_path
 from vint_engines.grasp.hands.model import Vec3
 from vint_engines.protocol import BadInput
 
@@ -130,18 +133,13 @@ def load_mjcf_hand(
 ) -> MjcfHand:
     """Load and check a hand MJCF document; `where` names it in errors (e.g. `params.hand.mjcf`).
     `mjcf_path` is the document's path as the spec names it and `files` the job's staged files by
-    their spec paths: a `<mesh file=…>` is looked up there (`mesh_file_path`)."""
+    their spec paths: a `<mesh file=…>` is looked up there (`mesh_file_path`); nothing else that
+    names a file is read (`check_references`, before MuJoCo parses the text)."""
+    check_references(xml, where, mjcf_path)
     try:
         spec = mujoco.MjSpec.from_string(xml)
     except Exception as exc:  # MuJoCo raises ValueError and others on malformed XML
         raise BadInput(f"{where}: not a valid MJCF model: {exc}") from exc
-    for kind, items in (("hfield", spec.hfields), ("skin", spec.skins)):
-        for item in items:
-            if item.file:
-                raise BadInput(
-                    f"{where}: {kind} {item.name!r} names the external file {item.file!r}; a hand's "
-                    "files are its MJCF and its meshes' files"
-                )
     _drop_textures(spec)
     used = _stage_meshes(spec, where, mjcf_path, files or {})
     try:
@@ -149,22 +147,6 @@ def load_mjcf_hand(
     except Exception as exc:
         raise BadInput(f"{where}: MuJoCo cannot compile the model: {exc}") from exc
     return dataclasses.replace(describe(name, model, where), mesh_files=tuple(sorted(set(used))))
-
-
-def mesh_file_path(mjcf_path: str, meshdir: str, file: str, strippath: bool = False) -> str | None:
-    """The spec path of a `<mesh file=…>` of the MJCF at spec path `mjcf_path`, found as MuJoCo
-    finds it (the file's name alone under `strippath`, joined to `meshdir`, relative to the MJCF's
-    directory), or None when it is absolute or leaves the spec's directory."""
-    file = file.replace("\\", "/")
-    if strippath:
-        file = posixpath.basename(file)
-    meshdir = meshdir.replace("\\", "/")
-    if any(part.startswith("/") or ":" in part for part in (file, meshdir)):
-        return None
-    path = posixpath.normpath(posixpath.join(posixpath.dirname(mjcf_path), meshdir, file))
-    if path == ".." or path.startswith("../"):
-        return None
-    return path
 
 
 def _drop_textures(spec: mujoco.MjSpec) -> None:
