@@ -324,6 +324,8 @@ async fn run_case(case: &Case, repeat: usize, settings: &Settings) -> Run {
                 spec_toml,
                 idempotency_key: job_id.clone(),
                 assets: vec![],
+                timing_only: false,
+                submitted_by: None,
             },
             &tasks,
             now_ms(),
@@ -467,6 +469,7 @@ impl NoopWorker {
                     capacity: self.batch,
                     lease_ms: LEASE_MS,
                     engines: Default::default(),
+                    timing_only: false,
                 })
                 .await
                 .expect("LeaseTasks")

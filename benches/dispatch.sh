@@ -123,7 +123,7 @@ for _ in $(seq 100); do
 done
 
 start=$(date +%s.%N)
-job=$("$bin/vintctl" submit "$spec" --coordinator "$url")
+job=$("$bin/vintctl" submit "$spec" --timing-only --coordinator "$url")
 submitted=$(date +%s.%N)
 echo "== job $job submitted in $(python3 -c "print(f'{$submitted - $start:.1f}')") s; dispatching"
 

@@ -225,7 +225,8 @@ async fn a_worker_with_a_worker_token_leases_and_one_with_a_read_token_is_refuse
     let port = free_port();
     let _coordinator = coordinator(dir.path(), port, "127.0.0.1", &["--auth-tokens", tokens.to_str().unwrap()]);
     let url = format!("http://127.0.0.1:{port}");
-    let o = vintctl(&["submit", tiny_spec().to_str().unwrap(), "--coordinator", &url, "--token", SUBMIT]);
+    let o =
+        vintctl(&["submit", tiny_spec().to_str().unwrap(), "--timing-only", "--coordinator", &url, "--token", SUBMIT]);
     assert!(o.status.success(), "submit: {}", stderr(&o));
     let job = stdout(&o).trim().to_string();
     let store = format!("file://{}", dir.path().join("objects").display());
@@ -444,4 +445,119 @@ fn base64_encode(text: &str) -> String {
         }
     }
     out
+}
+
+/// Workers act under their token's name: the holder of one worker token cannot heartbeat,
+/// complete, fail or release a lease another token's worker holds, even claiming its worker id;
+/// and one token's workers hold at most `--max-leases-per-token` leases.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_worker_token_acts_only_on_its_own_leases_and_holds_at_most_its_cap() {
+    const POOL_A: &str = "worker-a-1c4e7a9d2f5b8e03";
+    const POOL_B: &str = "worker-b-6d9f2c5a8e1b4d70";
+    let dir = tempfile::tempdir().unwrap();
+    let tokens = dir.path().join("tokens");
+    std::fs::write(&tokens, format!("submit {SUBMIT}\nworker {POOL_A} pool-a\nworker {POOL_B} pool-b\n")).unwrap();
+    let port = free_port();
+    let _coordinator = coordinator(
+        dir.path(),
+        port,
+        "127.0.0.1",
+        &["--auth-tokens", tokens.to_str().unwrap(), "--max-leases-per-token", "2"],
+    );
+    let url = format!("http://127.0.0.1:{port}");
+    let o = vintctl(&["submit", tiny_spec().to_str().unwrap(), "--coordinator", &url, "--token", SUBMIT]);
+    assert!(o.status.success(), "submit: {}", stderr(&o));
+    let channel = Channel::from_shared(url.clone()).unwrap().connect().await.unwrap();
+    let client = |token: &'static str| {
+        let header: AsciiMetadataValue = format!("Bearer {token}").parse().unwrap();
+        WorkServiceClient::with_interceptor(channel.clone(), move |mut request: tonic::Request<()>| {
+            request.metadata_mut().insert("authorization", header.clone());
+            Ok(request)
+        })
+    };
+    let (mut a, mut b) = (client(POOL_A), client(POOL_B));
+    let lease = |capacity: u32| pb::LeaseTasksRequest {
+        worker_id: "w1".into(),
+        stages: vec!["grasp".into()],
+        capacity,
+        lease_ms: 60_000,
+        engines: Default::default(),
+        timing_only: false,
+    };
+    let task = a.lease_tasks(lease(1)).await.unwrap().into_inner().tasks.remove(0);
+    let held = vec![pb::TaskAttempt { task_id: task.task_id.clone(), attempt: task.attempt }];
+
+    // Pool b's worker claiming the same id is another worker: pool-b/w1, not pool-a/w1.
+    let beat = |held: Vec<pb::TaskAttempt>| pb::HeartbeatRequest { worker_id: "w1".into(), held, lease_ms: 60_000 };
+    let lost = b.heartbeat(beat(held.clone())).await.unwrap().into_inner().lost;
+    assert_eq!(lost.len(), 1, "another token's worker renewed pool a's lease");
+    let complete = pb::CompleteTaskRequest {
+        worker_id: "w1".into(),
+        task_id: task.task_id.clone(),
+        attempt: task.attempt,
+        outputs: vec![],
+        engine_json: "{}".into(),
+        timings: None,
+        result_json: r#"{"accepted": []}"#.into(),
+    };
+    assert_eq!(b.complete_task(complete).await.unwrap_err().code(), Code::FailedPrecondition);
+    let fail = pb::FailTaskRequest {
+        worker_id: "w1".into(),
+        task_id: task.task_id.clone(),
+        attempt: task.attempt,
+        retryable: false,
+        message: "sabotage".into(),
+    };
+    assert_eq!(b.fail_task(fail).await.unwrap_err().code(), Code::FailedPrecondition);
+    let release = pb::ReleaseTasksRequest { worker_id: "w1".into(), tasks: held.clone() };
+    assert!(b.release_tasks(release).await.unwrap().into_inner().released.is_empty());
+    assert!(a.heartbeat(beat(held)).await.unwrap().into_inner().lost.is_empty(), "pool a still holds it");
+    let bad_id = pb::LeaseTasksRequest { worker_id: "../w1".into(), ..lease(1) };
+    assert_eq!(a.lease_tasks(bad_id).await.unwrap_err().code(), Code::InvalidArgument);
+
+    // The cap: pool a holds 1 of 2, gets 1 more of the 5 it asks for, then none.
+    assert_eq!(a.lease_tasks(lease(5)).await.unwrap().into_inner().tasks.len(), 1);
+    let refused = a.lease_tasks(lease(5)).await.unwrap_err();
+    assert_eq!(refused.code(), Code::ResourceExhausted, "{refused}");
+    assert!(
+        refused.message().contains("pool-a") && refused.message().contains("--max-leases-per-token 2"),
+        "{refused}"
+    );
+    assert_eq!(b.lease_tasks(lease(1)).await.unwrap().into_inner().tasks.len(), 1, "pool b has its own cap");
+
+    // The attempt records the token's name.
+    let database = format!("sqlite://{}?mode=rwc", dir.path().join(format!("vint-{port}.db")).display());
+    let store = vint_store::Store::open(&database, vint_store::RetryPolicy::default()).await.unwrap();
+    let record = store.task(&task.task_id).await.unwrap().unwrap();
+    assert_eq!(record.lease_owner.as_deref(), Some("pool-a/w1"));
+}
+
+/// A token has at most `--max-jobs-per-token` jobs running; resubmitting one it has is answered.
+#[test]
+fn a_token_has_at_most_its_cap_of_jobs_running() {
+    let dir = tempfile::tempdir().unwrap();
+    let tokens = write_tokens(dir.path());
+    let port = free_port();
+    let _coordinator = coordinator(
+        dir.path(),
+        port,
+        "127.0.0.1",
+        &["--auth-tokens", tokens.to_str().unwrap(), "--max-jobs-per-token", "1"],
+    );
+    let url = format!("http://127.0.0.1:{port}");
+    let spec = tiny_spec();
+    let submit = |extra: &[&str]| {
+        let mut args = vec!["submit", spec.to_str().unwrap(), "--coordinator", &url, "--token", SUBMIT];
+        args.extend_from_slice(extra);
+        vintctl(&args)
+    };
+    let first = submit(&[]);
+    assert!(first.status.success(), "submit: {}", stderr(&first));
+    let refused = submit(&["--timing-only"]);
+    assert_eq!(refused.status.code(), Some(1), "a second running job: {}", stdout(&refused));
+    let message = stderr(&refused);
+    assert!(message.contains("has 1 jobs running") && message.contains("--max-jobs-per-token 1"), "{message}");
+    let again = submit(&[]);
+    assert!(again.status.success(), "a resubmission is answered: {}", stderr(&again));
+    assert_eq!(stdout(&again).trim(), stdout(&first).trim());
 }

@@ -98,7 +98,7 @@ async fn metrics_parse_as_prometheus_text_and_count_what_the_store_holds() {
     })
     .await;
 
-    let o = vintctl(&["submit", spec.to_str().unwrap(), "--coordinator", &coordinator]);
+    let o = vintctl(&["submit", spec.to_str().unwrap(), "--timing-only", "--coordinator", &coordinator]);
     assert!(o.status.success(), "submit: {}", stderr(&o));
     let job = stdout(&o).trim().to_string();
     let store = Store::open(&database, RetryPolicy::default()).await.unwrap();

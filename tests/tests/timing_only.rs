@@ -38,9 +38,14 @@ async fn a_timing_only_worker_drains_a_job_with_full_lineage_and_marks_its_outpu
     let coordinator = format!("http://127.0.0.1:{port}");
     let logs = dir.path().join("logs");
     let _coordinator = start_coordinator(&database, port, &logs, "coordinator");
+    // The same spec submitted for real workers: another job, which no timing-only worker serves.
     let o = vintctl(&["submit", spec.to_str().unwrap(), "--coordinator", &coordinator]);
     assert!(o.status.success(), "submit: {}", stderr(&o));
+    let real_job = stdout(&o).trim().to_string();
+    let o = vintctl(&["submit", spec.to_str().unwrap(), "--timing-only", "--coordinator", &coordinator]);
+    assert!(o.status.success(), "submit: {}", stderr(&o));
     let job = stdout(&o).trim().to_string();
+    assert_ne!(job, real_job, "a spec for timing-only workers is another job");
 
     let worker = Command::new(bin("vint-worker"))
         .args(["--coordinator", &coordinator, "--store", &store_url, "--worker-id", "timing"])
@@ -52,6 +57,20 @@ async fn a_timing_only_worker_drains_a_job_with_full_lineage_and_marks_its_outpu
     let _worker = Proc { child: worker, name: "timing".into() };
     let o = vintctl(&["watch", &job, "--coordinator", &coordinator, "--json"]);
     assert!(o.status.success(), "job did not succeed: {}\n{}", stdout(&o), stderr(&o));
+
+    let o = vintctl(&["status", &real_job, "--coordinator", &coordinator, "--json"]);
+    let status: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    assert_eq!(
+        (status["progress"]["tasks_running"].as_u64(), status["progress"]["tasks_succeeded"].as_u64()),
+        (Some(0), Some(0)),
+        "a timing-only worker served a job not submitted for it: {status:#}"
+    );
+    // Its output is not data: export refuses it, saying why, and writes nothing.
+    let out = dir.path().join("export");
+    let o = vintctl(&["export", &job, "--out", out.to_str().unwrap(), "--coordinator", &coordinator]);
+    assert_eq!(o.status.code(), Some(2), "export of a timing-only job: {}", stderr(&o));
+    assert!(stderr(&o).contains("--timing-only") && stderr(&o).contains("not data"), "{}", stderr(&o));
+    assert!(!out.exists());
 
     let o = vintctl(&["status", &job, "--coordinator", &coordinator, "--json"]);
     let status: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();

@@ -8,6 +8,13 @@
 //! from `RPC_ROLES` is refused to every token, so a new RPC cannot be left open by mistake; the
 //! only calls taken without a token are those of `PUBLIC_RPCS` (the gRPC health check).
 //!
+//! A token also has a name (`ROLE TOKEN NAME`; without one, `token-` and the first 12 hex digits
+//! of its SHA-256): the identity a call acts as. The worker API acts for the worker id a call
+//! claims *under its token's name* (`NAME/ID`), so the holder of one worker token cannot
+//! heartbeat, complete, fail or release the leases of a worker holding another; give each pool
+//! (or each worker) its own token. Tokens sharing a name share an identity (rotating a pool's
+//! token keeps its leases).
+//!
 //! Tokens are kept as SHA-256 digests and compared in constant time; no token is ever logged or
 //! repeated in an error. Without a tokens file nothing is checked (the coordinator then listens on
 //! loopback only, which the binary enforces).
@@ -95,6 +102,24 @@ pub fn rpc_role(path: &str) -> Option<Role> {
 /// Shortest token accepted: a guessable token is no token.
 pub const MIN_TOKEN_LEN: usize = 16;
 
+/// Longest token name.
+pub const MAX_NAME_LEN: usize = 64;
+
+/// Who a call comes from: its token's role and name. The auth layer puts it in the request's
+/// extensions; without a tokens file there is none.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Caller {
+    pub role: Role,
+    pub name: Arc<str>,
+}
+
+/// Whether `name` is a token name: 1 to 64 of `[a-z0-9_-]`.
+fn valid_name(name: &str) -> bool {
+    !name.is_empty()
+        && name.len() <= MAX_NAME_LEN
+        && name.bytes().all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_' || b == b'-')
+}
+
 /// A tokens file that cannot be used. The messages name the file and line, never a token.
 #[derive(Debug, thiserror::Error)]
 pub enum TokensFileError {
@@ -102,7 +127,7 @@ pub enum TokensFileError {
     Read { path: PathBuf, source: std::io::Error },
     #[error("--auth-tokens {}, line {line}: {rule}", path.display())]
     Line { path: PathBuf, line: usize, rule: String },
-    #[error("--auth-tokens {}: no tokens in it (one line per token: ROLE TOKEN, ROLE one of submit, worker, read)", path.display())]
+    #[error("--auth-tokens {}: no tokens in it (one line per token: ROLE TOKEN [NAME], ROLE one of submit, worker, read)", path.display())]
     Empty { path: PathBuf },
 }
 
@@ -124,9 +149,9 @@ impl Denied {
     }
 }
 
-/// The tokens of a tokens file, as digests with their roles.
+/// The tokens of a tokens file, as digests with their callers.
 pub struct Tokens {
-    digests: Vec<([u8; 32], Role)>,
+    digests: Vec<([u8; 32], Caller)>,
 }
 
 impl fmt::Debug for Tokens {
@@ -147,9 +172,10 @@ impl Tokens {
         Tokens::parse(&text, path)
     }
 
-    /// Parses the text of a tokens file: one `ROLE TOKEN` per line, blank lines and `#` comments
-    /// allowed. A line that is not two fields, an unknown role, a short token, a token with
-    /// characters outside printable ASCII, a token listed twice, or no token at all is an error.
+    /// Parses the text of a tokens file: one `ROLE TOKEN [NAME]` per line, blank lines and `#`
+    /// comments allowed. A line that is not two or three fields, an unknown role, a short token, a
+    /// token with characters outside printable ASCII, a bad name, a token listed twice, or no
+    /// token at all is an error.
     pub fn parse(text: &str, path: &Path) -> Result<Tokens, TokensFileError> {
         let mut digests = Vec::new();
         let mut seen: HashMap<[u8; 32], usize> = HashMap::new();
@@ -161,11 +187,16 @@ impl Tokens {
                 continue;
             }
             let fields: Vec<&str> = line.split_whitespace().collect();
-            let [role, token] = fields[..] else {
-                return Err(bad(format!(
-                    "expected two fields, ROLE TOKEN, got {} (the line is not repeated here: it may hold a token)",
-                    fields.len()
-                )));
+            let (role, token, name) = match fields[..] {
+                [role, token] => (role, token, None),
+                [role, token, name] => (role, token, Some(name)),
+                _ => {
+                    return Err(bad(format!(
+                        "expected two or three fields, ROLE TOKEN [NAME], got {} (the line is not repeated here: \
+                         it may hold a token)",
+                        fields.len()
+                    )));
+                }
             };
             let role: Role = role.parse().map_err(|()| {
                 bad("the first field must be a role: submit, worker or read (the value is not repeated here: \
@@ -182,7 +213,17 @@ impl Tokens {
             if let Some(first) = seen.insert(d, n) {
                 return Err(bad(format!("the same token as line {first}: a token has one role")));
             }
-            digests.push((d, role));
+            let name = match name {
+                Some(name) if valid_name(name) => name.to_string(),
+                Some(_) => {
+                    return Err(bad(format!(
+                        "the name (third field) must be 1 to {MAX_NAME_LEN} of a-z, 0-9, '_' and '-' (the value is \
+                         not repeated here: it may be a token)"
+                    )));
+                }
+                None => format!("token-{}", &hex::encode(d)[..12]),
+            };
+            digests.push((d, Caller { role, name: name.into() }));
         }
         if digests.is_empty() {
             return Err(TokensFileError::Empty { path: path.to_path_buf() });
@@ -190,13 +231,13 @@ impl Tokens {
         Ok(Tokens { digests })
     }
 
-    /// The role of `token`, comparing against every known token in constant time.
-    fn role_of(&self, token: &str) -> Option<Role> {
+    /// The caller `token` makes, comparing against every known token in constant time.
+    fn caller_of(&self, token: &str) -> Option<&Caller> {
         let presented = digest(token.as_bytes());
         let mut found = None;
-        for (d, role) in &self.digests {
+        for (d, caller) in &self.digests {
             if bool::from(d.ct_eq(&presented)) {
-                found = Some(*role);
+                found = Some(caller);
             }
         }
         found
@@ -205,7 +246,7 @@ impl Tokens {
     /// Checks an `authorization` header (`Bearer TOKEN`) for a role that grants `needed`; returns
     /// the token's role. The HTTP server calls this for its `read` endpoints.
     pub fn authorize_bearer(&self, authorization: Option<&http::HeaderValue>, needed: Role) -> Result<Role, Denied> {
-        let role = self.authenticate(authorization)?;
+        let role = self.authenticate(authorization)?.role;
         if role.grants(needed) {
             Ok(role)
         } else {
@@ -213,11 +254,13 @@ impl Tokens {
         }
     }
 
-    /// Checks a gRPC call to `path`: the header's token and the role `RPC_ROLES` names for it.
-    pub fn authorize_rpc(&self, path: &str, authorization: Option<&http::HeaderValue>) -> Result<Role, Denied> {
-        let role = self.authenticate(authorization)?;
+    /// Checks a gRPC call to `path`: the header's token and the role `RPC_ROLES` names for it;
+    /// returns who calls.
+    pub fn authorize_rpc(&self, path: &str, authorization: Option<&http::HeaderValue>) -> Result<Caller, Denied> {
+        let caller = self.authenticate(authorization)?;
+        let role = caller.role;
         match rpc_role(path) {
-            Some(needed) if role.grants(needed) => Ok(role),
+            Some(needed) if role.grants(needed) => Ok(caller),
             Some(needed) => {
                 Err(Denied::PermissionDenied(format!("{path} needs a {needed} token, this is a {role} token")))
             }
@@ -225,7 +268,7 @@ impl Tokens {
         }
     }
 
-    fn authenticate(&self, authorization: Option<&http::HeaderValue>) -> Result<Role, Denied> {
+    fn authenticate(&self, authorization: Option<&http::HeaderValue>) -> Result<Caller, Denied> {
         let header = authorization.ok_or_else(|| {
             Denied::Unauthenticated(
                 "no token: this coordinator needs `authorization: Bearer TOKEN` (vintctl and vint-worker: --token \
@@ -240,7 +283,7 @@ impl Tokens {
             .filter(|(scheme, _)| scheme.eq_ignore_ascii_case("bearer"))
             .map(|(_, token)| token.trim())
             .ok_or_else(|| Denied::Unauthenticated("the authorization header must be `Bearer TOKEN`".to_string()))?;
-        self.role_of(token).ok_or_else(|| Denied::Unauthenticated("unknown token".to_string()))
+        self.caller_of(token).cloned().ok_or_else(|| Denied::Unauthenticated("unknown token".to_string()))
     }
 }
 
@@ -285,15 +328,20 @@ where
         self.inner.poll_ready(cx)
     }
 
-    fn call(&mut self, request: http::Request<ReqBody>) -> Self::Future {
+    fn call(&mut self, mut request: http::Request<ReqBody>) -> Self::Future {
         if let Some(tokens) = &self.tokens {
             let path = request.uri().path();
             if PUBLIC_RPCS.contains(&path) {
                 return Either::Right(self.inner.call(request));
             }
-            if let Err(denied) = tokens.authorize_rpc(path, request.headers().get(http::header::AUTHORIZATION)) {
-                tracing::info!(rpc = %path, ?denied, "call refused");
-                return Either::Left(ready(Ok(denied.into_status().into_http())));
+            match tokens.authorize_rpc(path, request.headers().get(http::header::AUTHORIZATION)) {
+                Ok(caller) => {
+                    request.extensions_mut().insert(caller);
+                }
+                Err(denied) => {
+                    tracing::info!(rpc = %path, ?denied, "call refused");
+                    return Either::Left(ready(Ok(denied.into_status().into_http())));
+                }
             }
         }
         Either::Right(self.inner.call(request))
@@ -332,17 +380,31 @@ mod tests {
     #[test]
     fn a_tokens_file_with_comments_and_blank_lines_parses() {
         let tokens = three();
-        assert_eq!(tokens.role_of(SUBMIT), Some(Role::Submit));
-        assert_eq!(tokens.role_of(WORKER), Some(Role::Worker));
-        assert_eq!(tokens.role_of(READ), Some(Role::Read));
-        assert_eq!(tokens.role_of("read-token-012345678"), None);
+        let role_of = |token: &str| tokens.caller_of(token).map(|c| c.role);
+        assert_eq!(role_of(SUBMIT), Some(Role::Submit));
+        assert_eq!(role_of(WORKER), Some(Role::Worker));
+        assert_eq!(role_of(READ), Some(Role::Read));
+        assert_eq!(role_of("read-token-012345678"), None);
+    }
+
+    #[test]
+    fn a_token_s_name_is_its_third_field_or_its_digest_s_start() {
+        let tokens = parse(&format!("worker {WORKER} pool-a\nworker worker-token-9876543210\n")).unwrap();
+        assert_eq!(&*tokens.caller_of(WORKER).unwrap().name, "pool-a");
+        let unnamed = tokens.caller_of("worker-token-9876543210").unwrap();
+        let expected = hex::encode(Sha256::digest(b"worker-token-9876543210"));
+        assert_eq!(*unnamed.name, format!("token-{}", &expected[..12]));
+        for bad in ["Pool", "a/b", "pool.a", &"x".repeat(65)] {
+            let (_, rule) = line_error(&format!("worker {WORKER} {bad}\n"));
+            assert!(rule.contains("the name (third field)") && !rule.contains(WORKER), "{bad}: {rule}");
+        }
     }
 
     #[test]
     fn each_bad_line_names_its_line_and_rule_and_never_the_token() {
-        let (line, rule) = line_error(&format!("# c\nsubmit {SUBMIT} extra\n"));
+        let (line, rule) = line_error(&format!("# c\nsubmit {SUBMIT} name extra\n"));
         assert_eq!(line, 2);
-        assert!(rule.contains("two fields") && rule.contains("got 3"), "{rule}");
+        assert!(rule.contains("two or three fields") && rule.contains("got 4"), "{rule}");
         let (line, rule) = line_error(&format!("submit {SUBMIT}\nadmin {WORKER}\n"));
         assert_eq!(line, 2);
         assert!(rule.contains("submit, worker or read") && !rule.contains(WORKER), "{rule}");
@@ -355,7 +417,7 @@ mod tests {
         let (line, rule) = line_error(&format!("submit {SUBMIT}\n\nread {SUBMIT}\n"));
         assert_eq!(line, 3);
         assert!(rule.contains("line 1") && !rule.contains(SUBMIT), "{rule}");
-        let message = parse(&format!("read {READ} x\n")).unwrap_err().to_string();
+        let message = parse(&format!("read {READ} x y\n")).unwrap_err().to_string();
         assert!(message.starts_with("--auth-tokens tokens.txt, line 1: "), "{message}");
     }
 
@@ -388,9 +450,10 @@ mod tests {
         assert!(matches!(tokens.authorize_rpc(submit, Some(&wrong)), Err(Denied::Unauthenticated(_))));
         let basic = http::HeaderValue::from_static("Basic dXNlcjpwYXNz");
         assert!(matches!(tokens.authorize_rpc(submit, Some(&basic)), Err(Denied::Unauthenticated(_))));
-        assert_eq!(tokens.authorize_rpc(submit, Some(&bearer(SUBMIT))), Ok(Role::Submit));
-        assert_eq!(tokens.authorize_rpc(get, Some(&bearer(SUBMIT))), Ok(Role::Submit));
-        assert_eq!(tokens.authorize_rpc(lease, Some(&bearer(WORKER))), Ok(Role::Worker));
+        let role = |path: &str, token: &str| tokens.authorize_rpc(path, Some(&bearer(token))).map(|c| c.role);
+        assert_eq!(role(submit, SUBMIT), Ok(Role::Submit));
+        assert_eq!(role(get, SUBMIT), Ok(Role::Submit));
+        assert_eq!(role(lease, WORKER), Ok(Role::Worker));
         assert!(matches!(tokens.authorize_rpc(submit, Some(&bearer(WORKER))), Err(Denied::PermissionDenied(_))));
         assert!(matches!(tokens.authorize_rpc(lease, Some(&bearer(READ))), Err(Denied::PermissionDenied(_))));
         assert!(matches!(tokens.authorize_rpc(lease, Some(&bearer(SUBMIT))), Err(Denied::PermissionDenied(_))));

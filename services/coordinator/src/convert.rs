@@ -76,6 +76,7 @@ pub fn job(job: &JobRecord, p: &Progress) -> pb::Job {
         created_ms: job.created_ms,
         finished_ms: job.finished_ms.unwrap_or(0),
         progress: Some(progress(job, p)),
+        timing_only: job.timing_only,
     }
 }
 

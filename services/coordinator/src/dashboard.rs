@@ -13,9 +13,14 @@
 //! With a tokens file every route needs a `read` token (a `submit` one will do): `Authorization:
 //! Bearer TOKEN`, or HTTP Basic with the token as the password, which is what a browser prompts
 //! for on the 401 answer.
+//!
+//! A view's table is kept for `VIEW_TTL` and shared by every tab and chart that asks for it, so
+//! the database answers each (view, job) at most once per period however many pages are open
+//! (the page itself refreshes every 2 s, and at most every second whatever `?refresh=` says).
 
-use std::collections::BTreeMap;
-use std::sync::Arc;
+use std::collections::{BTreeMap, HashMap};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 
 use axum::Router;
 use axum::extract::{Path, Query, Request, State};
@@ -40,6 +45,40 @@ const CHART_SIZE: (u32, u32) = (560, 260);
 const PALETTE: [RGBColor; 4] =
     [RGBColor(31, 95, 191), RGBColor(47, 125, 79), RGBColor(196, 120, 24), RGBColor(130, 70, 160)];
 
+/// How long a view's table is served from memory before the database is asked again.
+const VIEW_TTL: Duration = Duration::from_secs(2);
+/// Most (view, job) tables kept; past it the cache starts over.
+const VIEW_CACHE_ENTRIES: usize = 512;
+
+/// Tables by view name and the job each was read for (`None`: all jobs), with when.
+type ViewCache = HashMap<(&'static str, Option<String>), (Instant, Arc<DashboardTable>)>;
+
+/// The store and the tables recently read from it.
+#[derive(Clone)]
+struct Views {
+    store: Store,
+    cache: Arc<Mutex<ViewCache>>,
+}
+
+impl Views {
+    /// `view` of `job` (all jobs when `None`), from memory when read within `VIEW_TTL`.
+    async fn table(&self, view: DashboardView, job: Option<&str>) -> vint_store::Result<Arc<DashboardTable>> {
+        let key = (view.name(), job.map(str::to_string));
+        if let Some((at, table)) = self.cache.lock().unwrap_or_else(|p| p.into_inner()).get(&key)
+            && at.elapsed() < VIEW_TTL
+        {
+            return Ok(table.clone());
+        }
+        let table = Arc::new(self.store.dashboard(view, job, 0).await?);
+        let mut cache = self.cache.lock().unwrap_or_else(|p| p.into_inner());
+        if cache.len() >= VIEW_CACHE_ENTRIES {
+            cache.clear();
+        }
+        cache.insert(key, (Instant::now(), table.clone()));
+        Ok(table)
+    }
+}
+
 /// The dashboard's routes over `store`, each behind a `read` token when there are `tokens`.
 pub fn router(store: Store, tokens: Option<Arc<Tokens>>) -> Router {
     Router::new()
@@ -48,7 +87,7 @@ pub fn router(store: Store, tokens: Option<Arc<Tokens>>) -> Router {
         .route("/dashboard/api/jobs", get(jobs))
         .route("/dashboard/api/view/{view}", get(view))
         .route("/dashboard/chart/{file}", get(chart))
-        .with_state(store)
+        .with_state(Views { store, cache: Arc::default() })
         .layer(middleware::from_fn_with_state(tokens, require_read))
 }
 
@@ -99,8 +138,8 @@ async fn script() -> Response {
         .into_response()
 }
 
-async fn jobs(State(store): State<Store>) -> Response {
-    match store.list_jobs(JOBS_LISTED).await {
+async fn jobs(State(views): State<Views>) -> Response {
+    match views.store.list_jobs(JOBS_LISTED).await {
         Ok(jobs) => {
             let jobs: Vec<Value> = jobs
                 .iter()
@@ -115,12 +154,12 @@ async fn jobs(State(store): State<Store>) -> Response {
     }
 }
 
-async fn view(State(store): State<Store>, Path(name): Path<String>, Query(q): Query<JobQuery>) -> Response {
+async fn view(State(views): State<Views>, Path(name): Path<String>, Query(q): Query<JobQuery>) -> Response {
     let view = match name.parse::<DashboardView>() {
         Ok(v) => v,
         Err(e) => return (StatusCode::NOT_FOUND, e.to_string()).into_response(),
     };
-    match store.dashboard(view, q.job.as_deref(), 0).await {
+    match views.table(view, q.job.as_deref()).await {
         Ok(table) => axum::Json(table_json(&table)).into_response(),
         Err(e) => store_error(&e),
     }
@@ -132,8 +171,9 @@ fn table_json(table: &DashboardTable) -> Value {
 }
 
 fn store_error(e: &vint_store::StoreError) -> Response {
+    // The database's own words (hosts, roles, databases) go to the log, not to the page.
     tracing::error!(error = %e, "dashboard query failed");
-    (StatusCode::SERVICE_UNAVAILABLE, format!("the database did not answer: {e}")).into_response()
+    (StatusCode::SERVICE_UNAVAILABLE, "the database did not answer; see the coordinator's log").into_response()
 }
 
 /// The charts the page draws, each from one view.
@@ -166,7 +206,7 @@ impl Chart {
     }
 }
 
-async fn chart(State(store): State<Store>, Path(file): Path<String>, Query(q): Query<JobQuery>) -> Response {
+async fn chart(State(views): State<Views>, Path(file): Path<String>, Query(q): Query<JobQuery>) -> Response {
     let Some(chart) = Chart::parse(&file) else {
         return (
             StatusCode::NOT_FOUND,
@@ -174,7 +214,7 @@ async fn chart(State(store): State<Store>, Path(file): Path<String>, Query(q): Q
         )
             .into_response();
     };
-    let table = match store.dashboard(chart.view(), q.job.as_deref(), 0).await {
+    let table = match views.table(chart.view(), q.job.as_deref()).await {
         Ok(t) => t,
         Err(e) => return store_error(&e),
     };

@@ -3,6 +3,7 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
+use prost::Message;
 use sha2::{Digest, Sha256};
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status};
@@ -75,6 +76,20 @@ impl JobApi {
             progress.failed_tasks = self.failed_tasks(&job.id, progress.tasks_failed).await?;
         }
         Ok(message)
+    }
+
+    /// Refuses a new job of the token named `name` when it has `max_jobs_per_token` running; a
+    /// resubmission (an existing `key`) is always answered.
+    async fn check_jobs_in_flight(&self, name: &str, key: &str) -> Result<(), Status> {
+        let cap = self.config.max_jobs_per_token;
+        let running = self.store.running_jobs_submitted_by(name).await.map_err(status)?;
+        if running < cap || self.store.job_by_idempotency_key(key).await.map_err(status)?.is_some() {
+            return Ok(());
+        }
+        Err(Status::resource_exhausted(format!(
+            "token {name} has {running} jobs running, the most one token may (--max-jobs-per-token {cap}); wait for \
+             one to finish or cancel one"
+        )))
     }
 
     /// The failed tasks a progress message shows; none asked of the store when none failed.
@@ -173,9 +188,13 @@ impl JobApi {
 
 /// Default idempotency key: the spec's content and its user files' hashes, so resubmitting the
 /// same files is a no-op and changing a mesh on disk makes a new job.
-fn default_idempotency_key(spec_toml: &str, assets: &[JobAsset]) -> String {
+fn default_idempotency_key(spec_toml: &str, assets: &[JobAsset], timing_only: bool) -> String {
     let mut h = Sha256::new();
     h.update(spec_toml.as_bytes());
+    if timing_only {
+        // The same spec for timing-only workers is another job.
+        h.update(b"\0timing-only");
+    }
     for a in assets {
         h.update(format!("\0{}\0{}", a.path, a.sha256).as_bytes());
     }
@@ -218,6 +237,7 @@ impl JobService for JobApi {
         &self,
         request: Request<pb::SubmitJobRequest>,
     ) -> Result<Response<pb::SubmitJobResponse>, Status> {
+        let submitter = request.extensions().get::<crate::auth::Caller>().map(|c| c.name.to_string());
         let req = request.into_inner();
         let spec =
             DatasetSpec::parse(&req.spec_toml).map_err(|e| Status::invalid_argument(format!("invalid spec:\n{e}")))?;
@@ -234,10 +254,13 @@ impl JobService for JobApi {
         let files = checked_assets(&spec, req.assets)?;
         let assets = self.store_assets(files).await?;
         let key = if req.idempotency_key.is_empty() {
-            default_idempotency_key(&req.spec_toml, &assets)
+            default_idempotency_key(&req.spec_toml, &assets, req.timing_only)
         } else {
             req.idempotency_key
         };
+        if let Some(name) = &submitter {
+            self.check_jobs_in_flight(name, &key).await?;
+        }
         let planned: Vec<Asset> =
             assets.iter().map(|a| Asset { path: a.path.clone(), sha256: a.sha256.clone(), size: a.size }).collect();
         let tasks = plan::initial_tasks(&spec, &planned).map_err(|e| Status::invalid_argument(e.to_string()))?;
@@ -252,8 +275,16 @@ impl JobService for JobApi {
             plan_json,
             idempotency_key: key,
             assets,
+            timing_only: req.timing_only,
+            submitted_by: submitter,
         };
         let (job, created) = self.store.submit_job(&new_job, &tasks, now_ms()).await.map_err(status)?;
+        if job.timing_only != req.timing_only {
+            return Err(Status::invalid_argument(format!(
+                "idempotency_key {:?} names job {} submitted with timing_only = {}, not {}",
+                new_job.idempotency_key, job.id, job.timing_only, req.timing_only
+            )));
+        }
         if created {
             self.config.metrics.job_submitted();
         }
@@ -287,7 +318,9 @@ impl JobService for JobApi {
         self.job_record(&job_id).await?;
         let (tx, rx) = tokio::sync::mpsc::channel(16);
         let api = self.clone();
+        let open = self.config.metrics.watch_opened();
         tokio::spawn(async move {
+            let _open = open;
             let mut last: Option<pb::JobProgress> = None;
             loop {
                 let update = async {
@@ -319,7 +352,12 @@ impl JobService for JobApi {
                         return;
                     }
                 }
-                tokio::time::sleep(api.config.watch_interval).await;
+                // A client that leaves a job that never changes would otherwise be noticed only
+                // at the next send, which may never come: the poller ends with its client.
+                tokio::select! {
+                    () = tokio::time::sleep(api.config.watch_interval) => {}
+                    () = tx.closed() => return,
+                }
             }
         });
         Ok(Response::new(ReceiverStream::new(rx)))
@@ -390,29 +428,50 @@ impl JobService for JobApi {
         &self,
         request: Request<pb::ListSamplesRequest>,
     ) -> Result<Response<pb::ListSamplesResponse>, Status> {
-        let job_id = request.into_inner().job_id;
+        let req = request.into_inner();
+        let job_id = req.job_id;
         self.job_record(&job_id).await?;
-        let samples = self
-            .store
-            .samples(&job_id)
-            .await
-            .map_err(status)?
-            .into_iter()
-            .map(|(sample_id, files)| pb::Sample { sample_id, files: files.iter().map(convert::artifact).collect() })
-            .collect();
-        let grasps = self
-            .store
-            .grasp_records(&job_id)
-            .await
-            .map_err(status)?
-            .into_iter()
-            .map(|(grasp_id, file)| pb::GraspRecord { grasp_id, file: Some(convert::artifact(&file)) })
-            .collect();
-        let models = self.object_models(&job_id).await?;
-        let pairs = self.pair_trials(&job_id).await?;
-        Ok(Response::new(pb::ListSamplesResponse { samples, grasps, models, pairs }))
+        let limit = if req.page_size == 0 { SAMPLES_PAGE_TASKS } else { req.page_size.min(SAMPLES_PAGE_TASKS) };
+        let rows = self.store.package_outputs_after(&job_id, &req.page_token, limit).await.map_err(status)?;
+        let mut page = pb::ListSamplesResponse::default();
+        if req.page_token.is_empty() {
+            page.models = self.object_models(&job_id).await?;
+            page.pairs = self.pair_trials(&job_id).await?;
+        }
+        // Whole package tasks, in key order, until the page holds about SAMPLES_PAGE_BYTES.
+        let mut tasks: Vec<(String, Vec<vint_store::ArtifactRecord>)> = Vec::new();
+        for row in rows {
+            match tasks.last_mut() {
+                Some((key, files)) if *key == row.task_key => files.push(row),
+                _ => tasks.push((row.task_key.clone(), vec![row])),
+            }
+        }
+        let fetched = tasks.len();
+        let mut taken = 0;
+        let mut last_key = String::new();
+        for (key, files) in tasks {
+            for (sample_id, files) in vint_store::samples_of(files.clone()) {
+                page.samples.push(pb::Sample { sample_id, files: files.iter().map(convert::artifact).collect() });
+            }
+            for (grasp_id, file) in vint_store::grasp_records_of(files) {
+                page.grasps.push(pb::GraspRecord { grasp_id, file: Some(convert::artifact(&file)) });
+            }
+            taken += 1;
+            last_key = key;
+            if page.encoded_len() >= SAMPLES_PAGE_BYTES {
+                break;
+            }
+        }
+        let more = taken < fetched || u32::try_from(fetched).is_ok_and(|n| n == limit);
+        page.next_page_token = if more { last_key } else { String::new() };
+        Ok(Response::new(page))
     }
 }
+
+/// Most package tasks on one page of `ListSamples`, and the size past which a page ends (well
+/// under the clients' 4 MiB default message limit).
+const SAMPLES_PAGE_TASKS: u32 = 256;
+const SAMPLES_PAGE_BYTES: usize = 2 << 20;
 
 impl JobApi {
     /// One model mesh per object: the first grasp task's `object.ply` (every grasp task of an
@@ -450,12 +509,15 @@ impl JobApi {
                 hand: chunk.hand,
                 ..Default::default()
             });
+            // Completions are checked against their chunks (`planner::check_grasp_counts`); the
+            // sums saturate all the same rather than wrap.
             let accepted = u32::try_from(result.accepted.len()).unwrap_or(u32::MAX);
-            pair.accepted += accepted;
-            pair.trials += accepted;
+            pair.accepted = pair.accepted.saturating_add(accepted);
+            pair.trials = pair.trials.saturating_add(accepted);
             for (reason, n) in result.rejected {
-                pair.trials += n;
-                *pair.rejected.entry(reason).or_default() += n;
+                pair.trials = pair.trials.saturating_add(n);
+                let count = pair.rejected.entry(reason).or_default();
+                *count = count.saturating_add(n);
             }
         }
         Ok(pairs.into_values().collect())

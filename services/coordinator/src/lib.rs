@@ -27,6 +27,7 @@ mod reuse;
 pub mod tls;
 
 pub use limit_flags::LimitFlags;
+mod listener;
 mod work_api;
 
 use std::net::SocketAddr;
@@ -69,6 +70,12 @@ pub struct CoordinatorConfig {
     pub health_interval: Duration,
     /// What one job may ask for; a submission over any limit is refused before it is planned.
     pub limits: vint_core::limits::Limits,
+    /// Most leases the workers of one token may hold at once (with a tokens file).
+    pub max_leases_per_token: u64,
+    /// Most running jobs one token may have submitted (with a tokens file).
+    pub max_jobs_per_token: u64,
+    /// Most gRPC connections open at once (`listener.rs`): one worker or client process holds one.
+    pub max_connections: usize,
 }
 
 impl Default for CoordinatorConfig {
@@ -84,6 +91,9 @@ impl Default for CoordinatorConfig {
             shutdown_grace: Duration::from_secs(10),
             health_interval: Duration::from_secs(5),
             limits: vint_core::limits::Limits::default(),
+            max_leases_per_token: 10_000,
+            max_jobs_per_token: 100,
+            max_connections: 4_096,
         }
     }
 }
@@ -92,6 +102,10 @@ impl Default for CoordinatorConfig {
 pub fn now_ms() -> i64 {
     SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_millis() as i64).unwrap_or(0)
 }
+
+/// Most calls one gRPC connection carries at once (a worker process runs a few loops, each with
+/// a lease, a completion and a heartbeat in flight).
+const GRPC_STREAMS_PER_CONNECTION: u32 = 256;
 
 /// Largest gRPC message accepted (a spec is at most 1 MiB; completions list a few hundred files).
 const MAX_MESSAGE_BYTES: usize = 8 << 20;
@@ -107,7 +121,12 @@ pub async fn serve(
     listener: TcpListener,
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> Result<(), tonic::transport::Error> {
-    let mut server = tonic::transport::Server::builder();
+    // Pings find connections whose peer went away; a connection carries at most
+    // GRPC_STREAMS_PER_CONNECTION calls at once.
+    let mut server = tonic::transport::Server::builder()
+        .http2_keepalive_interval(Some(Duration::from_secs(30)))
+        .http2_keepalive_timeout(Some(Duration::from_secs(10)))
+        .max_concurrent_streams(GRPC_STREAMS_PER_CONNECTION);
     if let Some(identity) = &config.tls {
         server = server.tls_config(identity.server_config())?;
     }
@@ -121,12 +140,17 @@ pub async fn serve(
         let _ = asked_tx.send(());
     };
     let grace = config.shutdown_grace;
+    let max_connections = config.max_connections;
     let jobs =
         JobServiceServer::new(JobApi::new(store.clone(), config.clone())).max_decoding_message_size(MAX_SUBMIT_BYTES);
     let work = WorkServiceServer::new(WorkApi::new(store, config)).max_decoding_message_size(MAX_MESSAGE_BYTES);
     // Small request/response pairs: without TCP_NODELAY each reply waits ~40 ms for a delayed ACK
     // (tonic applies its nodelay default only to listeners it binds itself).
-    let incoming = TcpIncoming::from(listener).with_nodelay(Some(true));
+    let incoming = listener::capped(
+        TcpIncoming::from(listener).with_nodelay(Some(true)),
+        max_connections,
+        listener::FIRST_BYTES_TIMEOUT,
+    );
     let server = server
         .layer(auth)
         .add_service(health)
@@ -161,22 +185,66 @@ pub async fn bind(addr: SocketAddr) -> std::io::Result<(TcpListener, SocketAddr)
 /// How often the queue and job gauges are counted again (`Store::queue_depth`).
 const QUEUE_DEPTH_EVERY: Duration = Duration::from_secs(5);
 
+/// Since when this coordinator has been able to hear workers' heartbeats: since it started,
+/// and again since its database last came back. The reaper passes it to `Store::reap_expired`,
+/// which leaves every lease its worker has not yet had a whole lease to renew since then, and
+/// does not count the attempts of those that ran out before it.
+#[derive(Clone, Copy, Debug)]
+struct Hearing {
+    since_ms: i64,
+    database_down: bool,
+}
+
+impl Hearing {
+    fn started(now_ms: i64) -> Hearing {
+        Hearing { since_ms: now_ms, database_down: false }
+    }
+
+    /// Whether the reaper may expire leases now: not while the database is down.
+    fn may_reap(&self) -> bool {
+        !self.database_down
+    }
+
+    /// Records how a store call of the reaper ended at `now_ms`: a transient failure means the
+    /// database is down; any other end, that it answers (again, from now).
+    fn heard(&mut self, transient_failure: bool, now_ms: i64) {
+        if transient_failure {
+            self.database_down = true;
+        } else if self.database_down {
+            self.database_down = false;
+            self.since_ms = now_ms;
+            tracing::warn!("the database is back; leases are reaped again once their workers could renew them");
+        }
+    }
+}
+
+fn transient<T>(result: &vint_store::Result<T>) -> bool {
+    result.as_ref().is_err_and(|e| e.is_transient())
+}
+
 async fn reap_forever(store: Store, every: Duration, metrics: Metrics) {
     let mut tick = tokio::time::interval(every);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let mut depth_counted: Option<Instant> = None;
+    let mut hearing = Hearing::started(now_ms());
     loop {
         tick.tick().await;
         let now = now_ms();
-        match store.reap_expired(now).await {
-            Ok(0) => {}
-            Ok(n) => {
-                metrics.leases_expired(n);
-                tracing::warn!(tasks = n, "requeued tasks whose lease expired");
+        if hearing.may_reap() {
+            let reaped = store.reap_expired(now, hearing.since_ms).await;
+            hearing.heard(transient(&reaped), now);
+            match reaped {
+                Ok(0) => {}
+                Ok(n) => {
+                    metrics.leases_expired(n);
+                    tracing::warn!(tasks = n, "requeued tasks whose lease expired");
+                }
+                Err(e) => tracing::error!(error = %e, "lease reaper failed"),
             }
-            Err(e) => tracing::error!(error = %e, "lease reaper failed"),
         }
-        if let Err(e) = store.finalize_jobs(now).await {
+        let finalized = store.finalize_jobs(now).await;
+        hearing.heard(transient(&finalized), now);
+        if let Err(e) = finalized {
             tracing::error!(error = %e, "finalizing jobs failed");
         }
         match store.refresh_statistics().await {
@@ -191,5 +259,25 @@ async fn reap_forever(store: Store, every: Duration, metrics: Metrics) {
                 Err(e) => tracing::error!(error = %e, "counting the queue failed"),
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Hearing;
+
+    #[test]
+    fn hearing_starts_at_start_and_again_when_the_database_returns() {
+        let mut h = Hearing::started(1_000);
+        assert!(h.may_reap());
+        h.heard(false, 2_000);
+        assert_eq!(h.since_ms, 1_000, "an answer while up changes nothing");
+        h.heard(true, 3_000);
+        assert!(!h.may_reap(), "no reaping while the database is down");
+        h.heard(true, 4_000);
+        assert_eq!(h.since_ms, 1_000);
+        h.heard(false, 5_000);
+        assert!(h.may_reap());
+        assert_eq!(h.since_ms, 5_000, "heard again from the database's return");
     }
 }

@@ -118,6 +118,17 @@ pub struct Metrics {
     rpc_seconds: HistogramFamily<RpcLabels>,
     queue_tasks: Family<QueueLabels, Gauge>,
     jobs: Family<JobLabels, Gauge>,
+    watch_streams: Gauge,
+}
+
+/// One open `WatchJob` stream, counted in `vint_watch_streams` until it is dropped.
+#[derive(Debug)]
+pub(crate) struct OpenWatch(Gauge);
+
+impl Drop for OpenWatch {
+    fn drop(&mut self) {
+        self.0.dec();
+    }
 }
 
 impl Default for Metrics {
@@ -186,6 +197,12 @@ impl Metrics {
         );
         let jobs = Family::default();
         registry.register("vint_jobs", "Jobs by state, refreshed every few seconds", Family::clone(&jobs));
+        let watch_streams = Gauge::default();
+        registry.register(
+            "vint_watch_streams",
+            "WatchJob streams open, each polling the store; one ends with its job or when its client leaves",
+            watch_streams.clone(),
+        );
         let metrics = Metrics {
             registry: Arc::new(registry),
             tasks_leased,
@@ -198,6 +215,7 @@ impl Metrics {
             rpc_seconds,
             queue_tasks,
             jobs,
+            watch_streams,
         };
         // Every series exists from the start, at 0: a rate or an autoscaler query needs no
         // special case for a stage that has not run yet.
@@ -223,6 +241,12 @@ impl Metrics {
     /// The registry `/metrics` encodes.
     pub fn registry(&self) -> Arc<Registry> {
         self.registry.clone()
+    }
+
+    /// A `WatchJob` stream opened; it counts until the returned guard is dropped.
+    pub(crate) fn watch_opened(&self) -> OpenWatch {
+        self.watch_streams.inc();
+        OpenWatch(self.watch_streams.clone())
     }
 
     pub(crate) fn task_leased(&self, stage: Stage) {

@@ -32,6 +32,8 @@ pub enum PlanError {
     BadKey { task: String },
     #[error("task {task}: {what}")]
     PackageMismatch { task: String, what: String },
+    #[error("task {task}: {what}")]
+    GraspMismatch { task: String, what: String },
     #[error("job {job}: {source}")]
     Planning { job: String, source: plan::PlanError },
 }
@@ -96,6 +98,7 @@ pub fn on_complete(
             let chunk =
                 GraspChunk::from_key(task.key).ok_or_else(|| PlanError::BadKey { task: task.id.to_string() })?;
             let trials = plan.trials(&chunk);
+            check_grasp_counts(task.id, &result, trials.len())?;
             let accepted: BTreeSet<u32> = result.accepted.into_iter().collect();
             if let Some(&grasp) = accepted.iter().find(|g| !trials.contains(g)) {
                 return Err(PlanError::ForeignGrasp { task: task.id.to_string(), grasp });
@@ -116,6 +119,37 @@ pub fn on_complete(
             Ok(Unlocked { children: vec![], samples: vec![] })
         }
     }
+}
+
+/// A grasp result's counts against what its chunk can have produced: each trial accepted at
+/// most once, no more trials accepted and rejected (a quota may stop a chunk early) than the
+/// chunk has, summed without overflow, and the active taxels, when given, one entry per accepted
+/// trial in its order.
+fn check_grasp_counts(task: &str, result: &GraspResult, trials: usize) -> Result<(), PlanError> {
+    let mismatch = |what: String| PlanError::GraspMismatch { task: task.to_string(), what };
+    let distinct: BTreeSet<u32> = result.accepted.iter().copied().collect();
+    if distinct.len() != result.accepted.len() {
+        return Err(mismatch("accepts a trial twice".to_string()));
+    }
+    let rejected = result.rejected.values().try_fold(0u64, |sum, &n| sum.checked_add(u64::from(n)));
+    let reported = rejected.and_then(|r| r.checked_add(result.accepted.len() as u64));
+    if reported.is_none_or(|n| n > trials as u64) {
+        return Err(mismatch(format!(
+            "reports {} accepted and {} rejected trials, more than the chunk's {trials}",
+            result.accepted.len(),
+            rejected.map_or_else(|| "overflowing".to_string(), |r| r.to_string())
+        )));
+    }
+    if !result.active_taxels.is_empty() {
+        let order: Vec<u32> = result.active_taxels.iter().map(|a| a.grasp_index).collect();
+        if order != result.accepted {
+            return Err(mismatch(format!(
+                "active_taxels name trials {order:?}, not the accepted {:?} in their order",
+                result.accepted
+            )));
+        }
+    }
+    Ok(())
 }
 
 /// The samples a package task made, after checking its result against its parameters and its
@@ -186,6 +220,7 @@ mod tests {
             state: vint_core::JobState::Running,
             created_ms: 0,
             finished_ms: None,
+            timing_only: false,
         }
     }
 
@@ -250,6 +285,28 @@ mod tests {
         let render = task("render/tomato_soup_can/trx3/g000003", Stage::Render, json!({}));
         assert!(on_complete(None, (&render).into(), r#"{"views": 2, "device": "CPU"}"#, &[]).is_ok());
         assert!(on_complete(None, (&render).into(), "{}", &[]).is_err());
+    }
+
+    /// The chunk c00001 of SPEC's plan holds trials 2 and 3: a report of more trials than that,
+    /// a trial accepted twice, counts that overflow a u32 sum, or taxel counts for other trials
+    /// are refused.
+    #[test]
+    fn a_grasp_result_reporting_more_than_its_chunk_can_have_run_is_refused() {
+        let grasp = task("grasp/tomato_soup_can/trx3/c00001", Stage::Grasp, json!({}));
+        assert_eq!(plan().trials(&GraspChunk::from_key(&grasp.key).unwrap()), 2..4);
+        let done = |result: serde_json::Value| on_complete(Some(&plan()), (&grasp).into(), &result.to_string(), &[]);
+        let refused = |result: serde_json::Value, says: &str| match done(result) {
+            Err(PlanError::GraspMismatch { what, .. }) => assert!(what.contains(says), "{what}"),
+            other => panic!("expected a mismatch saying {says:?}, got {:?}", other.err()),
+        };
+        assert!(done(json!({"accepted": [3], "rejected": {"no_contact": 1}})).is_ok());
+        assert!(done(json!({"accepted": [], "rejected": {"no_contact": 1}})).is_ok(), "a quota may stop early");
+        refused(json!({"accepted": [3], "rejected": {"no_contact": 2}}), "more than the chunk's 2");
+        refused(json!({"accepted": [3, 3]}), "twice");
+        refused(json!({"accepted": [], "rejected": {"a": u32::MAX, "b": u32::MAX}}), "more than the chunk's 2");
+        let taxels = |index: u32| json!([{"grasp_index": index, "by_region": {"tip": 3}}]);
+        assert!(done(json!({"accepted": [3], "active_taxels": taxels(3)})).is_ok());
+        refused(json!({"accepted": [3], "active_taxels": taxels(2)}), "active_taxels");
     }
 
     #[test]

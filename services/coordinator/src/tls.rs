@@ -47,7 +47,11 @@ impl TlsIdentity {
         Ok(identity)
     }
 
+    /// The gRPC listener's TLS: this identity, and a client gets `HANDSHAKE_TIMEOUT` to finish
+    /// its handshake (a client that never does would hold its connection otherwise).
     pub fn server_config(&self) -> ServerTlsConfig {
-        ServerTlsConfig::new().identity(Identity::from_pem(&self.cert_pem, &self.key_pem))
+        ServerTlsConfig::new()
+            .identity(Identity::from_pem(&self.cert_pem, &self.key_pem))
+            .timeout(crate::listener::HANDSHAKE_TIMEOUT)
     }
 }

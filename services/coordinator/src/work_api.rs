@@ -2,7 +2,9 @@
 //!
 //! Every change is fenced in the store on (task, worker, attempt); this layer validates what a
 //! worker reports (artifact keys must be the content keys of their hashes, names must be plain
-//! relative paths) and asks the planner what a completion unlocks.
+//! relative paths) and asks the planner what a completion unlocks. With a tokens file, a call
+//! acts for the worker id it claims under its token's name (`acting_worker`), and one token holds
+//! at most `max_leases_per_token` leases.
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
@@ -15,6 +17,7 @@ use vint_proto::v1::completion_result::Outcome;
 use vint_proto::v1::work_service_server::WorkService;
 use vint_store::{Completion, Fence, NewArtifact, Store, TaskRecord};
 
+use crate::auth::Caller;
 use crate::convert::{self, status};
 use crate::metrics::{Refusal, Rpc};
 use crate::planner;
@@ -163,6 +166,28 @@ impl WorkApi {
     }
 }
 
+/// Longest worker id a call may claim.
+const MAX_WORKER_ID_LEN: usize = 128;
+
+/// The worker id a call acts as: the id it claims (1 to 128 of `A-Z a-z 0-9 . _ -`), under its
+/// token's name when the coordinator checks tokens (`NAME/ID`). The fences compare it, and the
+/// attempts record it, so the holder of one token acts on its own leases only.
+fn acting_worker<T>(request: &Request<T>, claimed: &str) -> Result<String, Status> {
+    let valid = !claimed.is_empty()
+        && claimed.len() <= MAX_WORKER_ID_LEN
+        && claimed.bytes().all(|b| b.is_ascii_alphanumeric() || matches!(b, b'.' | b'_' | b'-'));
+    if !valid {
+        let shown: String = claimed.chars().take(MAX_WORKER_ID_LEN).collect();
+        return Err(Status::invalid_argument(format!(
+            "worker_id {shown:?}: must be 1 to {MAX_WORKER_ID_LEN} of A-Z, a-z, 0-9, '.', '_' and '-'"
+        )));
+    }
+    Ok(match request.extensions().get::<Caller>() {
+        Some(caller) => format!("{}/{claimed}", caller.name),
+        None => claimed.to_string(),
+    })
+}
+
 /// Longest accepted artifact name, and most outputs per task.
 const MAX_NAME_LEN: usize = 256;
 const MAX_OUTPUTS: usize = 10_000;
@@ -202,6 +227,8 @@ impl WorkService for WorkApi {
         request: Request<pb::LeaseTasksRequest>,
     ) -> Result<Response<pb::LeaseTasksResponse>, Status> {
         let _timer = self.config.metrics.time_rpc(Rpc::LeaseTasks);
+        let worker_id = acting_worker(&request, &request.get_ref().worker_id)?;
+        let caller = request.extensions().get::<Caller>().cloned();
         let req = request.into_inner();
         let stages = req
             .stages
@@ -209,19 +236,34 @@ impl WorkService for WorkApi {
             .map(|s| s.parse::<Stage>().map_err(|e| Status::invalid_argument(e.to_string())))
             .collect::<Result<Vec<_>, _>>()?;
         let identities = reuse::identities(&req.engines, &stages)?;
-        let capacity = req.capacity.clamp(1, 256) as usize;
+        let mut capacity = req.capacity.clamp(1, 256) as usize;
+        if let Some(caller) = caller {
+            let cap = self.config.max_leases_per_token;
+            let held = self.store.leases_held_by(&format!("{}/", caller.name)).await.map_err(status)?;
+            let room = cap.saturating_sub(held);
+            if room == 0 {
+                return Err(Status::resource_exhausted(format!(
+                    "token {} holds {held} leases, the most one token may hold (--max-leases-per-token {cap}); \
+                     report or give back some first",
+                    caller.name
+                )));
+            }
+            capacity = capacity.min(usize::try_from(room).unwrap_or(usize::MAX));
+        }
         let started = std::time::Instant::now();
         let mut leased = Vec::new();
         loop {
-            let batch = self
-                .store
-                .lease(&req.worker_id, &stages, (capacity - leased.len()) as u32, self.lease_ms(req.lease_ms), now_ms())
-                .await
-                .map_err(status)?;
+            let (room, lease_ms) = ((capacity - leased.len()) as u32, self.lease_ms(req.lease_ms));
+            let batch = if req.timing_only {
+                self.store.lease_timing_only(&worker_id, &stages, room, lease_ms, now_ms()).await
+            } else {
+                self.store.lease(&worker_id, &stages, room, lease_ms, now_ms()).await
+            }
+            .map_err(status)?;
             if batch.is_empty() {
                 break;
             }
-            let (hand_out, reused) = self.reuse_leased(&req.worker_id, batch, &identities).await?;
+            let (hand_out, reused) = self.reuse_leased(&worker_id, batch, &identities).await?;
             leased.extend(hand_out);
             // What a reuse unlocked may be leasable at once: lease again while there is room.
             if reused == 0 || leased.len() >= capacity || started.elapsed() >= reuse::REUSE_BUDGET {
@@ -232,7 +274,7 @@ impl WorkService for WorkApi {
             .into_iter()
             .map(|t| {
                 self.config.metrics.task_leased(t.stage);
-                tracing::info!(job = %t.job_id, task = %t.key, stage = %t.stage, attempt = t.attempt, worker = %req.worker_id, "leased");
+                tracing::info!(job = %t.job_id, task = %t.key, stage = %t.stage, attempt = t.attempt, worker = %worker_id, "leased");
                 pb::LeasedTask {
                     task_id: t.id,
                     job_id: t.job_id,
@@ -253,11 +295,12 @@ impl WorkService for WorkApi {
         request: Request<pb::HeartbeatRequest>,
     ) -> Result<Response<pb::HeartbeatResponse>, Status> {
         let _timer = self.config.metrics.time_rpc(Rpc::Heartbeat);
+        let worker_id = acting_worker(&request, &request.get_ref().worker_id)?;
         let req = request.into_inner();
         let held: Vec<(String, u32)> = req.held.iter().map(|h| (h.task_id.clone(), h.attempt)).collect();
         let lease_ms = self.lease_ms(req.lease_ms);
         let now = now_ms();
-        let lost = self.store.heartbeat(&req.worker_id, &held, lease_ms, now).await.map_err(status)?;
+        let lost = self.store.heartbeat(&worker_id, &held, lease_ms, now).await.map_err(status)?;
         Ok(Response::new(pb::HeartbeatResponse {
             lost: lost.into_iter().map(|(task_id, attempt)| pb::TaskAttempt { task_id, attempt }).collect(),
             lease_deadline_ms: now + lease_ms,
@@ -269,7 +312,10 @@ impl WorkService for WorkApi {
         request: Request<pb::CompleteTaskRequest>,
     ) -> Result<Response<pb::CompleteTaskResponse>, Status> {
         let _timer = self.config.metrics.time_rpc(Rpc::CompleteTask);
-        let mut results = self.complete_many(vec![request.into_inner()]).await?;
+        let worker_id = acting_worker(&request, &request.get_ref().worker_id)?;
+        let mut req = request.into_inner();
+        req.worker_id = worker_id;
+        let mut results = self.complete_many(vec![req]).await?;
         let r = results.pop().ok_or_else(|| Status::internal("a completion went unanswered"))?;
         match pb::completion_result::Outcome::try_from(r.outcome) {
             Ok(Outcome::Completed) => Ok(Response::new(pb::CompleteTaskResponse {})),
@@ -284,12 +330,15 @@ impl WorkService for WorkApi {
         request: Request<pb::CompleteTasksRequest>,
     ) -> Result<Response<pb::CompleteTasksResponse>, Status> {
         let _timer = self.config.metrics.time_rpc(Rpc::CompleteTasks);
-        let tasks = request.into_inner().tasks;
-        if tasks.len() > MAX_BATCH {
-            return Err(Status::invalid_argument(format!(
-                "tasks: {} completions in one call, at most {MAX_BATCH}",
-                tasks.len()
-            )));
+        let n = request.get_ref().tasks.len();
+        if n > MAX_BATCH {
+            return Err(Status::invalid_argument(format!("tasks: {n} completions in one call, at most {MAX_BATCH}")));
+        }
+        let acting: Vec<String> =
+            request.get_ref().tasks.iter().map(|t| acting_worker(&request, &t.worker_id)).collect::<Result<_, _>>()?;
+        let mut tasks = request.into_inner().tasks;
+        for (task, worker_id) in tasks.iter_mut().zip(acting) {
+            task.worker_id = worker_id;
         }
         let results = self.complete_many(tasks).await?;
         Ok(Response::new(pb::CompleteTasksResponse { results }))
@@ -297,8 +346,9 @@ impl WorkService for WorkApi {
 
     async fn fail_task(&self, request: Request<pb::FailTaskRequest>) -> Result<Response<pb::FailTaskResponse>, Status> {
         let _timer = self.config.metrics.time_rpc(Rpc::FailTask);
+        let worker_id = acting_worker(&request, &request.get_ref().worker_id)?;
         let req = request.into_inner();
-        let fence = Fence { task_id: req.task_id.clone(), worker_id: req.worker_id.clone(), attempt: req.attempt };
+        let fence = Fence { task_id: req.task_id.clone(), worker_id, attempt: req.attempt };
         let will_retry = self.store.fail(&fence, req.retryable, &req.message, now_ms()).await.map_err(status)?;
         // The report names no stage; failures are rare enough for one more read. The failure is
         // recorded whether or not the metric can be.
@@ -313,6 +363,7 @@ impl WorkService for WorkApi {
         &self,
         request: Request<pb::ReleaseTasksRequest>,
     ) -> Result<Response<pb::ReleaseTasksResponse>, Status> {
+        let worker_id = acting_worker(&request, &request.get_ref().worker_id)?;
         let req = request.into_inner();
         if req.tasks.len() > MAX_BATCH {
             return Err(Status::invalid_argument(format!(
@@ -321,8 +372,8 @@ impl WorkService for WorkApi {
             )));
         }
         let held: Vec<(String, u32)> = req.tasks.iter().map(|t| (t.task_id.clone(), t.attempt)).collect();
-        let released = self.store.release(&req.worker_id, &held, now_ms()).await.map_err(status)?;
-        tracing::info!(worker = %req.worker_id, asked = held.len(), released = released.len(), "leases given back");
+        let released = self.store.release(&worker_id, &held, now_ms()).await.map_err(status)?;
+        tracing::info!(worker = %worker_id, asked = held.len(), released = released.len(), "leases given back");
         Ok(Response::new(pb::ReleaseTasksResponse {
             released: released.into_iter().map(|(task_id, attempt)| pb::TaskAttempt { task_id, attempt }).collect(),
         }))

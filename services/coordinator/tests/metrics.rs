@@ -33,6 +33,8 @@ async fn leases_completions_failures_and_refusals_are_counted_by_stage() {
         plan_json: "{}".into(),
         idempotency_key: "metrics".into(),
         assets: vec![],
+        timing_only: false,
+        submitted_by: None,
     };
     // Noise tasks unlock nothing: their completions depend on nothing but their outputs.
     let noise = |key: &str| NewTask { key: key.into(), stage: Stage::Noise, params: json!({}), deps: vec![] };
@@ -108,4 +110,50 @@ async fn leases_completions_failures_and_refusals_are_counted_by_stage() {
         assert!(body.lines().any(|l| l == line), "missing {line:?} in\n{body}");
     }
     assert_eq!(get(http, "/healthz").await, (200, "ok\n".to_string()));
+}
+
+/// A watch on a job that never changes ends when its client leaves: the poller does not wait for
+/// a send that never comes (`vint_watch_streams` goes back to 0).
+#[tokio::test(flavor = "multi_thread")]
+async fn a_watch_ends_when_its_client_leaves_a_job_that_never_changes() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = Store::open(&format!("sqlite://{}", dir.path().join("vint.db").display()), RetryPolicy::default())
+        .await
+        .unwrap();
+    let job = NewJob {
+        id: "stuck".into(),
+        name: "stuck".into(),
+        seed: 1,
+        spec_toml: String::new(),
+        plan_json: "{}".into(),
+        idempotency_key: "stuck".into(),
+        assets: vec![],
+        timing_only: false,
+        submitted_by: None,
+    };
+    let noise = NewTask { key: "noise/a".into(), stage: Stage::Noise, params: json!({}), deps: vec![] };
+    store.submit_job(&job, &[noise], vint_coordinator::now_ms()).await.unwrap();
+    let config = vint_coordinator::CoordinatorConfig::default();
+    let router = vint_coordinator::http_router(store.clone(), &config);
+    let (listener, addr) = vint_coordinator::bind(([127, 0, 0, 1], 0).into()).await.unwrap();
+    tokio::spawn(vint_coordinator::serve(store.clone(), config, listener, std::future::pending()));
+    let (http_listener, http) = vint_coordinator::bind(([127, 0, 0, 1], 0).into()).await.unwrap();
+    tokio::spawn(vint_telemetry::serve_http(http_listener, router, std::future::pending()));
+    let open = || async move {
+        let (_, body) = get(http, "/metrics").await;
+        body.lines().find_map(|l| l.strip_prefix("vint_watch_streams ")).unwrap().trim().to_string()
+    };
+
+    let mut client =
+        vint_proto::v1::job_service_client::JobServiceClient::connect(format!("http://{addr}")).await.unwrap();
+    let mut stream = client.watch_job(pb::WatchJobRequest { job_id: "stuck".into() }).await.unwrap().into_inner();
+    assert!(stream.message().await.unwrap().is_some(), "the first progress comes at once");
+    assert_eq!(open().await, "1");
+    drop(stream);
+    drop(client);
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    while open().await != "0" {
+        assert!(std::time::Instant::now() < deadline, "the watch of a stuck job outlived its client");
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
 }

@@ -33,6 +33,8 @@ async fn an_output_whose_key_is_not_its_content_key_is_refused_and_changes_nothi
         plan_json: "{}".into(),
         idempotency_key: "keys".into(),
         assets: vec![],
+        timing_only: false,
+        submitted_by: None,
     };
     // A noise task unlocks nothing, so its completion depends on nothing but its outputs.
     let noise = NewTask { key: "noise/a".into(), stage: Stage::Noise, params: json!({}), deps: vec![] };

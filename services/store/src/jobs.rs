@@ -21,6 +21,7 @@ fn job_from_row(row: &AnyRow) -> Result<JobRecord> {
         state: parse("job state", &row.try_get::<String, _>("state")?)?,
         created_ms: row.try_get("created_ms")?,
         finished_ms: row.try_get("finished_ms")?,
+        timing_only: row.try_get::<i64, _>("timing_only")? != 0,
     })
 }
 
@@ -50,6 +51,16 @@ pub fn task_id(job_id: &str, key: &str) -> String {
 }
 
 impl Store {
+    /// How many of the jobs the token named `submitter` submitted are still running.
+    pub async fn running_jobs_submitted_by(&self, submitter: &str) -> Result<u64> {
+        let n: i64 = sqlx::query(sql(self.backend, "running_jobs_submitted_by")?)
+            .bind(submitter)
+            .fetch_one(&self.pool)
+            .await?
+            .try_get("n")?;
+        Ok(u64::try_from(n).unwrap_or(0))
+    }
+
     /// Creates a job and its initial tasks in one transaction. A job with the same idempotency key
     /// is returned instead, with `false`.
     pub async fn submit_job(&self, job: &NewJob, tasks: &[NewTask], now_ms: i64) -> Result<(JobRecord, bool)> {
@@ -66,6 +77,8 @@ impl Store {
             .bind(&job.idempotency_key)
             .bind(JobState::Running.as_str())
             .bind(now_ms)
+            .bind(i64::from(job.timing_only))
+            .bind(&job.submitted_by)
             .execute(&mut *tx)
             .await?
             .rows_affected();
@@ -92,7 +105,8 @@ impl Store {
         Ok((created, true))
     }
 
-    async fn job_by_idempotency_key(&self, key: &str) -> Result<Option<JobRecord>> {
+    /// The job submitted with idempotency key `key`, if any.
+    pub async fn job_by_idempotency_key(&self, key: &str) -> Result<Option<JobRecord>> {
         let row =
             sqlx::query(sql(self.backend, "job_by_idempotency_key")?).bind(key).fetch_optional(&self.pool).await?;
         row.as_ref().map(job_from_row).transpose()

@@ -53,7 +53,7 @@ use crate::sql::sql;
 pub use dashboard::{ColumnType, DashboardTable, DashboardView, MAX_ROWS as DASHBOARD_MAX_ROWS, UnknownView};
 pub use depth::{LIVE_TASK_STATES, QueueDepth};
 pub use failures::FailedTask;
-pub use lineage::ASSET_TASK_KEY;
+pub use lineage::{ASSET_TASK_KEY, grasp_records_of, samples_of};
 pub use records::*;
 pub use reuse::StoredResult;
 

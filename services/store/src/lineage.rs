@@ -108,34 +108,31 @@ impl Store {
 
     /// Packaged samples of a job and their files (names relative to the sample's directory).
     pub async fn samples(&self, job_id: &str) -> Result<BTreeMap<String, Vec<ArtifactRecord>>> {
-        let mut out: BTreeMap<String, Vec<ArtifactRecord>> = BTreeMap::new();
-        for mut a in self.stage_outputs(job_id, vint_core::Stage::Package).await? {
-            let Some((sample, file)) = a.name.split_once('/') else { continue };
-            if sample.parse::<SampleId>().is_err() {
-                continue;
-            }
-            let (sample, file) = (sample.to_string(), file.to_string());
-            a.name = file;
-            out.entry(sample).or_default().push(a);
-        }
-        Ok(out)
+        Ok(samples_of(self.stage_outputs(job_id, vint_core::Stage::Package).await?))
+    }
+
+    /// The files of up to `limit` of a job's package tasks whose keys sort after `after_key`
+    /// ("" for the first), in key order: one page of `samples_of` and `grasp_records_of`.
+    pub async fn package_outputs_after(
+        &self,
+        job_id: &str,
+        after_key: &str,
+        limit: u32,
+    ) -> Result<Vec<ArtifactRecord>> {
+        let rows = sqlx::query(sql(self.backend, "stage_outputs_after")?)
+            .bind(job_id)
+            .bind(vint_core::Stage::Package.as_str())
+            .bind(after_key)
+            .bind(i64::from(limit))
+            .fetch_all(&self.pool)
+            .await?;
+        outputs_from_rows(&rows)
     }
 
     /// The grasp records of a job's packaged samples, by grasp id (`<grasp_id>/grasp.json`
     /// artifacts of its package tasks; the artifact's name is given as `grasp.json`).
     pub async fn grasp_records(&self, job_id: &str) -> Result<BTreeMap<String, ArtifactRecord>> {
-        let record = vint_core::contract::package::GRASP_RECORD_FILE;
-        let mut out = BTreeMap::new();
-        for mut a in self.stage_outputs(job_id, vint_core::Stage::Package).await? {
-            let Some((grasp, file)) = a.name.split_once('/') else { continue };
-            if file != record {
-                continue;
-            }
-            let grasp = grasp.to_string();
-            a.name = record.to_string();
-            out.insert(grasp, a);
-        }
-        Ok(out)
+        Ok(grasp_records_of(self.stage_outputs(job_id, vint_core::Stage::Package).await?))
     }
 
     /// The artifacts named `name` that a job's `stage` tasks made, in task-key order (e.g. each
@@ -205,4 +202,36 @@ impl Store {
         let distinct: BTreeSet<&str> = files.iter().map(|a| a.sha256.as_str()).collect();
         Ok((files.len() as u64, distinct.len() as u64))
     }
+}
+
+/// Package tasks' files as samples and their files (names relative to the sample's directory).
+pub fn samples_of(package_outputs: Vec<ArtifactRecord>) -> BTreeMap<String, Vec<ArtifactRecord>> {
+    let mut out: BTreeMap<String, Vec<ArtifactRecord>> = BTreeMap::new();
+    for mut a in package_outputs {
+        let Some((sample, file)) = a.name.split_once('/') else { continue };
+        if sample.parse::<SampleId>().is_err() {
+            continue;
+        }
+        let (sample, file) = (sample.to_string(), file.to_string());
+        a.name = file;
+        out.entry(sample).or_default().push(a);
+    }
+    out
+}
+
+/// Package tasks' grasp records, by grasp id (`<grasp_id>/grasp.json`; the artifact's name is
+/// given as `grasp.json`).
+pub fn grasp_records_of(package_outputs: Vec<ArtifactRecord>) -> BTreeMap<String, ArtifactRecord> {
+    let record = vint_core::contract::package::GRASP_RECORD_FILE;
+    let mut out = BTreeMap::new();
+    for mut a in package_outputs {
+        let Some((grasp, file)) = a.name.split_once('/') else { continue };
+        if file != record {
+            continue;
+        }
+        let grasp = grasp.to_string();
+        a.name = record.to_string();
+        out.insert(grasp, a);
+    }
+    out
 }

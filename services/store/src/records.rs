@@ -15,6 +15,10 @@ pub struct NewJob {
     pub plan_json: String,
     /// The user files the spec names, already in object storage.
     pub assets: Vec<JobAsset>,
+    /// Whether timing-only workers may serve it (its output is then not data); never by default.
+    pub timing_only: bool,
+    /// The name of the token that submitted it (`None` without tokens).
+    pub submitted_by: Option<String>,
 }
 
 /// A user file of a job (a hand's MJCF model or taxel layout, an object's mesh; see
@@ -40,6 +44,8 @@ pub struct JobRecord {
     pub state: JobState,
     pub created_ms: i64,
     pub finished_ms: Option<i64>,
+    /// Submitted for timing-only workers (migration 0014): its files are stand-ins, not data.
+    pub timing_only: bool,
 }
 
 #[derive(Clone, Debug, PartialEq)]

@@ -118,16 +118,16 @@ store_test!(concurrent_workers_never_lease_the_same_task, |store: Store| async m
     assert_eq!(unique.len(), 200);
 });
 
-store_test!(lease_expired_worker_cannot_complete_task, |store: Store| async move {
+store_test!(a_reaped_lease_cannot_complete_its_task, |store: Store| async move {
     submit_chain(&store, "j").await;
     let leased = store.lease("slow", &[Stage::Grasp], 1, 1_000, 0).await.unwrap();
     let f = fence(&leased[0], "slow");
-    // Past the deadline, before any reaper ran: still refused.
-    let err = store.complete(&completion(f.clone(), &["grasps.json"]), &[], 1_001).await.unwrap_err();
+    // Reaped: neither a completion nor a failure of the old lease is taken.
+    assert_eq!(store.reap_expired(1_002, 0).await.unwrap(), 1);
+    let err = store.complete(&completion(f.clone(), &["grasps.json"]), &[], 1_003).await.unwrap_err();
     assert!(matches!(err, StoreError::LeaseLost { .. }), "{err}");
-    assert!(matches!(store.fail(&f, true, "x", 1_001).await.unwrap_err(), StoreError::LeaseLost { .. }));
-    // After the reaper requeued it and another worker took it over, the old worker still cannot.
-    assert_eq!(store.reap_expired(1_002).await.unwrap(), 1);
+    assert!(matches!(store.fail(&f, true, "x", 1_003).await.unwrap_err(), StoreError::LeaseLost { .. }));
+    // After another worker took it over, the old worker still cannot.
     let retaken = store.lease("fast", &[Stage::Grasp], 1, 1_000, 2_000).await.unwrap();
     assert_eq!(retaken[0].attempt, 2);
     let err = store.complete(&completion(f, &["grasps.json"]), &[], 2_001).await.unwrap_err();
@@ -139,6 +139,67 @@ store_test!(lease_expired_worker_cannot_complete_task, |store: Store| async move
         attempts.iter().map(|a| a.outcome).collect::<Vec<_>>(),
         [Some(AttemptOutcome::LeaseExpired), Some(AttemptOutcome::Succeeded)]
     );
+});
+
+store_test!(an_expired_lease_is_its_owner_s_until_the_reaper_takes_it, |store: Store| async move {
+    // A worker that could not reach the coordinator past its deadline (the coordinator or the
+    // database was down) keeps its lease: a heartbeat revives it, a completion is taken.
+    let tasks = [task("grasp/a", Stage::Grasp, &[]), task("grasp/b", Stage::Grasp, &[])];
+    store.submit_job(&job("j"), &tasks, 0).await.unwrap();
+    let a = store.lease("w", &[Stage::Grasp], 1, 1_000, 0).await.unwrap().remove(0);
+    let b = store.lease("w", &[Stage::Grasp], 1, 1_000, 0).await.unwrap().remove(0);
+    let held = vec![(a.id.clone(), a.attempt)];
+    assert!(store.heartbeat("w", &held, 1_000, 5_000).await.unwrap().is_empty(), "revived until 6,000");
+    assert_eq!(store.heartbeat("x", &held, 1_000, 5_000).await.unwrap(), held, "not by another worker");
+    assert_eq!(store.reap_expired(5_500, 0).await.unwrap(), 1, "only the lease nobody revived");
+    store.complete(&completion(fence(&a, "w"), &["grasps.json"]), &[], 7_000).await.unwrap();
+    assert_eq!(state_of(&store, &a.id).await, TaskState::Succeeded, "completed past the revived deadline too");
+    assert_eq!(state_of(&store, &b.id).await, TaskState::Queued);
+    let attempts = store.attempts(&a.id).await.unwrap();
+    assert_eq!(attempts.iter().map(|t| t.outcome).collect::<Vec<_>>(), [Some(AttemptOutcome::Succeeded)]);
+});
+
+store_test!(the_reaper_gives_a_worker_a_whole_lease_to_be_heard_after_an_outage, |store: Store| async move {
+    // Leases of 1,000 ms granted at 0; the coordinator could hear again from 10,000 (it started,
+    // or the database came back).
+    let tasks = [task("grasp/a", Stage::Grasp, &[]), task("grasp/b", Stage::Grasp, &[])];
+    store.submit_job(&job("j"), &tasks, 0).await.unwrap();
+    let leased = store.lease("w", &[Stage::Grasp], 2, 1_000, 0).await.unwrap();
+    assert_eq!(store.reap_expired(10_999, 10_000).await.unwrap(), 0, "a lease's worth not yet heard");
+    // The worker of a heartbeats within that lease; b's worker died in the outage.
+    let held = vec![(leased[0].id.clone(), leased[0].attempt)];
+    assert!(store.heartbeat("w", &held, 1_000, 10_500).await.unwrap().is_empty());
+    assert_eq!(store.reap_expired(11_000, 10_000).await.unwrap(), 1);
+    assert_eq!(state_of(&store, &leased[0].id).await, TaskState::Running);
+    assert_eq!(state_of(&store, &leased[1].id).await, TaskState::Queued);
+    // Its expiry did not count, and it comes back at once.
+    let expired = store.attempts(&leased[1].id).await.unwrap();
+    assert_eq!(expired[0].outcome, Some(AttemptOutcome::LeaseExpired));
+    assert!(expired[0].error.as_deref().is_some_and(|e| e.contains("not counted")), "{expired:?}");
+    let again = store.lease("w2", &[Stage::Grasp], 1, 1_000, 11_000).await.unwrap();
+    assert_eq!(again.len(), 1, "no backoff for an attempt that does not count");
+});
+
+store_test!(expiries_in_an_outage_never_fail_a_task_and_others_do, |store: Store| async move {
+    // RETRY.max_attempts = 3. Ten leases that ran out while nobody could hear them leave the task
+    // queued; then three that were heard and went quiet fail it.
+    submit_chain(&store, "j").await;
+    let mut now = 0;
+    for _ in 0..10 {
+        let t = store.lease("w", &[Stage::Grasp], 1, 1_000, now).await.unwrap().remove(0);
+        now += 1_001;
+        assert_eq!(store.reap_expired(now + 1_000, now).await.unwrap(), 1);
+        assert_eq!(state_of(&store, &t.id).await, TaskState::Queued);
+        now += 1_000;
+    }
+    for n in 1..=RETRY.max_attempts {
+        now += RETRY.backoff_cap_ms;
+        store.lease("w", &[Stage::Grasp], 1, 1_000, now).await.unwrap().remove(0);
+        now += 1_001;
+        assert_eq!(store.reap_expired(now, 0).await.unwrap(), 1);
+        let expected = if n < RETRY.max_attempts { TaskState::Queued } else { TaskState::Failed };
+        assert_eq!(state_of(&store, "j/grasp/a").await, expected, "counted expiry {n}");
+    }
 });
 
 store_test!(wrong_worker_or_attempt_cannot_complete, |store: Store| async move {
@@ -183,7 +244,6 @@ store_test!(a_release_by_anyone_but_the_lease_holder_at_its_attempt_is_refused, 
     assert!(store.release("w2", &[(id.clone(), 1)], 1).await.unwrap().is_empty(), "another worker");
     assert!(store.release("w1", &[(id.clone(), 2)], 1).await.unwrap().is_empty(), "another attempt");
     assert!(store.release("w1", &[("j/grasp/missing".into(), 1)], 1).await.unwrap().is_empty(), "no such task");
-    assert!(store.release("w1", &[(id.clone(), 1)], 1_001).await.unwrap().is_empty(), "an expired lease");
     assert_eq!(state_of(&store, &id).await, TaskState::Running);
     assert!(store.attempts(&id).await.unwrap()[0].outcome.is_none(), "the attempt still runs");
     // The holder itself can, and only once; a completion after it is refused.
@@ -226,10 +286,10 @@ store_test!(heartbeat_extends_leases_and_reports_lost_ones, |store: Store| async
     let leased = store.lease("w", &[Stage::Grasp], 1, 1_000, 0).await.unwrap();
     let held = vec![(leased[0].id.clone(), leased[0].attempt)];
     assert!(store.heartbeat("w", &held, 1_000, 900).await.unwrap().is_empty());
-    assert_eq!(store.reap_expired(1_500).await.unwrap(), 0, "extended to 1900");
+    assert_eq!(store.reap_expired(1_500, 0).await.unwrap(), 0, "extended to 1900");
     let lost = store.heartbeat("w", &[("j/grasp/missing".into(), 1)], 1_000, 1_000).await.unwrap();
     assert_eq!(lost.len(), 1);
-    assert_eq!(store.reap_expired(1_901).await.unwrap(), 1);
+    assert_eq!(store.reap_expired(1_901, 0).await.unwrap(), 1);
     assert_eq!(store.heartbeat("w", &held, 1_000, 1_902).await.unwrap(), held, "a reaped lease is lost");
 });
 
@@ -422,11 +482,12 @@ store_test!(outputs_the_store_cannot_pack_refuse_that_completion_alone, |store: 
     }
 });
 
-store_test!(an_expired_lease_in_a_batch_is_refused_alone, |store: Store| async move {
+store_test!(a_reaped_lease_in_a_batch_is_refused_alone, |store: Store| async move {
     let tasks = [task("grasp/a", Stage::Grasp, &[]), task("grasp/b", Stage::Grasp, &[])];
     store.submit_job(&job("j"), &tasks, 0).await.unwrap();
     let early = store.lease("w", &[Stage::Grasp], 1, 1_000, 0).await.unwrap(); // deadline 1,000
     let late = store.lease("w", &[Stage::Grasp], 1, 1_000, 500).await.unwrap(); // deadline 1,500
+    assert_eq!(store.reap_expired(1_200, 0).await.unwrap(), 1);
     let batch = vec![
         (completion(fence(&early[0], "w"), &["grasps.json"]), vec![]),
         (completion(fence(&late[0], "w"), &["grasps.json"]), vec![]),
@@ -434,7 +495,7 @@ store_test!(an_expired_lease_in_a_batch_is_refused_alone, |store: Store| async m
     let results = store.complete_batch(&batch, 1_200).await.unwrap();
     assert!(matches!(results[0], Err(StoreError::LeaseLost { .. })), "{results:?}");
     assert!(results[1].is_ok(), "{results:?}");
-    assert_eq!(state_of(&store, &early[0].id).await, TaskState::Running);
+    assert_eq!(state_of(&store, &early[0].id).await, TaskState::Queued);
     assert_eq!(state_of(&store, &late[0].id).await, TaskState::Succeeded);
 });
 

@@ -389,8 +389,8 @@ store_test!(
         // Lease expiry with attempts left requeues; on the last attempt it fails the task.
         let grasp_b = store.lease("w2", &[Stage::Grasp], 1, 1_000, 107).await.unwrap().remove(0);
         watch.after("lease", &store).await;
-        assert_eq!(store.reap_expired(1_107).await.unwrap(), 0, "the deadline itself is still held");
-        assert_eq!(store.reap_expired(1_108).await.unwrap(), 1);
+        assert_eq!(store.reap_expired(1_107, 0).await.unwrap(), 0, "the deadline itself is still held");
+        assert_eq!(store.reap_expired(1_108, 0).await.unwrap(), 1);
         let c = watch.after("reap with attempts left", &store).await;
         let expected = Changes {
             moved: moved(&[("j/grasp/b", Running, Queued)]),
@@ -406,7 +406,7 @@ store_test!(
         let grasp_b3 = store.lease("w2", &[Stage::Grasp], 1, 1_000, 1_409).await.unwrap().remove(0);
         assert_eq!(grasp_b3.attempt, RETRY.max_attempts);
         watch.after("lease of the last attempt", &store).await;
-        assert_eq!(store.reap_expired(2_410).await.unwrap(), 1);
+        assert_eq!(store.reap_expired(2_410, 0).await.unwrap(), 1);
         let c = watch.after("reap of the last attempt", &store).await;
         let expected = Changes {
             moved: moved(&[("j/grasp/b", Running, Failed)]),

@@ -4,8 +4,9 @@
 //!
 //! It runs on the axum that tonic already builds on, so a process compiles one HTTP stack. A
 //! process may add its own routes to the `Router` before serving it, and serve it as plain HTTP
-//! (`serve_http`) or HTTPS (`serve_https`, rustls). Nothing here authenticates: bind it where only
-//! the cluster (Prometheus, probes) can reach it, or put the process's own checks on its routes.
+//! (`serve_http`) or HTTPS (`serve_https`, rustls), within `ListenerLimits` (connections at once,
+//! handshake and header-read timeouts). Nothing here authenticates: bind it where only the cluster
+//! (Prometheus, probes) can reach it, or put the process's own checks on its routes.
 
 use std::future::Future;
 use std::sync::Arc;
@@ -60,15 +61,62 @@ pub fn tls_server_config(
     Ok(Arc::new(config))
 }
 
+/// What one HTTP listener allows a client, so that slow or many clients (a slowloris) cannot hold
+/// the process's connections or memory: connections open at once (one past it is closed at once),
+/// how long a TLS handshake may take, and how long a request's headers may take to arrive (also
+/// how long an idle kept-alive connection stays open).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ListenerLimits {
+    pub max_connections: usize,
+    pub handshake_timeout: Duration,
+    pub header_read_timeout: Duration,
+}
+
+impl Default for ListenerLimits {
+    /// 256 connections (Prometheus, probes and a few dashboards need a handful), 10 s for a
+    /// handshake and for a request's headers.
+    fn default() -> Self {
+        ListenerLimits {
+            max_connections: 256,
+            handshake_timeout: Duration::from_secs(10),
+            header_read_timeout: Duration::from_secs(10),
+        }
+    }
+}
+
 /// Serves `router` over HTTPS (HTTP/1.1 in TLS with `tls`) on `listener` until `shutdown`
-/// resolves. A client that fails its handshake is dropped; the others are not disturbed.
+/// resolves, within `ListenerLimits::default()`. A client that fails its handshake is dropped;
+/// the others are not disturbed.
 pub async fn serve_https(
     listener: TcpListener,
     router: Router,
     tls: Arc<rustls::ServerConfig>,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
-    let acceptor = tokio_rustls::TlsAcceptor::from(tls);
+    serve(listener, router, Some(tls), ListenerLimits::default(), shutdown).await
+}
+
+/// Serves `router` on `listener` (plain HTTP/1.1) until `shutdown` resolves, within
+/// `ListenerLimits::default()`.
+pub async fn serve_http(
+    listener: TcpListener,
+    router: Router,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> std::io::Result<()> {
+    serve(listener, router, None, ListenerLimits::default(), shutdown).await
+}
+
+/// Serves `router` on `listener`, in TLS when `tls` is given, within `limits`, until `shutdown`
+/// resolves (connections already open finish on their own).
+pub async fn serve(
+    listener: TcpListener,
+    router: Router,
+    tls: Option<Arc<rustls::ServerConfig>>,
+    limits: ListenerLimits,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> std::io::Result<()> {
+    let acceptor = tls.map(tokio_rustls::TlsAcceptor::from);
+    let open = Arc::new(tokio::sync::Semaphore::new(limits.max_connections));
     tokio::pin!(shutdown);
     loop {
         let (stream, peer) = tokio::select! {
@@ -76,38 +124,45 @@ pub async fn serve_https(
             accepted = listener.accept() => match accepted {
                 Ok(accepted) => accepted,
                 Err(e) => {
-                    tracing::warn!(error = %e, "accepting an HTTPS connection failed");
+                    tracing::warn!(error = %e, "accepting an HTTP connection failed");
                     continue;
                 }
             },
         };
+        let Ok(permit) = open.clone().try_acquire_owned() else {
+            tracing::warn!(%peer, max = limits.max_connections, "HTTP connection closed: the listener is at its connection limit");
+            drop(stream);
+            continue;
+        };
         let (acceptor, router) = (acceptor.clone(), router.clone());
         tokio::spawn(async move {
-            let stream = match acceptor.accept(stream).await {
-                Ok(stream) => stream,
-                Err(e) => {
-                    tracing::debug!(%peer, error = %e, "TLS handshake failed");
-                    return;
-                }
-            };
-            let service = hyper_util::service::TowerToHyperService::new(router);
-            let served = hyper::server::conn::http1::Builder::new()
-                .serve_connection(hyper_util::rt::TokioIo::new(stream), service)
-                .await;
-            if let Err(e) = served {
-                tracing::debug!(%peer, error = %e, "HTTPS connection ended with an error");
+            let _permit = permit;
+            match acceptor {
+                None => serve_connection(stream, router, limits, peer).await,
+                Some(acceptor) => match tokio::time::timeout(limits.handshake_timeout, acceptor.accept(stream)).await {
+                    Ok(Ok(stream)) => serve_connection(stream, router, limits, peer).await,
+                    Ok(Err(e)) => tracing::debug!(%peer, error = %e, "TLS handshake failed"),
+                    Err(_) => tracing::debug!(%peer, "TLS handshake timed out"),
+                },
             }
         });
     }
 }
 
-/// Serves `router` on `listener` until `shutdown` resolves.
-pub async fn serve_http(
-    listener: TcpListener,
-    router: Router,
-    shutdown: impl Future<Output = ()> + Send + 'static,
-) -> std::io::Result<()> {
-    axum::serve(listener, router).with_graceful_shutdown(shutdown).await
+/// One connection's requests, each one's headers within `limits.header_read_timeout`.
+async fn serve_connection<S>(stream: S, router: Router, limits: ListenerLimits, peer: std::net::SocketAddr)
+where
+    S: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin + Send + 'static,
+{
+    let service = hyper_util::service::TowerToHyperService::new(router);
+    let served = hyper::server::conn::http1::Builder::new()
+        .timer(hyper_util::rt::TokioTimer::new())
+        .header_read_timeout(limits.header_read_timeout)
+        .serve_connection(hyper_util::rt::TokioIo::new(stream), service)
+        .await;
+    if let Err(e) = served {
+        tracing::debug!(%peer, error = %e, "HTTP connection ended with an error");
+    }
 }
 
 async fn metrics(registry: Arc<Registry>) -> Response {
@@ -246,6 +301,42 @@ mod tests {
         counter.get_or_create(&vec![("stage".into(), "grasp".into())]).inc();
         let (_, _, body) = get(addr, "/metrics").await;
         assert!(body.contains("\nvint_test_events_total{stage=\"grasp\"} 4\n"), "{body}");
+    }
+
+    /// Clients that open connections and never finish a request (a slowloris) are closed after
+    /// the header-read timeout, one past the connection limit is closed at once, and the listener
+    /// then serves a whole request as before.
+    #[tokio::test]
+    async fn slow_clients_are_cut_off_and_cannot_hold_more_than_the_connection_limit() {
+        let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = listener.local_addr().unwrap();
+        let limits = ListenerLimits {
+            max_connections: 2,
+            handshake_timeout: Duration::from_millis(300),
+            header_read_timeout: Duration::from_millis(300),
+        };
+        let app = router(Arc::new(Registry::default()), Fixed(Ok(())));
+        tokio::spawn(super::serve(listener, app, None, limits, std::future::pending()));
+        let mut slow = Vec::new();
+        for _ in 0..2 {
+            let mut stream = tokio::net::TcpStream::connect(addr).await.unwrap();
+            stream.write_all(b"GET /healthz HTTP/1.1\r\nHost: test\r\n").await.unwrap();
+            slow.push(stream);
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        // Both slots are held: a third client is closed without an answer.
+        let mut third = tokio::net::TcpStream::connect(addr).await.unwrap();
+        let _ = third.write_all(b"GET /healthz HTTP/1.0\r\nHost: test\r\n\r\n").await;
+        let mut answer = Vec::new();
+        let read = tokio::time::timeout(Duration::from_secs(5), third.read_to_end(&mut answer)).await;
+        assert!(read.is_ok() && answer.is_empty(), "a connection past the limit was served: {answer:?}");
+        // The slow ones are closed by the server well before the test gives up on them.
+        for mut stream in slow {
+            let mut rest = Vec::new();
+            let closed = tokio::time::timeout(Duration::from_secs(5), stream.read_to_end(&mut rest)).await;
+            assert!(closed.is_ok(), "a client that never finished its headers was kept open");
+        }
+        assert_eq!(get(addr, "/healthz").await.0, 200);
     }
 
     #[tokio::test]

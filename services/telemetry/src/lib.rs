@@ -10,7 +10,8 @@ pub mod http;
 
 pub use axum::Router;
 pub use http::{
-    Health, HealthCheck, Liveness, OPENMETRICS_CONTENT_TYPE, router, serve_http, serve_https, tls_server_config,
+    Health, HealthCheck, ListenerLimits, Liveness, OPENMETRICS_CONTENT_TYPE, router, serve, serve_http, serve_https,
+    tls_server_config,
 };
 /// The TLS configuration of an HTTPS listener (`tls_server_config`, `serve_https`).
 pub use rustls::ServerConfig as TlsServerConfig;

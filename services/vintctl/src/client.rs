@@ -88,11 +88,34 @@ impl Coordinator {
         Ok(self.client.get_lineage(request).await.map_err(|s| rpc_failure("lineage", s))?.into_inner())
     }
 
-    /// A job's packaged samples with their files.
+    /// A job's packaged samples with their files: every page of `ListSamples`, in one answer.
     pub async fn samples(&mut self, job_id: &str) -> Result<pb::ListSamplesResponse, Failure> {
-        let request = pb::ListSamplesRequest { job_id: job_id.into() };
-        let response = self.client.list_samples(request).await.map_err(|s| rpc_failure("listing samples", s))?;
-        Ok(response.into_inner())
+        let mut all = pb::ListSamplesResponse::default();
+        let mut token = String::new();
+        loop {
+            let request = pb::ListSamplesRequest { job_id: job_id.into(), page_token: token.clone(), page_size: 0 };
+            let page =
+                self.client.list_samples(request).await.map_err(|s| rpc_failure("listing samples", s))?.into_inner();
+            if token.is_empty() {
+                all.models = page.models;
+                all.pairs = page.pairs;
+            }
+            all.samples.extend(page.samples);
+            all.grasps.extend(page.grasps);
+            if page.next_page_token.is_empty() {
+                return Ok(all);
+            }
+            if page.next_page_token <= token {
+                return Err(Failure {
+                    code: 1,
+                    error: anyhow!(
+                        "listing samples: the coordinator's pages went backwards ({:?} after {token:?})",
+                        page.next_page_token
+                    ),
+                });
+            }
+            token = page.next_page_token;
+        }
     }
 
     pub async fn server_info(&mut self) -> Result<pb::ServerInfo, Failure> {

@@ -76,13 +76,14 @@ pub fn plan(path: &Path, limits: &Limits, json: bool) -> CliResult {
     Ok(())
 }
 
-pub async fn submit(remote: &Remote, path: &Path, key: Option<String>, json: bool) -> CliResult {
+pub async fn submit(remote: &Remote, path: &Path, key: Option<String>, timing_only: bool, json: bool) -> CliResult {
     let loaded = load_spec(path)?;
     let mut coordinator = Coordinator::connect(remote).await?;
     let request = pb::SubmitJobRequest {
         spec_toml: loaded.text,
         idempotency_key: key.unwrap_or_default(),
         assets: loaded.assets,
+        timing_only,
     };
     let resp = coordinator.submit(request).await?;
     let job = resp.job.ok_or_else(|| anyhow!("coordinator returned no job"))?;
@@ -229,6 +230,13 @@ pub async fn export_job(
              a finished job's dataset; wait for it with `vintctl watch {job_id}`, then export",
             p.tasks_total,
             p.samples_packaged
+        )));
+    }
+    if job.timing_only {
+        return Err(bad_input(anyhow!(
+            "job {job_id} was submitted with --timing-only: timing-only workers served it with stand-in files of \
+             the right sizes, which are not data; export refuses it (submit the spec without --timing-only for a \
+             dataset)"
         )));
     }
     let spec = vint_core::DatasetSpec::parse(&job.spec_toml).map_err(|e| {

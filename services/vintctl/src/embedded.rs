@@ -67,7 +67,12 @@ pub async fn run(spec_path: &Path, out: &Path, target: Target, local: &Local<'_>
         let remote = vint_connect::Remote { url: url.clone(), ..vint_connect::Remote::default() };
         let mut coordinator = Coordinator::connect(&remote).await?;
         let submitted = coordinator
-            .submit(pb::SubmitJobRequest { spec_toml: text, idempotency_key: String::new(), assets })
+            .submit(pb::SubmitJobRequest {
+                spec_toml: text,
+                idempotency_key: String::new(),
+                assets,
+                timing_only: false,
+            })
             .await?;
         let job = submitted.job.ok_or_else(|| anyhow!("coordinator returned no job"))?;
         if !json {

@@ -132,6 +132,11 @@ enum Command {
         /// Retrying with the same key returns the same job (default: the spec's content hash).
         #[arg(long)]
         idempotency_key: Option<String>,
+        /// Let timing-only workers (`vint-worker --engine-mode timing-only`) serve the job, to
+        /// measure the system: its files are then stand-ins, not data, and export refuses it.
+        /// A timing-only worker never serves a job submitted without it.
+        #[arg(long)]
+        timing_only: bool,
     },
     /// Delete the stored objects no job references (outputs of attempts whose completion never
     /// landed), from a `vintctl run` state directory or a cluster's database and object store.
@@ -393,7 +398,9 @@ async fn dispatch(command: Command, json: bool, coordinator: &vint_connect::Remo
             };
             gc::gc(&records, min_age_s, dry_run, json).await
         }
-        Command::Submit { spec, idempotency_key } => commands::submit(coordinator, &spec, idempotency_key, json).await,
+        Command::Submit { spec, idempotency_key, timing_only } => {
+            commands::submit(coordinator, &spec, idempotency_key, timing_only, json).await
+        }
         Command::Status { job } => commands::status(coordinator, &job, json).await,
         Command::Watch { job } => commands::watch(coordinator, &job, json).await,
         Command::Cancel { job } => commands::cancel(coordinator, &job, json).await,

@@ -293,6 +293,8 @@ async fn lease_batch(shared: &Shared) -> Vec<pb::LeasedTask> {
         lease_ms: shared.config.lease_ms,
         // Constant bytes are no engine's outputs: never reused into a job, nor reusable.
         engines: Default::default(),
+        // Only jobs submitted for timing-only workers.
+        timing_only: true,
     };
     match shared.client.clone().lease_tasks(request).await {
         Ok(resp) => {
@@ -380,13 +382,12 @@ async fn answer_batch(shared: &Shared, tasks: Vec<pb::LeasedTask>) -> f64 {
             }
         }
     }
-    let deadline = tasks.iter().map(|t| shared.held.deadline_ms(t)).min().unwrap_or(0);
     let by_id: HashMap<&str, &pb::LeasedTask> = tasks.iter().map(|t| (t.task_id.as_str(), t)).collect();
     for calls in split_by_size(completions) {
         let request = pb::CompleteTasksRequest { tasks: calls };
         let client = shared.client.clone();
         let started = Instant::now();
-        let sent = crate::worker::with_retries(deadline, || {
+        let sent = crate::worker::with_retries(|| {
             let mut c = client.clone();
             let r = request.clone();
             async move { c.complete_tasks(r).await.map(tonic::Response::into_inner) }

@@ -149,6 +149,7 @@ impl Worker {
             capacity: self.config.batch.max(1),
             lease_ms: self.config.lease_ms,
             engines,
+            timing_only: false,
         };
         let heartbeat = tokio::spawn(heartbeat_loop(
             self.client.clone(),
@@ -426,7 +427,7 @@ impl Worker {
             result_json: done.result_json,
         };
         let client = self.client.clone();
-        let sent = with_retries(self.held.deadline_ms(task), || {
+        let sent = with_retries(|| {
             let mut c = client.clone();
             let r = request.clone();
             async move { c.complete_task(r).await.map(|_| ()) }
@@ -468,7 +469,7 @@ impl Worker {
             message: failure.message,
         };
         let client = self.client.clone();
-        let sent = with_retries(self.held.deadline_ms(task), || {
+        let sent = with_retries(|| {
             let mut c = client.clone();
             let r = request.clone();
             async move { c.fail_task(r).await.map(|_| ()) }
@@ -530,23 +531,9 @@ pub(crate) fn log_lease_failure(status: &tonic::Status) {
 pub(crate) struct HeldLeases {
     held: std::sync::Mutex<HashSet<(String, u32)>>,
     lost: std::sync::Mutex<HashSet<(String, u32)>>,
-    /// Until when (Unix ms) the last heartbeat the coordinator answered renewed every held lease:
-    /// its send time plus the lease length. 0 before the first.
-    renewed_until_ms: std::sync::atomic::AtomicI64,
 }
 
 impl HeldLeases {
-    /// The latest deadline `task`'s lease is known to have: the one it was leased with, or the
-    /// one the last answered heartbeat gave every lease held then (a lease it lost is refused
-    /// when reported, whatever this says). A report retries until a minute past it.
-    pub(crate) fn deadline_ms(&self, task: &pb::LeasedTask) -> i64 {
-        task.lease_deadline_ms.max(self.renewed_until_ms.load(std::sync::atomic::Ordering::Relaxed))
-    }
-
-    fn renewed(&self, until_ms: i64) {
-        self.renewed_until_ms.fetch_max(until_ms, std::sync::atomic::Ordering::Relaxed);
-    }
-
     pub(crate) fn hold(&self, tasks: &[pb::LeasedTask]) {
         let mut held = self.held.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
         held.extend(tasks.iter().map(|t| (t.task_id.clone(), t.attempt)));
@@ -624,10 +611,8 @@ pub(crate) async fn heartbeat_loop(
         // A task that runs for long keeps the worker live: its heartbeats are the loop's beat.
         metrics.beat();
         let request = pb::HeartbeatRequest { worker_id: worker_id.clone(), held: attempts, lease_ms };
-        let sent_ms = now_ms();
         match client.heartbeat(request).await {
             Ok(resp) => {
-                held.renewed(sent_ms + i64::from(lease_ms));
                 let lost = held.mark_lost(&resp.get_ref().lost);
                 if lost > 0 {
                     metrics.leases_lost(lost as u64);
@@ -668,14 +653,29 @@ pub(crate) async fn release(
     leases.forget_all(tasks);
 }
 
-/// Retries an RPC through transient coordinator outages until a minute past the lease's deadline
-/// (`HeldLeases::deadline_ms`: the heartbeat-renewed one, so a task that ran for an hour still
-/// gets its minute), after which the coordinator would refuse it anyway.
-pub(crate) async fn with_retries<T, F, Fut>(lease_deadline_ms: i64, mut call: F) -> Result<T, Status>
+/// Retries a report (a completion or a failure) through a coordinator outage, every 2 s at most,
+/// for up to `REPORT_RETRY_FOR`. Retrying is always safe and, for as long as the coordinator
+/// cannot be reached, worth it: a lease stays its worker's until the reaper takes it, and a
+/// coordinator that comes back (or whose database does) reaps no lease before its worker has
+/// had a whole lease to be heard. Where the coordinator was up all along (only this worker was
+/// cut off), the report is refused as lease lost, which ends the retries.
+pub(crate) async fn with_retries<T, F, Fut>(call: F) -> Result<T, Status>
 where
     F: FnMut() -> Fut,
     Fut: Future<Output = Result<T, Status>>,
 {
+    retry_for(REPORT_RETRY_FOR, call).await
+}
+
+/// How long a worker keeps retrying a report while the coordinator cannot be reached.
+pub const REPORT_RETRY_FOR: Duration = Duration::from_secs(3_600);
+
+async fn retry_for<T, F, Fut>(window: Duration, mut call: F) -> Result<T, Status>
+where
+    F: FnMut() -> Fut,
+    Fut: Future<Output = Result<T, Status>>,
+{
+    let started = std::time::Instant::now();
     let mut wait = Duration::from_millis(100);
     loop {
         match call().await {
@@ -683,24 +683,16 @@ where
             Err(s)
                 if matches!(s.code(), Code::Unavailable | Code::Unknown | Code::DeadlineExceeded | Code::Cancelled) =>
             {
-                if now_ms() > lease_deadline_ms + REPORT_GRACE_MS {
+                if started.elapsed() >= window {
                     return Err(s);
                 }
-                tracing::warn!(error = %s.message(), "coordinator unavailable; retrying");
+                tracing::warn!(error = %s.message(), "coordinator unavailable; retrying the report");
                 tokio::time::sleep(wait).await;
                 wait = (wait * 2).min(Duration::from_secs(2));
             }
             Err(s) => return Err(s),
         }
     }
-}
-
-/// How long past its lease's deadline a report is still retried.
-const REPORT_GRACE_MS: i64 = 60_000;
-
-/// Milliseconds since the Unix epoch (the coordinator stamps lease deadlines with the same clock).
-fn now_ms() -> i64 {
-    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(i64::MAX, |d| d.as_millis() as i64)
 }
 
 pub(crate) fn ms(d: Duration) -> f64 {
@@ -718,46 +710,32 @@ mod tests {
 
     use super::*;
 
-    fn leased(deadline_ms: i64) -> pb::LeasedTask {
-        pb::LeasedTask {
-            task_id: "j/render/x".into(),
-            attempt: 1,
-            lease_deadline_ms: deadline_ms,
-            ..Default::default()
-        }
-    }
-
-    #[test]
-    fn a_held_lease_s_deadline_follows_its_renewals_and_never_goes_back() {
-        let held = HeldLeases::default();
-        let task = leased(1_000);
-        held.hold(std::slice::from_ref(&task));
-        assert_eq!(held.deadline_ms(&task), 1_000);
-        held.renewed(50_000);
-        assert_eq!(held.deadline_ms(&task), 50_000);
-        held.renewed(40_000); // a slower heartbeat answered late
-        assert_eq!(held.deadline_ms(&task), 50_000);
-    }
-
-    /// The window runs from the deadline given: an hour-old lease deadline gives up at once, a
-    /// renewed one retries through the outage.
+    /// Retried through the outage while the window lasts; given up with the last error after it;
+    /// any answer but a transient one ends the retries at once.
     #[tokio::test]
-    async fn a_report_is_retried_through_an_outage_until_a_minute_past_the_renewed_deadline() {
+    async fn a_report_is_retried_through_an_outage_while_its_window_lasts() {
         let calls = AtomicU32::new(0);
         let flaky = || {
             let n = calls.fetch_add(1, Ordering::SeqCst);
             async move { if n < 2 { Err(Status::unavailable("coordinator restarting")) } else { Ok(n) } }
         };
-        let original = now_ms() - 3_600_000;
-        let gave_up = with_retries(original, flaky).await;
-        assert_eq!(gave_up.map_err(|s| s.code()), Err(Code::Unavailable));
-        assert_eq!(calls.swap(0, Ordering::SeqCst), 1);
+        assert_eq!(retry_for(Duration::from_secs(60), flaky).await.map_err(|s| s.code()), Ok(2));
+        assert_eq!(calls.swap(0, Ordering::SeqCst), 3);
 
-        let held = HeldLeases::default();
-        let task = leased(original);
-        held.hold(std::slice::from_ref(&task));
-        held.renewed(now_ms() + 30_000);
-        assert_eq!(with_retries(held.deadline_ms(&task), flaky).await.map_err(|s| s.code()), Ok(2));
-        assert_eq!(calls.load(Ordering::SeqCst), 3);
+        let down = || {
+            calls.fetch_add(1, Ordering::SeqCst);
+            async { Err::<(), _>(Status::unavailable("coordinator down")) }
+        };
+        let started = std::time::Instant::now();
+        assert_eq!(retry_for(Duration::from_millis(300), down).await.map_err(|s| s.code()), Err(Code::Unavailable));
+        assert!(started.elapsed() >= Duration::from_millis(300));
+        assert!(calls.swap(0, Ordering::SeqCst) >= 3, "retried within the window");
+
+        let lost = || {
+            calls.fetch_add(1, Ordering::SeqCst);
+            async { Err::<(), _>(Status::failed_precondition("lease lost")) }
+        };
+        assert_eq!(retry_for(Duration::from_secs(60), lost).await.map_err(|s| s.code()), Err(Code::FailedPrecondition));
+        assert_eq!(calls.load(Ordering::SeqCst), 1);
     }
 }

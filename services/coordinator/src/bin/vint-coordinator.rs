@@ -26,8 +26,9 @@ struct Args {
     /// (200 while the database answers). Off when not given.
     #[arg(long, env = "VINT_HTTP_LISTEN")]
     http_listen: Option<SocketAddr>,
-    /// Tokens file: one `ROLE TOKEN` per line, ROLE one of submit, worker, read (docs/security.md).
-    /// Every call must then carry a token whose role allows it.
+    /// Tokens file: one `ROLE TOKEN [NAME]` per line, ROLE one of submit, worker, read
+    /// (docs/security.md). Every call must then carry a token whose role allows it; a worker
+    /// token's workers act under its NAME.
     #[arg(long, env = "VINT_AUTH_TOKENS", hide_env_values = true)]
     auth_tokens: Option<PathBuf>,
     /// Listen on a non-loopback address without --auth-tokens: anyone who reaches the port may
@@ -47,6 +48,18 @@ struct Args {
     /// What one job may ask for (a submission over a limit is refused, naming the flag).
     #[command(flatten)]
     limits: vint_coordinator::LimitFlags,
+    /// Most leases the workers of one token may hold at once (with --auth-tokens): a leaked
+    /// worker token cannot sit on more of the queue than this.
+    #[arg(long, env = "VINT_MAX_LEASES_PER_TOKEN", default_value_t = 10_000)]
+    max_leases_per_token: u64,
+    /// Most running jobs one token may have submitted (with --auth-tokens): a submission past it
+    /// is refused until one ends (a resubmission of a job it has is always answered).
+    #[arg(long, env = "VINT_MAX_JOBS_PER_TOKEN", default_value_t = 100)]
+    max_jobs_per_token: u64,
+    /// Most gRPC connections open at once; one past it is closed at once, and one silent for 10 s
+    /// after connecting is closed then (each worker or client process holds one connection).
+    #[arg(long, env = "VINT_MAX_CONNECTIONS", default_value_t = 4_096)]
+    max_connections: usize,
     /// Default lease length in milliseconds.
     #[arg(long, default_value_t = 30_000)]
     lease_ms: i64,
@@ -188,6 +201,9 @@ async fn run(args: Args, security: Security) -> anyhow::Result<()> {
     let config = CoordinatorConfig {
         default_lease_ms: args.lease_ms,
         limits: args.limits.limits(),
+        max_leases_per_token: args.max_leases_per_token,
+        max_jobs_per_token: args.max_jobs_per_token,
+        max_connections: args.max_connections,
         artifacts,
         tokens: security.tokens,
         tls: security.tls,

@@ -5,7 +5,13 @@
 "use strict";
 
 const params = new URLSearchParams(window.location.search);
-const refreshMs = Number(params.get("refresh") ?? "2000");
+// ?refresh=MS: 0 stops refreshing; otherwise at most once a second (the coordinator keeps each
+// view for 2 s anyway), at least every 10 minutes; anything unreadable means the default, 2 s.
+const refreshMs = ((asked) => {
+  if (asked === 0) return 0;
+  if (!Number.isFinite(asked) || asked < 0) return 2000;
+  return Math.min(Math.max(asked, 1000), 600000);
+})(Number(params.get("refresh") ?? "2000"));
 let jobId = params.get("job");
 
 async function getJson(path) {

@@ -1,8 +1,8 @@
 -- Completing tasks: fenced, batched, with their outputs, attempts and what they unlock
 -- (`queue/complete.rs`). A batch's fences are the JSON rows of $4 (id, worker, attempt, engine,
 -- result, timings, reused) and its packed outputs those of $6 (task, files as hex, count, bytes,
--- samples). The fence: only a running task ($2) leased to the caller, at this attempt, before its
--- deadline, completes.
+-- samples). The fence: only a running task ($2) leased to the caller, at this attempt, completes;
+-- a lease past its deadline still does until the reaper has taken it (`queue/mod.rs`).
 
 -- name: complete_ran
 -- Completes the fenced tasks a worker ran, at $3, in state $1: in ONE statement of data-modifying
@@ -18,7 +18,6 @@ WITH c AS (
                    result_json = c.result, updated_ms = $3
   FROM c
   WHERE tasks.id = c.id AND tasks.state = $2 AND tasks.lease_owner = c.worker AND tasks.attempt = c.attempt
-    AND tasks.lease_deadline_ms >= $3
   RETURNING tasks.id, tasks.job_id, tasks.attempt, tasks.leased_ms
 ), ended AS (
   INSERT INTO attempts (task_id, attempt, worker_id, started_ms, ended_ms, outcome, engine_json, timings_json)
@@ -55,7 +54,6 @@ WITH c AS (
                    result_json = c.result, reused_from = c.reused, attempt = tasks.attempt - 1, updated_ms = $3
   FROM c
   WHERE tasks.id = c.id AND tasks.state = $2 AND tasks.lease_owner = c.worker AND tasks.attempt = c.attempt
-    AND tasks.lease_deadline_ms >= $3
   RETURNING tasks.id, tasks.job_id, tasks.attempt, tasks.leased_ms
 ), ended AS (
   SELECT CAST($5 AS TEXT) AS outcome

@@ -3,8 +3,9 @@
 
 -- name: insert_job
 -- A submitted job; nothing when its idempotency key is taken (a concurrent submit won).
-INSERT INTO jobs (id, name, seed, spec_toml, plan_json, idempotency_key, state, created_ms)
-VALUES ($1, $2, $3, $4, $5, $6, $7, $8)
+INSERT INTO jobs (id, name, seed, spec_toml, plan_json, idempotency_key, state, created_ms, timing_only,
+                  submitted_by)
+VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10)
 ON CONFLICT (idempotency_key) DO NOTHING;
 
 -- name: insert_job_asset
@@ -13,15 +14,15 @@ INSERT INTO job_assets (job_id, path, sha256, size, media_type, object_key) VALU
 
 -- name: job_by_idempotency_key
 -- The job submitted with this idempotency key.
-SELECT id, name, seed, spec_toml, plan_json, state, created_ms, finished_ms FROM jobs WHERE idempotency_key = $1;
+SELECT id, name, seed, spec_toml, plan_json, state, created_ms, finished_ms, timing_only FROM jobs WHERE idempotency_key = $1;
 
 -- name: job_by_id
 -- One job.
-SELECT id, name, seed, spec_toml, plan_json, state, created_ms, finished_ms FROM jobs WHERE id = $1;
+SELECT id, name, seed, spec_toml, plan_json, state, created_ms, finished_ms, timing_only FROM jobs WHERE id = $1;
 
 -- name: jobs_newest_first
 -- Up to $1 jobs, the most recent first.
-SELECT id, name, seed, spec_toml, plan_json, state, created_ms, finished_ms FROM jobs
+SELECT id, name, seed, spec_toml, plan_json, state, created_ms, finished_ms, timing_only FROM jobs
 ORDER BY created_ms DESC, id LIMIT $1;
 
 -- name: job_assets
@@ -116,3 +117,7 @@ INSERT INTO task_deps (task_id, depends_on)
 SELECT e.task, e.dep FROM jsonb_to_recordset($1::jsonb) AS e(task text, dep text)
 WHERE true
 ON CONFLICT DO NOTHING;
+
+-- name: running_jobs_submitted_by
+-- How many jobs the token named $1 submitted are still running (migration 0014's partial index).
+SELECT COUNT(*) AS n FROM jobs WHERE submitted_by = $1 AND state = 'running';

@@ -1,7 +1,8 @@
 -- Completing tasks: fenced, batched, with their outputs, attempts and what they unlock
 -- (`queue/complete.rs`). Without data-modifying CTEs, what Postgres does in one statement takes
 -- the fence and up to three statements after it, in one transaction. The fence: only a running
--- task ($2) leased to the caller, at this attempt, before its deadline, completes.
+-- task ($2) leased to the caller, at this attempt, completes; a lease past its deadline still
+-- does until the reaper has taken it (`queue/mod.rs`).
 
 -- name: complete_ran
 -- None: SQLite has no data-modifying CTEs; fence_ran and the statements after it.
@@ -19,7 +20,6 @@ FROM (SELECT json_extract(value, '$.id') AS id, json_extract(value, '$.worker') 
              json_extract(value, '$.result') AS result
       FROM json_each($4)) AS c
 WHERE tasks.id = c.id AND tasks.state = $2 AND tasks.lease_owner = c.worker AND tasks.attempt = c.attempt
-  AND tasks.lease_deadline_ms >= $3
 RETURNING tasks.id, tasks.job_id;
 
 -- name: fence_reused
@@ -32,7 +32,6 @@ FROM (SELECT json_extract(value, '$.id') AS id, json_extract(value, '$.worker') 
              json_extract(value, '$.result') AS result, json_extract(value, '$.reused') AS reused
       FROM json_each($4)) AS c
 WHERE tasks.id = c.id AND tasks.state = $2 AND tasks.lease_owner = c.worker AND tasks.attempt = c.attempt
-  AND tasks.lease_deadline_ms >= $3
 RETURNING tasks.id, tasks.job_id;
 
 -- name: insert_outputs

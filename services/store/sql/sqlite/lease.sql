@@ -15,6 +15,19 @@ WHERE id IN (SELECT id FROM tasks
              ORDER BY priority, created_ms, id LIMIT $5)
 RETURNING id, job_id, key, stage, attempt, params_json, lease_deadline_ms;
 
+-- name: lease_tasks_timing_only
+-- `lease_tasks` for a timing-only worker: only tasks of jobs submitted with `timing_only`
+-- (`jobs.timing_only`, migration 0014). Its own statement, so that the leases of real workers stay as they were.
+-- Leases up to $5 queued tasks of the stages $6 (comma-separated) to worker $2: state $1, until $3,
+-- at $4. The attempt is written when it ends; until then the task's row is its record.
+UPDATE tasks SET state = $1, attempt = attempt + 1, lease_owner = $2, lease_deadline_ms = $3, leased_ms = $4,
+                 updated_ms = $4
+WHERE id IN (SELECT id FROM tasks
+             WHERE state = 'queued' AND not_before_ms <= $4 AND instr(',' || $6 || ',', ',' || stage || ',') > 0
+               AND job_id IN (SELECT id FROM jobs WHERE timing_only = 1)
+             ORDER BY priority, created_ms, id LIMIT $5)
+RETURNING id, job_id, key, stage, attempt, params_json, lease_deadline_ms;
+
 -- name: worker_seen_update
 -- Records that worker $1 asked for tasks of the stages $2 at $3, if its row is a second old or
 -- its stages changed.
@@ -46,7 +59,7 @@ WITH h AS (
   SELECT json_extract(value, '$.id') AS id, json_extract(value, '$.attempt') AS attempt FROM json_each($5)
 ), kept AS (
   SELECT t.id FROM tasks t JOIN h ON h.id = t.id
-  WHERE t.state = $3 AND t.lease_owner = $4 AND t.attempt = h.attempt AND t.lease_deadline_ms >= $2
+  WHERE t.state = $3 AND t.lease_owner = $4 AND t.attempt = h.attempt
 )
 UPDATE tasks SET lease_deadline_ms = $1, updated_ms = $2 FROM kept WHERE tasks.id = kept.id
 RETURNING tasks.id, tasks.attempt;

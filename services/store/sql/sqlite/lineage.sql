@@ -23,6 +23,12 @@ SELECT o.task_id, t.key, o.files FROM tasks t JOIN outputs o ON o.task_id = t.id
 WHERE t.job_id = $1 AND t.stage = $2
 ORDER BY t.key;
 
+-- name: stage_outputs_after
+-- `stage_outputs` of the tasks whose keys sort after $3, at most $4 of them: one page.
+SELECT o.task_id, t.key, o.files FROM tasks t JOIN outputs o ON o.task_id = t.id
+WHERE t.job_id = $1 AND t.stage = $2 AND t.key > $3
+ORDER BY t.key LIMIT $4;
+
 -- name: job_outputs
 -- The packed outputs of job $1's tasks.
 SELECT o.task_id, t.key, o.files FROM tasks t JOIN outputs o ON o.task_id = t.id WHERE t.job_id = $1;

@@ -38,3 +38,8 @@ FROM tasks WHERE state = $1 ORDER BY id;
 INSERT INTO attempts (task_id, attempt, worker_id, started_ms, ended_ms, outcome, error, engine_json, timings_json)
 SELECT id, attempt, lease_owner, COALESCE(leased_ms, $1), $1, $2, $3, $4, $5 FROM tasks
 WHERE id = $6 AND attempt = $7;
+
+-- name: leases_held_by
+-- How many running tasks are leased to a worker whose id starts with $1 (a token's `NAME/`),
+-- through the partial index `tasks_leased`.
+SELECT COUNT(*) AS n FROM tasks WHERE state = 'running' AND substr(lease_owner, 1, length($1)) = $1;

@@ -2,7 +2,7 @@
 -- no attempt.
 
 -- name: release_leases
--- Queues again ($1), at $2 and with no backoff, the tasks worker $4 holds unexpired leases on
+-- Queues again ($1), at $2 and with no backoff, the tasks worker $4 holds leases on
 -- among the JSON rows $5 (id, attempt), raising each task's `max_attempts` by one so that a
 -- release does not bring it closer to failing for good (state $3: running). Returns them with
 -- when they were leased.
@@ -10,7 +10,6 @@ UPDATE tasks SET state = $1, lease_owner = NULL, lease_deadline_ms = NULL, not_b
                  max_attempts = max_attempts + 1, updated_ms = $2
 FROM (SELECT json_extract(value, '$.id') AS id, json_extract(value, '$.attempt') AS attempt FROM json_each($5)) AS r
 WHERE tasks.id = r.id AND tasks.state = $3 AND tasks.lease_owner = $4 AND tasks.attempt = r.attempt
-  AND tasks.lease_deadline_ms >= $2
 RETURNING tasks.id, tasks.attempt, tasks.leased_ms;
 
 -- name: insert_released_attempts

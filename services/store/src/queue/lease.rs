@@ -19,6 +19,30 @@ impl Store {
         lease_ms: i64,
         now_ms: i64,
     ) -> Result<Vec<LeasedTask>> {
+        self.lease_with("lease_tasks", worker_id, stages, capacity, lease_ms, now_ms).await
+    }
+
+    /// `lease` for a timing-only worker: only tasks of jobs submitted with `timing_only`.
+    pub async fn lease_timing_only(
+        &self,
+        worker_id: &str,
+        stages: &[Stage],
+        capacity: u32,
+        lease_ms: i64,
+        now_ms: i64,
+    ) -> Result<Vec<LeasedTask>> {
+        self.lease_with("lease_tasks_timing_only", worker_id, stages, capacity, lease_ms, now_ms).await
+    }
+
+    async fn lease_with(
+        &self,
+        statement: &'static str,
+        worker_id: &str,
+        stages: &[Stage],
+        capacity: u32,
+        lease_ms: i64,
+        now_ms: i64,
+    ) -> Result<Vec<LeasedTask>> {
         if stages.is_empty() || capacity == 0 {
             return Ok(Vec::new());
         }
@@ -35,7 +59,7 @@ impl Store {
                     .await?;
             }
         }
-        let rows = sqlx::query(sql(backend, "lease_tasks")?)
+        let rows = sqlx::query(sql(backend, statement)?)
             .bind(TaskState::Running.as_str())
             .bind(worker_id)
             .bind(deadline)

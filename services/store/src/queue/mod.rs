@@ -2,8 +2,12 @@
 //!
 //! Leasing is one `UPDATE … WHERE id IN (SELECT … LIMIT n FOR UPDATE SKIP LOCKED) RETURNING …`,
 //! so concurrent coordinators never hand out the same task. Completion and failure are fenced:
-//! they change a task only while it is `running`, leased by the caller, at the caller's attempt
-//! and (for completion and heartbeats) before the lease deadline.
+//! they change a task only while it is `running`, leased by the caller and at the caller's
+//! attempt. A lease past its deadline is still its owner's until the reaper takes it: a
+//! heartbeat revives it and a completion is accepted. So a worker that could not reach the
+//! coordinator for longer than a lease (the coordinator or its database was down) keeps its
+//! work when it comes back, and the reaper alone decides when a lease is gone (the coordinator
+//! waits one lease length after it starts, or after the database returns, before it reaps).
 //!
 //! One file per verb: `lease` (and heartbeats), `complete`, `fail` (and the reaper), `release`.
 
@@ -69,6 +73,14 @@ impl Store {
                 })
             })
             .collect()
+    }
+
+    /// How many running tasks are leased to workers whose ids start with `prefix` (a token's
+    /// `NAME/`: the coordinator caps the leases one token holds).
+    pub async fn leases_held_by(&self, prefix: &str) -> Result<u64> {
+        let n: i64 =
+            sqlx::query(sql(self.backend, "leases_held_by")?).bind(prefix).fetch_one(&self.pool).await?.try_get("n")?;
+        Ok(u64::try_from(n).unwrap_or(0))
     }
 
     /// Running tasks, for tests and operators.

@@ -113,6 +113,8 @@ pub fn job(id: &str) -> NewJob {
         plan_json: "{}".into(),
         idempotency_key: format!("key-{id}"),
         assets: vec![],
+        timing_only: false,
+        submitted_by: None,
     }
 }
 
