@@ -9,12 +9,16 @@ directory, fsync off), `moto_server` (S3), a fault-injecting HTTP proxy in front
 `vint-coordinator` and K `vint-worker`s whose S3 endpoint is the proxy. First, once, the reference: the
 embedded `vintctl run examples/tiny.toml`. Then each round, on a fresh database and bucket, submits
 `examples/tiny.toml` and, at seeded random moments while the job runs, injects one fault after another,
-drawn from shuffled decks of the five kinds so every kind comes up as often as the others:
+drawn from shuffled decks of the seven kinds so every kind comes up as often as the others:
 
 - worker_kill: SIGKILL a worker (its engines are left to notice) and start a new one;
 - engine_kill: SIGKILL one engine process (`python -m vint_engines serve`) of a worker;
 - coordinator_restart: SIGKILL the coordinator, start it again on the same port;
+- coordinator_outage: the same, down for 2–3 leases (6–9 s): leases run out while no coordinator
+  can hear their heartbeats, and reports meet the outage;
 - postgres_restart_fast / postgres_restart_immediate: `pg_ctl restart -m fast|immediate`;
+- postgres_outage_fast / postgres_outage_immediate: `pg_ctl stop -m fast|immediate`, then started
+  again after 2–3 leases, the coordinator up all along;
 - s3_window: for a few seconds the proxy answers a share of requests with 500/503 (s3_error), delays
   them (s3_slow), drops the connection before reading the body (s3_drop_request) or passes the request to
   moto and drops the connection halfway through its response (s3_drop_response).
@@ -28,10 +32,12 @@ on one task, and a task that fails for good is a lost sample, which fails the ro
 
 Writes one JSON line per round to --out (faults injected by kind, failed attempts by outcome, the most
 attempts one task took, wall time, identical, orphan and missing objects, stray engines) and prints the
-tally. Exit status: 0 when every round ends identical with the bucket equal to the lineage, 1 otherwise
-(also past --budget-s: the run fails rather than hangs), 2 for bad arguments. Every process it started
-is killed at exit, also on failure and Ctrl-C. A seed fixes the fault schedule (kinds, moments,
-windows), not the interleaving with the job, which the machine decides.
+tally; attempts that ended `lease_expired` are split into those that counted against the task's
+attempts and those the coordinator did not count (`lease_expired_uncounted`: the lease ran out while
+no coordinator could hear its worker). Exit status: 0 when every round ends identical with the bucket
+equal to the lineage, 1 otherwise (also past --budget-s: the run fails rather than hangs), 2 for bad
+arguments. Every process it started is killed at exit, also on failure and Ctrl-C. A seed fixes the
+fault schedule (kinds, moments, windows), not the interleaving with the job, which the machine decides.
 
 `--smoke` is one round of benches/smoke.toml with 2 workers and a fault every 1.5 s on average, within
 a budget of 300 s, its work directory removed when the round passes: the test command's check that
@@ -69,7 +75,17 @@ SPEC = ROOT / "examples" / "tiny.toml"
 SMOKE_SPEC = ROOT / "benches" / "smoke.toml"
 MAX_ATTEMPTS = 10
 WORKER_LEASE_MS = 3_000
-FAULT_KINDS = ("worker_kill", "engine_kill", "coordinator_restart", "postgres_restart", "s3_window")
+FAULT_KINDS = (
+    "worker_kill",
+    "engine_kill",
+    "coordinator_restart",
+    "coordinator_outage",
+    "postgres_restart",
+    "postgres_outage",
+    "s3_window",
+)
+# A long outage lasts this many worker leases, drawn uniformly.
+OUTAGE_LEASES = (2.0, 3.0)
 S3_FAULTS = ("s3_error", "s3_slow", "s3_drop_request", "s3_drop_response")
 S3_CREDENTIALS = {
     "AWS_ALLOW_HTTP": "true",
@@ -251,15 +267,20 @@ class Postgres:
             ],
             "initdb",
         )
-        options = (
+        self._run([*self._pg_ctl(), "-o", self._options(), "start"], "starting Postgres")
+        self.running = True
+
+    def _options(self) -> str:
+        return (
             f"-p {self.port} -k {self.dir} -c listen_addresses=127.0.0.1 -c max_connections=100 "
             "-c fsync=off -c synchronous_commit=off -c full_page_writes=off"
         )
-        self._run(
-            [*self._pg_ctl(), "-o", options, "start"],
-            "starting Postgres",
-        )
-        self.running = True
+
+    def outage(self, mode: str, seconds: float) -> None:
+        """`pg_ctl stop -m fast|immediate`, `seconds` down, then started again as before."""
+        self._run([*self._pg_ctl(), "-m", mode, "stop"], f"pg_ctl stop -m {mode}")
+        time.sleep(seconds)
+        self._run([*self._pg_ctl(), "-o", self._options(), "start"], "starting Postgres again")
 
     def restart(self, mode: str) -> None:
         """`pg_ctl restart -m fast` (clients disconnected, checkpoint) or `-m immediate` (a crash:
@@ -662,6 +683,20 @@ class Round:
                 self.start_coordinator()
                 self.faults[kind] += 1
                 self.note(f"SIGKILLed the coordinator; restarted it after {down:.1f} s")
+            case "coordinator_outage":
+                if self.coordinator is not None:
+                    sigkill(self.coordinator)
+                down = self.rng.uniform(*OUTAGE_LEASES) * WORKER_LEASE_MS / 1000
+                time.sleep(down)
+                self.start_coordinator()
+                self.faults[kind] += 1
+                self.note(f"SIGKILLed the coordinator; restarted it after {down:.1f} s (longer than a lease)")
+            case "postgres_outage":
+                mode = self.rng.choice(["fast", "immediate"])
+                down = self.rng.uniform(*OUTAGE_LEASES) * WORKER_LEASE_MS / 1000
+                self.run.postgres.outage(mode, down)
+                self.faults[f"postgres_outage_{mode}"] += 1
+                self.note(f"stopped Postgres -m {mode}; started it again after {down:.1f} s")
             case "postgres_restart":
                 mode = self.rng.choice(["fast", "immediate"])
                 started = time.monotonic()
@@ -760,11 +795,14 @@ class Round:
         return result | self.stray_engines()
 
     def failed_attempts(self, job: str) -> dict[str, int]:
-        """Attempts that did not succeed, by outcome (retry, lease_expired, failed)."""
+        """Attempts that did not succeed, by outcome (retry, lease_expired, lease_expired_uncounted,
+        failed, released)."""
         rows = self.run.postgres.query(
             self.database,
-            "SELECT a.outcome, count(*) FROM attempts a JOIN tasks t ON t.id = a.task_id "
-            f"WHERE t.job_id = {sql_text(job)} AND a.outcome <> 'succeeded' GROUP BY a.outcome ORDER BY 1",
+            "SELECT CASE WHEN a.outcome = 'lease_expired' AND a.error LIKE '%not counted%' "
+            "THEN 'lease_expired_uncounted' ELSE a.outcome END AS o, count(*) "
+            "FROM attempts a JOIN tasks t ON t.id = a.task_id "
+            f"WHERE t.job_id = {sql_text(job)} AND a.outcome <> 'succeeded' GROUP BY o ORDER BY 1",
         )
         return {outcome: int(n) for outcome, n in rows}
 
