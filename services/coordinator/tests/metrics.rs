@@ -6,7 +6,8 @@ use vint_core::Stage;
 use vint_core::plan::NewTask;
 use vint_proto::v1 as pb;
 use vint_proto::v1::work_service_client::WorkServiceClient;
-use vint_store::{NewJob, RetryPolicy, Store};
+
+mod common;
 
 /// A plain HTTP/1.0 GET: the status and the body.
 async fn get(addr: std::net::SocketAddr, path: &str) -> (u16, String) {
@@ -22,20 +23,8 @@ async fn get(addr: std::net::SocketAddr, path: &str) -> (u16, String) {
 #[tokio::test(flavor = "multi_thread")]
 async fn leases_completions_failures_and_refusals_are_counted_by_stage() {
     let dir = tempfile::tempdir().unwrap();
-    let store = Store::open(&format!("sqlite://{}", dir.path().join("vint.db").display()), RetryPolicy::default())
-        .await
-        .unwrap();
-    let job = NewJob {
-        id: "j".into(),
-        name: "metrics".into(),
-        seed: 1,
-        spec_toml: String::new(),
-        plan_json: "{}".into(),
-        idempotency_key: "metrics".into(),
-        assets: vec![],
-        timing_only: false,
-        submitted_by: None,
-    };
+    let store = common::sqlite_store(dir.path()).await;
+    let job = common::job("j");
     // Noise tasks unlock nothing: their completions depend on nothing but their outputs.
     let noise = |key: &str| NewTask { key: key.into(), stage: Stage::Noise, params: json!({}), deps: vec![] };
     store.submit_job(&job, &[noise("noise/a"), noise("noise/b")], vint_coordinator::now_ms()).await.unwrap();
@@ -117,20 +106,8 @@ async fn leases_completions_failures_and_refusals_are_counted_by_stage() {
 #[tokio::test(flavor = "multi_thread")]
 async fn a_watch_ends_when_its_client_leaves_a_job_that_never_changes() {
     let dir = tempfile::tempdir().unwrap();
-    let store = Store::open(&format!("sqlite://{}", dir.path().join("vint.db").display()), RetryPolicy::default())
-        .await
-        .unwrap();
-    let job = NewJob {
-        id: "stuck".into(),
-        name: "stuck".into(),
-        seed: 1,
-        spec_toml: String::new(),
-        plan_json: "{}".into(),
-        idempotency_key: "stuck".into(),
-        assets: vec![],
-        timing_only: false,
-        submitted_by: None,
-    };
+    let store = common::sqlite_store(dir.path()).await;
+    let job = common::job("stuck");
     let noise = NewTask { key: "noise/a".into(), stage: Stage::Noise, params: json!({}), deps: vec![] };
     store.submit_job(&job, &[noise], vint_coordinator::now_ms()).await.unwrap();
     let config = vint_coordinator::CoordinatorConfig::default();

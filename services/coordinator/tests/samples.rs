@@ -6,7 +6,9 @@ use vint_core::Stage;
 use vint_core::plan::NewTask;
 use vint_proto::v1 as pb;
 use vint_proto::v1::job_service_client::JobServiceClient;
-use vint_store::{Completion, Fence, NewArtifact, NewJob, RetryPolicy, Store};
+use vint_store::{Completion, Fence, NewArtifact, Store};
+
+mod common;
 
 fn artifact(name: &str) -> NewArtifact {
     let sha256 = vint_artifacts::sha256_hex(name.as_bytes());
@@ -23,20 +25,8 @@ fn artifact(name: &str) -> NewArtifact {
 /// record, completed.
 async fn packaged_job() -> (Store, tempfile::TempDir) {
     let dir = tempfile::tempdir().unwrap();
-    let store = Store::open(&format!("sqlite://{}", dir.path().join("vint.db").display()), RetryPolicy::default())
-        .await
-        .unwrap();
-    let job = NewJob {
-        id: "j".into(),
-        name: "pages".into(),
-        seed: 1,
-        spec_toml: String::new(),
-        plan_json: "{}".into(),
-        idempotency_key: "pages".into(),
-        assets: vec![],
-        timing_only: false,
-        submitted_by: None,
-    };
+    let store = common::sqlite_store(dir.path()).await;
+    let job = common::job("j");
     let tasks: Vec<NewTask> = (0..5)
         .map(|i| NewTask {
             key: format!("package/mug/trx3/c{i:05}"),

@@ -6,7 +6,9 @@ use vint_core::plan::NewTask;
 use vint_core::{Stage, TaskState};
 use vint_proto::v1 as pb;
 use vint_proto::v1::work_service_client::WorkServiceClient;
-use vint_store::{NewJob, RetryPolicy, Store};
+use vint_store::Store;
+
+mod common;
 
 /// A coordinator serving `store` on a free local port until the returned sender is dropped.
 async fn start_coordinator(store: Store) -> (String, tokio::sync::oneshot::Sender<()>) {
@@ -22,20 +24,8 @@ async fn start_coordinator(store: Store) -> (String, tokio::sync::oneshot::Sende
 #[tokio::test(flavor = "multi_thread")]
 async fn an_output_whose_key_is_not_its_content_key_is_refused_and_changes_nothing() {
     let dir = tempfile::tempdir().unwrap();
-    let store = Store::open(&format!("sqlite://{}", dir.path().join("vint.db").display()), RetryPolicy::default())
-        .await
-        .unwrap();
-    let job = NewJob {
-        id: "j".into(),
-        name: "keys".into(),
-        seed: 1,
-        spec_toml: String::new(),
-        plan_json: "{}".into(),
-        idempotency_key: "keys".into(),
-        assets: vec![],
-        timing_only: false,
-        submitted_by: None,
-    };
+    let store = common::sqlite_store(dir.path()).await;
+    let job = common::job("j");
     // A noise task unlocks nothing, so its completion depends on nothing but its outputs.
     let noise = NewTask { key: "noise/a".into(), stage: Stage::Noise, params: json!({}), deps: vec![] };
     store.submit_job(&job, &[noise], vint_coordinator::now_ms()).await.unwrap();
