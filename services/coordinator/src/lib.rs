@@ -205,8 +205,8 @@ impl Hearing {
         !self.database_down
     }
 
-    /// Records how a store call of the reaper ended at `now_ms`: a transient failure means the
-    /// database is down; any other end, that it answers (again, from now).
+    /// Records how a store call of the reaper ended at `now_ms` (when it returned): a transient
+    /// failure means the database is down; any other end, that it answers (again, from now).
     fn heard(&mut self, transient_failure: bool, now_ms: i64) {
         if transient_failure {
             self.database_down = true;
@@ -232,7 +232,9 @@ async fn reap_forever(store: Store, every: Duration, metrics: Metrics) {
         let now = now_ms();
         if hearing.may_reap() {
             let reaped = store.reap_expired(now, hearing.since_ms).await;
-            hearing.heard(transient(&reaped), now);
+            // When the call ended, not when the tick began: after an outage the pool may take
+            // seconds to connect again, and the workers' heartbeats wait in the same queue.
+            hearing.heard(transient(&reaped), now_ms());
             match reaped {
                 Ok(0) => {}
                 Ok(n) => {
@@ -243,7 +245,7 @@ async fn reap_forever(store: Store, every: Duration, metrics: Metrics) {
             }
         }
         let finalized = store.finalize_jobs(now).await;
-        hearing.heard(transient(&finalized), now);
+        hearing.heard(transient(&finalized), now_ms());
         if let Err(e) = finalized {
             tracing::error!(error = %e, "finalizing jobs failed");
         }
