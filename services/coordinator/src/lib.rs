@@ -186,9 +186,11 @@ pub async fn bind(addr: SocketAddr) -> std::io::Result<(TcpListener, SocketAddr)
 const QUEUE_DEPTH_EVERY: Duration = Duration::from_secs(5);
 
 /// Since when this coordinator has been able to hear workers' heartbeats: since it started,
-/// and again since its database last came back. The reaper passes it to `Store::reap_expired`,
-/// which leaves every lease its worker has not yet had a whole lease to renew since then, and
-/// does not count the attempts of those that ran out before it.
+/// and again since its database last came back, or last answered only after `DEAF_AFTER` (a
+/// database that takes seconds to hand out a connection after a restart holds the workers'
+/// heartbeats in the same queue). The reaper passes it to `Store::reap_expired`, which leaves
+/// every lease its worker has not yet had a whole lease to renew since then, and does not count
+/// the attempts of those that ran out before it.
 #[derive(Clone, Copy, Debug)]
 struct Hearing {
     since_ms: i64,
@@ -205,18 +207,26 @@ impl Hearing {
         !self.database_down
     }
 
-    /// Records how a store call of the reaper ended at `now_ms` (when it returned): a transient
-    /// failure means the database is down; any other end, that it answers (again, from now).
-    fn heard(&mut self, transient_failure: bool, now_ms: i64) {
+    /// Records how a store call of the reaper ended at `now_ms` (when it returned) after taking
+    /// `took`: a transient failure means the database is down; an answer after it was down, or
+    /// one that took `DEAF_AFTER` or more, that it answers again from now.
+    fn heard(&mut self, transient_failure: bool, took: Duration, now_ms: i64) {
         if transient_failure {
             self.database_down = true;
-        } else if self.database_down {
+        } else if self.database_down || took >= DEAF_AFTER {
             self.database_down = false;
             self.since_ms = now_ms;
-            tracing::warn!("the database is back; leases are reaped again once their workers could renew them");
+            tracing::warn!(
+                took_ms = took.as_millis() as u64,
+                "the database answers again; leases are reaped again once their workers could renew them"
+            );
         }
     }
 }
+
+/// A reaper's store call that takes this long means the database was not answering: the workers'
+/// heartbeats waited as long.
+const DEAF_AFTER: Duration = Duration::from_secs(2);
 
 fn transient<T>(result: &vint_store::Result<T>) -> bool {
     result.as_ref().is_err_and(|e| e.is_transient())
@@ -231,10 +241,11 @@ async fn reap_forever(store: Store, every: Duration, metrics: Metrics) {
         tick.tick().await;
         let now = now_ms();
         if hearing.may_reap() {
+            let called = Instant::now();
             let reaped = store.reap_expired(now, hearing.since_ms).await;
             // When the call ended, not when the tick began: after an outage the pool may take
             // seconds to connect again, and the workers' heartbeats wait in the same queue.
-            hearing.heard(transient(&reaped), now_ms());
+            hearing.heard(transient(&reaped), called.elapsed(), now_ms());
             match reaped {
                 Ok(0) => {}
                 Ok(n) => {
@@ -244,8 +255,9 @@ async fn reap_forever(store: Store, every: Duration, metrics: Metrics) {
                 Err(e) => tracing::error!(error = %e, "lease reaper failed"),
             }
         }
+        let called = Instant::now();
         let finalized = store.finalize_jobs(now).await;
-        hearing.heard(transient(&finalized), now_ms());
+        hearing.heard(transient(&finalized), called.elapsed(), now_ms());
         if let Err(e) = finalized {
             tracing::error!(error = %e, "finalizing jobs failed");
         }
@@ -266,20 +278,26 @@ async fn reap_forever(store: Store, every: Duration, metrics: Metrics) {
 
 #[cfg(test)]
 mod tests {
+    use std::time::Duration;
+
     use super::Hearing;
 
     #[test]
-    fn hearing_starts_at_start_and_again_when_the_database_returns() {
+    fn hearing_starts_at_start_and_again_when_the_database_returns_or_answers_late() {
+        let prompt = Duration::from_millis(5);
         let mut h = Hearing::started(1_000);
         assert!(h.may_reap());
-        h.heard(false, 2_000);
-        assert_eq!(h.since_ms, 1_000, "an answer while up changes nothing");
-        h.heard(true, 3_000);
+        h.heard(false, prompt, 2_000);
+        assert_eq!(h.since_ms, 1_000, "a prompt answer while up changes nothing");
+        h.heard(true, prompt, 3_000);
         assert!(!h.may_reap(), "no reaping while the database is down");
-        h.heard(true, 4_000);
+        h.heard(true, prompt, 4_000);
         assert_eq!(h.since_ms, 1_000);
-        h.heard(false, 5_000);
+        h.heard(false, prompt, 5_000);
         assert!(h.may_reap());
         assert_eq!(h.since_ms, 5_000, "heard again from the database's return");
+        // A call that waited 10 s for a connection, with no error: the heartbeats waited too.
+        h.heard(false, Duration::from_secs(10), 16_000);
+        assert_eq!(h.since_ms, 16_000, "heard again from the late answer");
     }
 }
