@@ -148,14 +148,22 @@ while True:
     send({"type": "result", "task_id": task["task_id"], "ok": True, "outputs": [], "result": {"views": "all"}})
 "#;
 
+/// The engines directory of a test double: a `vint_engines` package under `dir/name` whose
+/// `python -m vint_engines` runs `main`.
+fn double_engines(dir: &Path, name: &str, main: &str) -> PathBuf {
+    let engines_dir = dir.join(name);
+    let package = engines_dir.join("vint_engines");
+    std::fs::create_dir_all(&package).unwrap();
+    std::fs::write(package.join("__init__.py"), "").unwrap();
+    std::fs::write(package.join("__main__.py"), main).unwrap();
+    engines_dir
+}
+
 #[tokio::test]
 async fn a_reply_that_breaks_the_stage_contract_is_a_protocol_error() {
     let dir = tempfile::tempdir().unwrap();
-    let package = dir.path().join("double").join("vint_engines");
-    std::fs::create_dir_all(&package).unwrap();
-    std::fs::write(package.join("__init__.py"), "").unwrap();
-    std::fs::write(package.join("__main__.py"), ENGINE_BREAKING_ITS_CONTRACT).unwrap();
-    let cmd = EngineCommand { engines_dir: dir.path().join("double"), ..command() };
+    let cmd =
+        EngineCommand { engines_dir: double_engines(dir.path(), "double", ENGINE_BREAKING_ITS_CONTRACT), ..command() };
     let mut engine = Engine::start(Stage::Noise, &cmd).await.unwrap();
     let (params, inputs, out) = noise_task(dir.path());
     match engine.run("t-1", &params, &inputs, &out).await {
@@ -184,12 +192,11 @@ while True:
 #[tokio::test]
 async fn a_hung_engine_is_killed_at_its_task_timeout_and_reported_as_timed_out() {
     let dir = tempfile::tempdir().unwrap();
-    let package = dir.path().join("hangs").join("vint_engines");
-    std::fs::create_dir_all(&package).unwrap();
-    std::fs::write(package.join("__init__.py"), "").unwrap();
-    std::fs::write(package.join("__main__.py"), ENGINE_THAT_HANGS).unwrap();
-    let cmd =
-        EngineCommand { engines_dir: dir.path().join("hangs"), task_timeout: Duration::from_secs(1), ..command() };
+    let cmd = EngineCommand {
+        engines_dir: double_engines(dir.path(), "hangs", ENGINE_THAT_HANGS),
+        task_timeout: Duration::from_secs(1),
+        ..command()
+    };
     let mut engine = Engine::start(Stage::Noise, &cmd).await.unwrap();
     let pid = engine.pid().expect("a running engine has a pid");
     let (params, inputs, out) = noise_task(dir.path());
