@@ -38,8 +38,8 @@ use crate::auth::{Denied, Role, Tokens};
 
 const PAGE: &str = include_str!("dashboard/page.html");
 const SCRIPT: &str = include_str!("dashboard/app.js");
-/// Jobs listed on the page, newest first.
-const JOBS_LISTED: u32 = 50;
+/// Jobs listed on the page, newest first: those the per-job views show when no job is chosen.
+const JOBS_LISTED: u32 = vint_store::DASHBOARD_JOBS_SHOWN;
 const CHART_SIZE: (u32, u32) = (560, 260);
 /// Series colours, by stage for throughput (grasp, render, noise, package) and for bars.
 const PALETTE: [RGBColor; 4] =

@@ -2,6 +2,7 @@
 //! dashboard's views.
 
 use std::collections::{BTreeMap, BTreeSet};
+use std::sync::Arc;
 
 use prost::Message;
 use sha2::{Digest, Sha256};
@@ -16,21 +17,33 @@ use vint_proto::v1::job_service_server::JobService;
 use vint_store::{DashboardView, JobAsset, JobRecord, LineageEntry, NewJob, Store, UnknownView};
 
 use crate::convert::{self, status};
+use crate::shared_progress::SharedProgress;
 use crate::{CoordinatorConfig, now_ms};
 
 /// Failed tasks a job's progress lists (of `tasks_failed`, which counts them all): enough to see
 /// every distinct cause in practice, few enough that a 2-million-sample job's message stays small.
 const FAILED_TASKS_SHOWN: u32 = 20;
 
+/// Tasks a lineage of a submitted file lists of those that name it (a mesh every grasp and render
+/// task of an object reads): its first ones by key, with `more_tasks` when there are others.
+const LINEAGE_TASKS_NAMING_A_FILE: u32 = 100;
+
+/// Producers of an artifact's content read to find its origin: the content of a shared file
+/// (a camera's intrinsics) is in every sample, and one producer is the origin.
+const PRODUCERS_READ: u32 = 8;
+
 #[derive(Clone)]
 pub struct JobApi {
     store: Store,
     config: CoordinatorConfig,
+    /// What `WatchJob` streams count, shared between the watchers of a job.
+    watched: Arc<SharedProgress>,
 }
 
 impl JobApi {
     pub fn new(store: Store, config: CoordinatorConfig) -> JobApi {
-        JobApi { store, config }
+        let watched = Arc::new(SharedProgress::new(config.watch_interval));
+        JobApi { store, config, watched }
     }
 
     async fn job_record(&self, job_id: &str) -> Result<JobRecord, Status> {
@@ -141,7 +154,7 @@ impl JobApi {
             }
             tasks.push(self.lineage_task(entry).await?);
         }
-        Ok(pb::Lineage { job_id, subject: sample_id.to_string(), tasks, user_files: Vec::new() })
+        Ok(pb::Lineage { job_id, subject: sample_id.to_string(), tasks, user_files: Vec::new(), more_tasks: false })
     }
 
     /// Lineage of content no task produced: a file a user submitted with a job, and the tasks
@@ -152,11 +165,13 @@ impl JobApi {
             .first()
             .map(|(j, _)| j.clone())
             .ok_or_else(|| Status::not_found(format!("no artifact and no submitted file with sha256 {sha}")))?;
+        let mut naming =
+            self.store.tasks_naming(&job_id, &sha, LINEAGE_TASKS_NAMING_A_FILE + 1).await.map_err(status)?;
+        let more_tasks = naming.len() > LINEAGE_TASKS_NAMING_A_FILE as usize;
+        naming.truncate(LINEAGE_TASKS_NAMING_A_FILE as usize);
         let mut tasks = Vec::new();
-        for t in self.store.tasks_of_job(&job_id).await.map_err(status)? {
-            if t.params_json.contains(&sha)
-                && let Some(entry) = self.store.lineage(&t.id).await.map_err(status)?.into_iter().next()
-            {
+        for id in naming {
+            if let Some(entry) = self.store.lineage(&id).await.map_err(status)?.into_iter().next() {
                 tasks.push(self.lineage_task(entry).await?);
             }
         }
@@ -165,7 +180,7 @@ impl JobApi {
             .filter(|(j, _)| *j == job_id)
             .map(|(_, a)| pb::UserFile { path: a.path, sha256: a.sha256, size: a.size, media_type: a.media_type })
             .collect();
-        Ok(pb::Lineage { job_id, subject: sha, tasks, user_files })
+        Ok(pb::Lineage { job_id, subject: sha, tasks, user_files, more_tasks })
     }
 
     async fn lineage_task(&self, e: LineageEntry) -> Result<pb::LineageTask, Status> {
@@ -302,12 +317,11 @@ impl JobService for JobApi {
             0 => 50,
             n => n.min(1_000),
         };
-        let mut jobs = Vec::new();
-        for job in self.store.list_jobs(limit).await.map_err(status)? {
-            // A listing counts failed tasks but does not explain them (GetJob does).
-            let p = self.store.progress(&job.id).await.map_err(status)?;
-            jobs.push(convert::job(&job, &p));
-        }
+        let listed = self.store.list_jobs(limit).await.map_err(status)?;
+        let ids: Vec<&str> = listed.iter().map(|j| j.id.as_str()).collect();
+        let mut progress = self.store.progress_of(&ids).await.map_err(status)?;
+        // A listing counts failed tasks but does not explain them (GetJob does).
+        let jobs = listed.iter().map(|job| convert::job(job, &progress.remove(&job.id).unwrap_or_default())).collect();
         Ok(Response::new(pb::ListJobsResponse { jobs }))
     }
 
@@ -325,7 +339,14 @@ impl JobService for JobApi {
             loop {
                 let update = async {
                     let job = api.job_record(&job_id).await?;
-                    let p = api.store.progress(&job_id).await.map_err(status)?;
+                    // A running job's count is shared with its other watchers; an ended job's is
+                    // final, so it is taken fresh for this watcher's last message.
+                    let p = if job.state.is_terminal() {
+                        api.store.progress(&job_id).await
+                    } else {
+                        api.watched.get(&job_id, || api.store.progress(&job_id)).await
+                    }
+                    .map_err(status)?;
                     let mut progress = convert::progress(&job, &p);
                     // Failed tasks stay failed: ask again only when more have failed.
                     progress.failed_tasks = match &last {
@@ -377,7 +398,7 @@ impl JobService for JobApi {
             Some(Subject::SampleId(sample)) => Ok(Response::new(self.sample_lineage(&req.job_id, &sample).await?)),
             Some(Subject::ArtifactSha256(sha)) => {
                 let job = (!req.job_id.is_empty()).then_some(req.job_id.as_str());
-                let producers = self.store.producers_of(&sha, job).await.map_err(status)?;
+                let producers = self.store.producers_of(&sha, job, PRODUCERS_READ).await.map_err(status)?;
                 // Packaging copies content; the task that first made it is its origin.
                 let Some(first) = producers.iter().find(|a| !a.task_key.starts_with("package/")).or(producers.first())
                 else {
@@ -389,7 +410,13 @@ impl JobService for JobApi {
                 for e in chain {
                     tasks.push(self.lineage_task(e).await?);
                 }
-                Ok(Response::new(pb::Lineage { job_id, subject: sha, tasks, user_files: Vec::new() }))
+                Ok(Response::new(pb::Lineage {
+                    job_id,
+                    subject: sha,
+                    tasks,
+                    user_files: Vec::new(),
+                    more_tasks: false,
+                }))
             }
             None => Err(Status::invalid_argument("lineage needs a sample_id or an artifact_sha256")),
         }

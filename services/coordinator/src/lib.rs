@@ -24,6 +24,7 @@ mod limit_flags;
 mod metrics;
 mod planner;
 mod reuse;
+mod shared_progress;
 pub mod tls;
 
 pub use limit_flags::LimitFlags;

@@ -255,9 +255,9 @@ impl WorkService for WorkApi {
         loop {
             let (room, lease_ms) = ((capacity - leased.len()) as u32, self.lease_ms(req.lease_ms));
             let batch = if req.timing_only {
-                self.store.lease_timing_only(&worker_id, &stages, room, lease_ms, now_ms()).await
+                self.store.lease_timing_only(&worker_id, &stages, room, lease_ms, now_ms).await
             } else {
-                self.store.lease(&worker_id, &stages, room, lease_ms, now_ms()).await
+                self.store.lease(&worker_id, &stages, room, lease_ms, now_ms).await
             }
             .map_err(status)?;
             if batch.is_empty() {
@@ -299,11 +299,10 @@ impl WorkService for WorkApi {
         let req = request.into_inner();
         let held: Vec<(String, u32)> = req.held.iter().map(|h| (h.task_id.clone(), h.attempt)).collect();
         let lease_ms = self.lease_ms(req.lease_ms);
-        let now = now_ms();
-        let lost = self.store.heartbeat(&worker_id, &held, lease_ms, now).await.map_err(status)?;
+        let beat = self.store.heartbeat(&worker_id, &held, lease_ms, now_ms).await.map_err(status)?;
         Ok(Response::new(pb::HeartbeatResponse {
-            lost: lost.into_iter().map(|(task_id, attempt)| pb::TaskAttempt { task_id, attempt }).collect(),
-            lease_deadline_ms: now + lease_ms,
+            lost: beat.lost.into_iter().map(|(task_id, attempt)| pb::TaskAttempt { task_id, attempt }).collect(),
+            lease_deadline_ms: beat.deadline_ms,
         }))
     }
 

@@ -18,6 +18,9 @@ use crate::{Result, Store};
 /// The most rows one query returns (and what a limit of 0 means).
 pub const MAX_ROWS: u32 = 10_000;
 
+/// The jobs a per-job view shows when asked for no job: the newest, those the dashboard lists.
+pub const JOBS_SHOWN: u32 = 50;
+
 /// A column's type, as every backend returns it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ColumnType {
@@ -223,14 +226,15 @@ impl DashboardTable {
 }
 
 impl Store {
-    /// Up to `limit` rows of `view` (`MAX_ROWS` when 0 or more), of one job when `job_id` is given
-    /// (ignored by a view that is not per job, `DashboardView::per_job`).
+    /// Up to `limit` rows of `view` (`MAX_ROWS` when 0 or more), of one job when `job_id` is given,
+    /// else of the `JOBS_SHOWN` newest jobs (a view that is not per job ignores both,
+    /// `DashboardView::per_job`).
     pub async fn dashboard(&self, view: DashboardView, job_id: Option<&str>, limit: u32) -> Result<DashboardTable> {
         let columns = view.columns();
         let limit = if limit == 0 { MAX_ROWS } else { limit.min(MAX_ROWS) };
         let mut query = sqlx::query(sql(self.backend, view.statement())?).bind(i64::from(limit));
         if view.per_job() {
-            query = query.bind(job_id.unwrap_or(""));
+            query = query.bind(job_id.unwrap_or("")).bind(i64::from(JOBS_SHOWN));
         }
         let rows = query.fetch_all(&self.pool).await?;
         let rows = rows.iter().map(|row| row_values(row, columns)).collect::<Result<_>>()?;

@@ -1,6 +1,6 @@
 //! Jobs: submit (idempotent), read, progress, cancel, finalize; and inserting planned tasks.
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeSet, HashMap};
 
 use serde_json::{Value, json};
 use sqlx::any::AnyRow;
@@ -141,9 +141,20 @@ impl Store {
     }
 
     pub async fn progress(&self, job_id: &str) -> Result<Progress> {
-        let rows = sqlx::query(sql(self.backend, "progress_counts")?).bind(job_id).fetch_all(&self.pool).await?;
-        let mut p = Progress::default();
+        Ok(self.progress_of(&[job_id]).await?.remove(job_id).unwrap_or_default())
+    }
+
+    /// The progress of each of `job_ids` (an id with no tasks is absent), in two statements
+    /// whatever their number: a listing of jobs asks once, not once per job.
+    pub async fn progress_of(&self, job_ids: &[&str]) -> Result<HashMap<String, Progress>> {
+        let mut by_job: HashMap<String, Progress> = HashMap::new();
+        if job_ids.is_empty() {
+            return Ok(by_job);
+        }
+        let ids = json_text(job_ids)?;
+        let rows = sqlx::query(sql(self.backend, "progress_counts")?).bind(&ids).fetch_all(&self.pool).await?;
         for row in rows {
+            let p = by_job.entry(row.try_get("job_id")?).or_default();
             let stage = parse("stage", &row.try_get::<String, _>("stage")?)?;
             let state = parse("task state", &row.try_get::<String, _>("state")?)?;
             let n: i64 = row.try_get("n")?;
@@ -154,14 +165,16 @@ impl Store {
             }
         }
         // A package task's outputs row counts the samples it made (migration 0013).
-        let samples: i64 = sqlx::query(sql(self.backend, "progress_samples")?)
-            .bind(job_id)
+        let rows = sqlx::query(sql(self.backend, "progress_samples")?)
+            .bind(&ids)
             .bind(vint_core::Stage::Package.as_str())
-            .fetch_one(&self.pool)
-            .await?
-            .try_get("n")?;
-        p.samples = samples as u64;
-        Ok(p)
+            .fetch_all(&self.pool)
+            .await?;
+        for row in rows {
+            let samples: i64 = row.try_get("n")?;
+            by_job.entry(row.try_get("job_id")?).or_default().samples = samples as u64;
+        }
+        Ok(by_job)
     }
 
     /// Cancels a running job: no task of it is leased again, and running attempts lose their

@@ -50,10 +50,14 @@ use sqlx::{AnyPool, Executor, Row};
 
 use crate::sql::sql;
 
-pub use dashboard::{ColumnType, DashboardTable, DashboardView, MAX_ROWS as DASHBOARD_MAX_ROWS, UnknownView};
+pub use dashboard::{
+    ColumnType, DashboardTable, DashboardView, JOBS_SHOWN as DASHBOARD_JOBS_SHOWN, MAX_ROWS as DASHBOARD_MAX_ROWS,
+    UnknownView,
+};
 pub use depth::{LIVE_TASK_STATES, QueueDepth};
 pub use failures::FailedTask;
 pub use lineage::{ASSET_TASK_KEY, grasp_records_of, samples_of};
+pub use queue::{Clock, Heartbeat};
 pub use records::*;
 pub use reuse::StoredResult;
 

@@ -90,20 +90,34 @@ impl Store {
         outputs_from_rows(&rows)
     }
 
-    /// Tasks that produced content with this hash (content can be produced by several tasks,
-    /// e.g. a rendered image and its packaged copy), optionally within one job. Outputs are not
-    /// indexed by hash (an index entry a file cost more than the packed file): the database finds
-    /// the rows holding the hash's bytes by scanning the job's (or every job's) outputs.
-    pub async fn producers_of(&self, sha256: &str, job_id: Option<&str>) -> Result<Vec<ArtifactRecord>> {
+    /// Up to `limit` tasks that produced content with this hash (content can be produced by
+    /// several tasks, e.g. a rendered image and its packaged copies), optionally within one job;
+    /// by stage and task, packaged copies last. Outputs are not indexed by hash (an index entry a
+    /// file cost more than the packed file): the database finds the rows holding the hash's bytes
+    /// by scanning the job's (or every job's) outputs.
+    pub async fn producers_of(&self, sha256: &str, job_id: Option<&str>, limit: u32) -> Result<Vec<ArtifactRecord>> {
         if outputs::digest_bytes(sha256).is_none() {
             return Ok(Vec::new());
         }
         let rows = sqlx::query(sql(self.backend, "outputs_holding")?)
             .bind(sha256)
             .bind(job_id.unwrap_or(""))
+            .bind(i64::from(limit))
             .fetch_all(&self.pool)
             .await?;
         Ok(outputs_from_rows(&rows)?.into_iter().filter(|a| a.sha256 == sha256).collect())
+    }
+
+    /// The ids of up to `limit` of the job's tasks whose parameters name `text` (a submitted
+    /// file's hash), by key.
+    pub async fn tasks_naming(&self, job_id: &str, text: &str, limit: u32) -> Result<Vec<String>> {
+        let rows = sqlx::query(sql(self.backend, "tasks_naming")?)
+            .bind(job_id)
+            .bind(text)
+            .bind(i64::from(limit))
+            .fetch_all(&self.pool)
+            .await?;
+        rows.iter().map(|row| Ok(row.try_get("id")?)).collect()
     }
 
     /// Packaged samples of a job and their files (names relative to the sample's directory).

@@ -75,7 +75,7 @@ async fn small_job(store: &Store) {
 
     let renders = store.lease("w2", &[Stage::Render, Stage::Noise], 2, 600_000, 62_000).await.unwrap();
     let held: Vec<(String, u32)> = renders.iter().map(|t| (t.id.clone(), t.attempt)).collect();
-    assert!(store.heartbeat("w2", &held, 600_000, 65_000).await.unwrap().is_empty());
+    assert!(store.heartbeat("w2", &held, 600_000, 65_000).await.map(|b| b.lost).unwrap().is_empty());
     let render = renders.iter().find(|t| t.key == RENDER_0).unwrap();
     let mut done = completion(fence(render, "w2"), &["v00/rgb.png", "v01/rgb.png", "v00/camera.json"]);
     done.timings_json = r#"{"engine_ms": 3000.0}"#.into();
@@ -177,6 +177,21 @@ store_test!(a_dashboard_query_keeps_to_its_job_and_its_limit, |store: Store| asy
     assert_eq!(first.rows[0][0], json!("j"));
     // Workers are not per job: a job names none of their rows away.
     assert_eq!(rows(&store, DashboardView::Workers, Some("k")).await.len(), 2);
+});
+
+store_test!(with_no_job_chosen_a_view_shows_the_newest_jobs_only, |store: Store| async move {
+    // One job more than the dashboard lists, each newer than the last: the oldest is not shown.
+    let shown = vint_store::DASHBOARD_JOBS_SHOWN as usize;
+    for i in 0..=shown {
+        let id = format!("j{i:03}");
+        store.submit_job(&job(&id), &[grasp_task(CAN, "can")], i as i64).await.unwrap();
+    }
+    let listed: Vec<Value> =
+        rows(&store, DashboardView::JobProgress, None).await.iter().map(|r| r["job_id"].clone()).collect();
+    assert_eq!(listed.len(), shown);
+    assert!(!listed.contains(&json!("j000")), "the oldest job is past the list");
+    assert!(listed.contains(&json!("j001")) && listed.contains(&json!(format!("j{shown:03}"))));
+    assert_eq!(rows(&store, DashboardView::JobProgress, Some("j000")).await.len(), 1, "asked for by name, it is");
 });
 
 #[test]

@@ -149,8 +149,8 @@ store_test!(an_expired_lease_is_its_owner_s_until_the_reaper_takes_it, |store: S
     let a = store.lease("w", &[Stage::Grasp], 1, 1_000, 0).await.unwrap().remove(0);
     let b = store.lease("w", &[Stage::Grasp], 1, 1_000, 0).await.unwrap().remove(0);
     let held = vec![(a.id.clone(), a.attempt)];
-    assert!(store.heartbeat("w", &held, 1_000, 5_000).await.unwrap().is_empty(), "revived until 6,000");
-    assert_eq!(store.heartbeat("x", &held, 1_000, 5_000).await.unwrap(), held, "not by another worker");
+    assert!(store.heartbeat("w", &held, 1_000, 5_000).await.map(|b| b.lost).unwrap().is_empty(), "revived until 6,000");
+    assert_eq!(store.heartbeat("x", &held, 1_000, 5_000).await.map(|b| b.lost).unwrap(), held, "not by another worker");
     assert_eq!(store.reap_expired(5_500, 0).await.unwrap(), 1, "only the lease nobody revived");
     store.complete(&completion(fence(&a, "w"), &["grasps.json"]), &[], 7_000).await.unwrap();
     assert_eq!(state_of(&store, &a.id).await, TaskState::Succeeded, "completed past the revived deadline too");
@@ -158,6 +158,52 @@ store_test!(an_expired_lease_is_its_owner_s_until_the_reaper_takes_it, |store: S
     let attempts = store.attempts(&a.id).await.unwrap();
     assert_eq!(attempts.iter().map(|t| t.outcome).collect::<Vec<_>>(), [Some(AttemptOutcome::Succeeded)]);
 });
+
+/// A heartbeat or lease that waited for a connection dates its deadline from when it got one: had
+/// it read the clock before the wait (the database down, the pool busy), it would write a deadline
+/// already stale, and the reaper would take the lease from a live worker. SQLite's pool holds one
+/// connection, so a heartbeat whose clock stalls (read while it holds the connection) makes the
+/// next wait; the next one's deadline must not be earlier.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_lease_s_clock_is_read_once_a_connection_is_held() {
+    let db = sqlite_db().await;
+    let store = db.store.clone();
+    store
+        .submit_job(&job("j"), &[task("grasp/a", Stage::Grasp, &[]), task("grasp/b", Stage::Grasp, &[])], 0)
+        .await
+        .unwrap();
+    let leased = store.lease("w", &[Stage::Grasp], 1, 1_000, 0).await.unwrap();
+    let held = vec![(leased[0].id.clone(), leased[0].attempt)];
+    let wall = || std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().as_millis() as i64;
+    let stalled = move || {
+        std::thread::sleep(std::time::Duration::from_millis(400));
+        wall()
+    };
+    let first = tokio::spawn({
+        let (store, held) = (store.clone(), held.clone());
+        async move { store.heartbeat("w", &held, 1_000, stalled).await.unwrap() }
+    });
+    tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+    let second = store.heartbeat("w", &held, 1_000, wall).await.unwrap();
+    let first = first.await.unwrap();
+    assert!(first.lost.is_empty() && second.lost.is_empty());
+    assert!(
+        second.deadline_ms >= first.deadline_ms,
+        "the second heartbeat waited for the connection, yet dated its deadline {} ms before the first's",
+        first.deadline_ms - second.deadline_ms
+    );
+    let stalled = move || {
+        std::thread::sleep(std::time::Duration::from_millis(400));
+        wall()
+    };
+    let beat = tokio::spawn({
+        let (store, held) = (store.clone(), held.clone());
+        async move { store.heartbeat("w", &held, 1_000, stalled).await.unwrap() }
+    });
+    tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+    let b = store.lease("w2", &[Stage::Grasp], 1, 1_000, wall).await.unwrap().remove(0);
+    assert!(b.lease_deadline_ms >= beat.await.unwrap().deadline_ms, "a lease too");
+}
 
 store_test!(the_reaper_gives_a_worker_a_whole_lease_to_be_heard_after_an_outage, |store: Store| async move {
     // Leases of 1,000 ms granted at 0; the coordinator could hear again from 10,000 (it started,
@@ -168,7 +214,7 @@ store_test!(the_reaper_gives_a_worker_a_whole_lease_to_be_heard_after_an_outage,
     assert_eq!(store.reap_expired(10_999, 10_000).await.unwrap(), 0, "a lease's worth not yet heard");
     // The worker of a heartbeats within that lease; b's worker died in the outage.
     let held = vec![(leased[0].id.clone(), leased[0].attempt)];
-    assert!(store.heartbeat("w", &held, 1_000, 10_500).await.unwrap().is_empty());
+    assert!(store.heartbeat("w", &held, 1_000, 10_500).await.map(|b| b.lost).unwrap().is_empty());
     assert_eq!(store.reap_expired(11_000, 10_000).await.unwrap(), 1);
     assert_eq!(state_of(&store, &leased[0].id).await, TaskState::Running);
     assert_eq!(state_of(&store, &leased[1].id).await, TaskState::Queued);
@@ -285,12 +331,16 @@ store_test!(heartbeat_extends_leases_and_reports_lost_ones, |store: Store| async
     submit_chain(&store, "j").await;
     let leased = store.lease("w", &[Stage::Grasp], 1, 1_000, 0).await.unwrap();
     let held = vec![(leased[0].id.clone(), leased[0].attempt)];
-    assert!(store.heartbeat("w", &held, 1_000, 900).await.unwrap().is_empty());
+    assert!(store.heartbeat("w", &held, 1_000, 900).await.map(|b| b.lost).unwrap().is_empty());
     assert_eq!(store.reap_expired(1_500, 0).await.unwrap(), 0, "extended to 1900");
-    let lost = store.heartbeat("w", &[("j/grasp/missing".into(), 1)], 1_000, 1_000).await.unwrap();
+    let lost = store.heartbeat("w", &[("j/grasp/missing".into(), 1)], 1_000, 1_000).await.map(|b| b.lost).unwrap();
     assert_eq!(lost.len(), 1);
     assert_eq!(store.reap_expired(1_901, 0).await.unwrap(), 1);
-    assert_eq!(store.heartbeat("w", &held, 1_000, 1_902).await.unwrap(), held, "a reaped lease is lost");
+    assert_eq!(
+        store.heartbeat("w", &held, 1_000, 1_902).await.map(|b| b.lost).unwrap(),
+        held,
+        "a reaped lease is lost"
+    );
 });
 
 store_test!(retries_back_off_then_fail_with_the_last_error, |store: Store| async move {
@@ -378,11 +428,13 @@ store_test!(job_succeeds_when_every_task_has_and_lineage_reaches_the_root, |stor
     assert_eq!(keys, [PACKAGE, "grasp/a", "render/a"]);
     assert_eq!(chain[0].inputs.len(), 2, "package consumed grasps.json and the render output");
     assert!(chain.iter().all(|e| e.task.engine_json.as_deref() == Some(r#"{"name":"test-double"}"#)));
-    let producers = store.producers_of(&artifact("grasps.json").sha256, Some("j")).await.unwrap();
+    let producers = store.producers_of(&artifact("grasps.json").sha256, Some("j"), 10).await.unwrap();
     // The test double's hash is its name's length: the render's v00_rgb.png has it too.
     assert_eq!(producers.iter().map(|a| a.task_id.as_str()).collect::<Vec<_>>(), ["j/grasp/a", "j/render/a"]);
-    assert_eq!(store.producers_of(&artifact("grasps.json").sha256, None).await.unwrap().len(), 4, "both jobs'");
-    assert!(store.producers_of(&"f".repeat(64), None).await.unwrap().is_empty());
+    assert_eq!(store.producers_of(&artifact("grasps.json").sha256, None, 10).await.unwrap().len(), 4, "both jobs'");
+    let first = store.producers_of(&artifact("grasps.json").sha256, None, 1).await.unwrap();
+    assert_eq!(first.len(), 1, "no more than asked for");
+    assert!(store.producers_of(&"f".repeat(64), None, 10).await.unwrap().is_empty());
     let progress = store.progress("j").await.unwrap();
     assert_eq!((progress.total(), progress.count(TaskState::Succeeded), progress.samples), (3, 3, 1));
     assert_eq!(store.artifact_stats("j").await.unwrap(), (5, 4), "5 files, 4 contents (as above)");
@@ -408,6 +460,9 @@ store_test!(a_jobs_assets_are_recorded_and_shown_as_inputs_of_the_tasks_naming_t
         chain[0].inputs.iter().map(|a| (a.name.as_str(), a.sha256.as_str(), a.task_key.as_str())).collect();
     assert_eq!(inputs, [("assets/bowl.obj", sha.as_str(), vint_store::ASSET_TASK_KEY)]);
     assert!(store.lineage("j/grasp/b").await.unwrap()[0].inputs.is_empty(), "b names no asset");
+    assert_eq!(store.tasks_naming("j", &sha, 10).await.unwrap(), ["j/grasp/a"]);
+    assert!(store.tasks_naming("j", &sha, 0).await.unwrap().is_empty(), "no more than asked for");
+    assert!(store.tasks_naming("other", &sha, 10).await.unwrap().is_empty());
     assert!(store.job_assets("other").await.unwrap().is_empty());
     let by_hash = store.user_files_with(&sha, None).await.unwrap();
     assert_eq!(
@@ -622,7 +677,7 @@ store_test!(a_heartbeat_and_a_completion_of_the_same_tasks_never_deadlock, |stor
         let (r1, r2, r3) = tokio::join!(
             async move { s1.complete_batch(&a, 2).await },
             async move { s2.complete_batch(&b, 2).await },
-            async move { s3.heartbeat("w", &held, 60_000, 2).await },
+            async move { s3.heartbeat("w", &held, 60_000, 2).await.map(|b| b.lost) },
         );
         for r in [r1.unwrap(), r2.unwrap()] {
             assert!(r.iter().all(Result::is_ok), "round {round}: {r:?}");
@@ -631,6 +686,20 @@ store_test!(a_heartbeat_and_a_completion_of_the_same_tasks_never_deadlock, |stor
         assert_eq!(state_of(&store, &format!("{job_id}/package/p1")).await, TaskState::Queued);
         assert_eq!(state_of(&store, &format!("{job_id}/package/p2")).await, TaskState::Queued);
     }
+});
+
+store_test!(progress_of_a_page_of_jobs_is_each_job_s_own, |store: Store| async move {
+    submit_chain(&store, "j1").await;
+    submit_chain(&store, "j2").await;
+    assert_eq!(store.lease("w", &[Stage::Grasp], 1, 1_000, 1).await.unwrap().len(), 1);
+    let all = store.progress_of(&["j1", "j2", "none"]).await.unwrap();
+    assert_eq!(all.keys().collect::<BTreeSet<_>>(), BTreeSet::from([&"j1".to_string(), &"j2".to_string()]));
+    for id in ["j1", "j2"] {
+        assert_eq!(all[id], store.progress(id).await.unwrap(), "{id}");
+        assert_eq!(all[id].total(), 3, "{id}");
+    }
+    assert_eq!(all["j1"].count(TaskState::Running) + all["j2"].count(TaskState::Running), 1);
+    assert!(store.progress_of(&[]).await.unwrap().is_empty());
 });
 
 store_test!(queue_depth_counts_live_tasks_by_stage_and_state_and_jobs_by_state, |store: Store| async move {

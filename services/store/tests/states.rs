@@ -330,7 +330,8 @@ store_test!(
         let c = watch.after("lease", &store).await;
         assert_eq!(c, Changes { moved: moved(&[("j/grasp/a", Queued, Running)]), ..Changes::default() });
 
-        let lost = store.heartbeat("w1", &[(grasp_a.id.clone(), grasp_a.attempt)], 1_000, 2).await.unwrap();
+        let lost =
+            store.heartbeat("w1", &[(grasp_a.id.clone(), grasp_a.attempt)], 1_000, 2).await.map(|b| b.lost).unwrap();
         assert!(lost.is_empty());
         assert_eq!(watch.after("heartbeat", &store).await, Changes::default());
 

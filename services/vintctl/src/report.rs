@@ -309,12 +309,17 @@ pub fn lineage(l: &pb::Lineage, json: bool) {
             .iter()
             .map(|f| json!({"path": f.path, "sha256": f.sha256, "size": f.size, "media_type": f.media_type}))
             .collect();
-        print_json(&json!({"job_id": l.job_id, "subject": l.subject, "user_files": files, "tasks": tasks}));
+        print_json(&json!({
+            "job_id": l.job_id, "subject": l.subject, "user_files": files, "tasks": tasks, "more_tasks": l.more_tasks,
+        }));
         return;
     }
     println!("lineage of {} (job {})", l.subject, l.job_id);
     for f in &l.user_files {
         println!("  submitted with the job as {} ({} B, {}); read by the tasks below", f.path, f.size, f.media_type);
+    }
+    if l.more_tasks {
+        println!("  (more tasks read it: the first {} by key are shown)", l.tasks.len());
     }
     for t in &l.tasks {
         let engine: Value = serde_json::from_str(&t.engine_json).unwrap_or(Value::Null);

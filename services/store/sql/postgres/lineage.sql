@@ -35,11 +35,20 @@ SELECT o.task_id, t.key, o.files FROM tasks t JOIN outputs o ON o.task_id = t.id
 
 -- name: outputs_holding
 -- The packed outputs that hold the 32 bytes of the hex digest $1, of job $2 ('': of every job),
--- by stage and task. Outputs are not indexed by hash (an index entry a file cost more than the
--- packed file): this scans the job's (or every job's) outputs.
+-- by stage and task, up to $3 of them, packaged copies last. Outputs are not indexed by hash (an
+-- index entry a file cost more than the packed file): this scans the job's (or every job's)
+-- outputs.
 SELECT o.task_id, t.key, o.files FROM tasks t JOIN outputs o ON o.task_id = t.id
 WHERE position(decode($1, 'hex') in o.files) > 0 AND ($2 = '' OR t.job_id = $2)
-ORDER BY t.stage, t.id;
+ORDER BY t.stage = 'package', t.stage, t.id
+LIMIT $3;
+
+-- name: tasks_naming
+-- Up to $3 of job $1's tasks whose parameters name the text $2 (a submitted file's hash), by key.
+-- Parameters are not indexed: this scans the job's tasks.
+SELECT id FROM tasks WHERE job_id = $1 AND position($2 in params_json) > 0
+ORDER BY key
+LIMIT $3;
 
 -- name: job_plans
 -- Job $1's stored plan ('': every job's), the newest job first.

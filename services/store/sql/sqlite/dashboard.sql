@@ -1,12 +1,13 @@
 -- The dashboard (`dashboard.rs`): up to $1 rows of each view of migration 0008, of job $2
--- ('': of every job) where the view is per job, in the order of its grouping columns.
+-- ('': of the $3 newest jobs, those the dashboard lists, so a page reads what it shows and not
+-- every job's history) where the view is per job, in the order of its grouping columns.
 -- The columns are those `DashboardView::columns` declares, with their types.
 
 -- name: dashboard_job_progress
 -- Tasks per job and stage in each state.
 SELECT job_id, stage, tasks, waiting, queued, running, succeeded, failed, cancelled
 FROM dashboard_job_progress
-WHERE ($2 = '' OR job_id = $2)
+WHERE job_id IN (SELECT id FROM jobs WHERE $2 = '' OR id = $2 ORDER BY created_ms DESC, id LIMIT $3)
 ORDER BY job_id, stage
 LIMIT $1;
 
@@ -14,7 +15,7 @@ LIMIT $1;
 -- Attempts ended per job, stage and minute, with their engine time.
 SELECT job_id, stage, minute_ms, succeeded, failed, engine_s
 FROM dashboard_throughput
-WHERE ($2 = '' OR job_id = $2)
+WHERE job_id IN (SELECT id FROM jobs WHERE $2 = '' OR id = $2 ORDER BY created_ms DESC, id LIMIT $3)
 ORDER BY job_id, minute_ms, stage
 LIMIT $1;
 
@@ -22,7 +23,7 @@ LIMIT $1;
 -- Attempts that did not succeed, by stage, outcome and reason.
 SELECT job_id, stage, outcome, reason, attempts, tasks, first_task_key, last_task_key
 FROM dashboard_failures
-WHERE ($2 = '' OR job_id = $2)
+WHERE job_id IN (SELECT id FROM jobs WHERE $2 = '' OR id = $2 ORDER BY created_ms DESC, id LIMIT $3)
 ORDER BY job_id, stage, attempts DESC, outcome, reason
 LIMIT $1;
 
@@ -37,7 +38,7 @@ LIMIT $1;
 -- Grasp trials per (object, hand): ran, accepted, rejected.
 SELECT job_id, object, hand, tasks, trials, accepted, rejected, acceptance
 FROM dashboard_grasp_acceptance
-WHERE ($2 = '' OR job_id = $2)
+WHERE job_id IN (SELECT id FROM jobs WHERE $2 = '' OR id = $2 ORDER BY created_ms DESC, id LIMIT $3)
 ORDER BY job_id, object, hand
 LIMIT $1;
 
@@ -45,7 +46,7 @@ LIMIT $1;
 -- Rejected grasp trials per (object, hand) by reason.
 SELECT job_id, object, hand, reason, trials
 FROM dashboard_grasp_rejections
-WHERE ($2 = '' OR job_id = $2)
+WHERE job_id IN (SELECT id FROM jobs WHERE $2 = '' OR id = $2 ORDER BY created_ms DESC, id LIMIT $3)
 ORDER BY job_id, object, hand, reason
 LIMIT $1;
 
@@ -53,7 +54,7 @@ LIMIT $1;
 -- Active taxels per accepted grasp, by hand and region.
 SELECT job_id, hand, region, grasps, active_taxels, mean_per_grasp, min_per_grasp, max_per_grasp
 FROM dashboard_active_taxels
-WHERE ($2 = '' OR job_id = $2)
+WHERE job_id IN (SELECT id FROM jobs WHERE $2 = '' OR id = $2 ORDER BY created_ms DESC, id LIMIT $3)
 ORDER BY job_id, hand, region
 LIMIT $1;
 
@@ -61,7 +62,7 @@ LIMIT $1;
 -- Render engine seconds per view by resolution, samples per pixel and device.
 SELECT job_id, width, height, samples, device, renders, views, engine_s, seconds_per_view
 FROM dashboard_render_seconds
-WHERE ($2 = '' OR job_id = $2)
+WHERE job_id IN (SELECT id FROM jobs WHERE $2 = '' OR id = $2 ORDER BY created_ms DESC, id LIMIT $3)
 ORDER BY job_id, width, height, samples, device
 LIMIT $1;
 
@@ -69,7 +70,7 @@ LIMIT $1;
 -- Files and bytes recorded per job and stage.
 SELECT job_id, stage, files, bytes
 FROM dashboard_bytes_written
-WHERE ($2 = '' OR job_id = $2)
+WHERE job_id IN (SELECT id FROM jobs WHERE $2 = '' OR id = $2 ORDER BY created_ms DESC, id LIMIT $3)
 ORDER BY job_id, stage
 LIMIT $1;
 
@@ -77,6 +78,6 @@ LIMIT $1;
 -- Rendered views per job and object by occlusion, in tenths.
 SELECT job_id, object, bin, views
 FROM dashboard_occlusion
-WHERE ($2 = '' OR job_id = $2)
+WHERE job_id IN (SELECT id FROM jobs WHERE $2 = '' OR id = $2 ORDER BY created_ms DESC, id LIMIT $3)
 ORDER BY job_id, object, bin
 LIMIT $1;

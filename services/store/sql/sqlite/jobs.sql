@@ -36,14 +36,19 @@ WHERE sha256 = $1 AND ($2 = '' OR job_id = $2)
 ORDER BY job_id, path;
 
 -- name: progress_counts
--- A job's tasks by stage and state, with how many of them were reused.
-SELECT stage, state, COUNT(*) AS n, COUNT(reused_from) AS reused FROM tasks WHERE job_id = $1 GROUP BY stage, state;
+-- The tasks of the jobs of the JSON array $1 by job, stage and state, with how
+-- many of them were reused: one statement for a page of jobs, not one per job.
+SELECT job_id, stage, state, COUNT(*) AS n, COUNT(reused_from) AS reused FROM tasks
+WHERE job_id IN (SELECT value FROM json_each($1))
+GROUP BY job_id, stage, state;
 
 -- name: progress_samples
--- The samples a job's package tasks ($2: the stage) made: their outputs row counts them.
-SELECT CAST(COALESCE(SUM(o.samples), 0) AS BIGINT) AS n
+-- The samples the package tasks ($2: the stage) of the jobs of the JSON array $1 made, by job:
+-- their outputs rows count them.
+SELECT t.job_id, CAST(COALESCE(SUM(o.samples), 0) AS BIGINT) AS n
 FROM tasks t JOIN outputs o ON o.task_id = t.id
-WHERE t.job_id = $1 AND t.stage = $2;
+WHERE t.job_id IN (SELECT value FROM json_each($1)) AND t.stage = $2
+GROUP BY t.job_id;
 
 -- name: end_job
 -- Ends job $3 in state $1 at $2, if it is still in state $4.

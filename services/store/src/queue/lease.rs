@@ -5,21 +5,23 @@ use std::collections::{HashMap, HashSet};
 use sqlx::Row;
 use vint_core::{Stage, TaskState};
 
+use super::Clock;
 use crate::jobs::json_text;
 use crate::sql::sql;
 use crate::{ArtifactRecord, Backend, LeasedTask, Result, Store, StoreError, outputs, parse, to_u32};
 
 impl Store {
-    /// Leases up to `capacity` ready tasks of `stages` to `worker_id` until `now_ms + lease_ms`.
+    /// Leases up to `capacity` ready tasks of `stages` to `worker_id` for `lease_ms` from the
+    /// `clock`'s time once a connection is held (`Clock`).
     pub async fn lease(
         &self,
         worker_id: &str,
         stages: &[Stage],
         capacity: u32,
         lease_ms: i64,
-        now_ms: i64,
+        clock: impl Clock,
     ) -> Result<Vec<LeasedTask>> {
-        self.lease_with("lease_tasks", worker_id, stages, capacity, lease_ms, now_ms).await
+        self.lease_with("lease_tasks", worker_id, stages, capacity, lease_ms, clock).await
     }
 
     /// `lease` for a timing-only worker: only tasks of jobs submitted with `timing_only`.
@@ -29,9 +31,9 @@ impl Store {
         stages: &[Stage],
         capacity: u32,
         lease_ms: i64,
-        now_ms: i64,
+        clock: impl Clock,
     ) -> Result<Vec<LeasedTask>> {
-        self.lease_with("lease_tasks_timing_only", worker_id, stages, capacity, lease_ms, now_ms).await
+        self.lease_with("lease_tasks_timing_only", worker_id, stages, capacity, lease_ms, clock).await
     }
 
     async fn lease_with(
@@ -41,11 +43,13 @@ impl Store {
         stages: &[Stage],
         capacity: u32,
         lease_ms: i64,
-        now_ms: i64,
+        clock: impl Clock,
     ) -> Result<Vec<LeasedTask>> {
         if stages.is_empty() || capacity == 0 {
             return Ok(Vec::new());
         }
+        let mut conn = self.pool.acquire().await?;
+        let now_ms = clock.now_ms();
         let deadline = now_ms + lease_ms;
         let stages_seen = stages.iter().map(|s| s.as_str()).collect::<Vec<_>>().join(",");
         let backend = self.backend;
@@ -55,7 +59,7 @@ impl Store {
                     .bind(worker_id)
                     .bind(&stages_seen)
                     .bind(now_ms)
-                    .execute(&self.pool)
+                    .execute(&mut *conn)
                     .await?;
             }
         }
@@ -66,8 +70,9 @@ impl Store {
             .bind(now_ms)
             .bind(i64::from(capacity))
             .bind(&stages_seen)
-            .fetch_all(&self.pool)
+            .fetch_all(&mut *conn)
             .await?;
+        drop(conn);
         let mut leased = rows.iter().map(leased_from_row).collect::<Result<Vec<_>>>()?;
         match backend {
             // The lease statement read every leased task's inputs.
@@ -93,26 +98,29 @@ impl Store {
         Ok(leased)
     }
 
-    /// Extends the leases `worker_id` still holds; returns the ones it has lost. A heartbeat never
-    /// waits for a lock (`sql/postgres/lease.sql`, `heartbeat`).
+    /// Extends for `lease_ms` from the `clock`'s time (read once a connection is held, `Clock`)
+    /// the leases `worker_id` still holds, returning the ones it has lost and the new deadline. A
+    /// heartbeat never waits for a lock (`sql/postgres/lease.sql`, `heartbeat`).
     pub async fn heartbeat(
         &self,
         worker_id: &str,
         held: &[(String, u32)],
         lease_ms: i64,
-        now_ms: i64,
-    ) -> Result<Vec<(String, u32)>> {
+        clock: impl Clock,
+    ) -> Result<Heartbeat> {
         if held.is_empty() {
-            return Ok(Vec::new());
+            return Ok(Heartbeat { lost: Vec::new(), deadline_ms: clock.now_ms() + lease_ms });
         }
         let rows: Vec<serde_json::Value> =
             held.iter().map(|(id, attempt)| serde_json::json!({"id": id, "attempt": attempt})).collect();
+        let mut conn = self.pool.acquire().await?;
+        let now_ms = clock.now_ms();
         // The worker's last heartbeat (Postgres: in the same statement).
         if self.backend == Backend::Sqlite {
             sqlx::query(sql(self.backend, "worker_heartbeat")?)
                 .bind(worker_id)
                 .bind(now_ms)
-                .execute(&self.pool)
+                .execute(&mut *conn)
                 .await?;
         }
         let kept: HashSet<(String, i64)> = sqlx::query(sql(self.backend, "heartbeat")?)
@@ -121,12 +129,14 @@ impl Store {
             .bind(TaskState::Running.as_str())
             .bind(worker_id)
             .bind(json_text(&rows)?)
-            .fetch_all(&self.pool)
+            .fetch_all(&mut *conn)
             .await?
             .iter()
             .map(|row| Ok((row.try_get::<String, _>("id")?, row.try_get::<i64, _>("attempt")?)))
             .collect::<Result<_>>()?;
-        Ok(held.iter().filter(|(id, attempt)| !kept.contains(&(id.clone(), i64::from(*attempt)))).cloned().collect())
+        let lost =
+            held.iter().filter(|(id, attempt)| !kept.contains(&(id.clone(), i64::from(*attempt)))).cloned().collect();
+        Ok(Heartbeat { lost, deadline_ms: now_ms + lease_ms })
     }
 
     /// The artifacts produced by the dependencies of each of `task_ids`: their inputs, by task
@@ -141,6 +151,13 @@ impl Store {
         }
         Ok(by_task)
     }
+}
+
+/// What a heartbeat did: the leases the worker no longer holds, and the deadline of those it kept.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Heartbeat {
+    pub lost: Vec<(String, u32)>,
+    pub deadline_ms: i64,
 }
 
 /// A leased task as the lease statement returns it, without its inputs.

@@ -16,6 +16,29 @@ mod fail;
 mod lease;
 mod release;
 
+pub use lease::Heartbeat;
+
+/// Where a lease or heartbeat reads the time, in ms since the epoch. The store reads it only once
+/// it holds a database connection: a request that waited for one (the database was down, the pool
+/// was busy) must not write a deadline dated from before the wait, or the lease it grants or
+/// renews is already stale when written, and the reaper takes it from a live worker. The
+/// coordinator passes its clock; tests pass a fixed instant (`i64`).
+pub trait Clock {
+    fn now_ms(&self) -> i64;
+}
+
+impl Clock for i64 {
+    fn now_ms(&self) -> i64 {
+        *self
+    }
+}
+
+impl<F: Fn() -> i64> Clock for F {
+    fn now_ms(&self) -> i64 {
+        self()
+    }
+}
+
 use sqlx::{Any, Row, Transaction};
 use vint_core::{AttemptOutcome, TaskState};
 
