@@ -3,8 +3,9 @@
 #
 #   scripts/test.sh [ARGS...]     ARGS go to `cargo test --workspace` (e.g. a test-name filter)
 #
-# Sets up the engines' Python environment (scripts/setup-python.sh), finds a Postgres, then runs
-# cargo fmt, ruff, the deploy manifests' checks, clippy, cargo build (the end-to-end tests start the
+# Sets up the engines' Python environment with the test tools (scripts/setup-python.sh --dev), finds
+# a Postgres, then runs cargo fmt, ruff, the deploy manifests' checks, the run-only install's check
+# (tests/python/test_install.py), clippy, cargo build (the end-to-end tests start the
 # built binaries), cargo test, pytest and every bench's smoke (tests/python/test_bench_smoke.py),
 # stopping at the first failure. Nothing is skipped: a missing Postgres, Rust tool, kustomize
 # (kubectl), Chromium, jq or engine library is a failure (Postgres, Chromium and jq are apt-installed
@@ -255,7 +256,7 @@ deploy_checks() {
 }
 
 STEP=0
-STEPS=9
+STEPS=10
 
 # Runs one check with a banner and its elapsed time; the first failure ends the script.
 step() {
@@ -275,7 +276,7 @@ step() {
 
 require_rust_tools
 started=$SECONDS
-bash scripts/setup-python.sh
+bash scripts/setup-python.sh --dev
 log "Python environment ready ($((SECONDS - started))s)"
 
 choose_postgres
@@ -293,6 +294,8 @@ step "cargo fmt --check" cargo fmt --all -- --check
 step "ruff check" .venv/bin/ruff check workers/engines benches scripts examples tests/python
 step "ruff format --check" .venv/bin/ruff format --check workers/engines benches scripts examples tests/python
 step "deploy manifests" deploy_checks
+# README command 1 installs what a run needs and no test-only package (a fresh venv, from pip's cache).
+step "install and release files" .venv/bin/python -m pytest tests/python/test_install.py tests/python/test_release.py -q
 step "cargo clippy" cargo clippy --workspace --all-targets -- -D warnings
 step "cargo build --bins" cargo build --workspace --bins
 step "cargo test" cargo test --workspace "$@"

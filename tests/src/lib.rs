@@ -384,7 +384,7 @@ pub fn children_of(pid: i32) -> Vec<i32> {
 /// bucket `vint`. Returns the process and the `AWS_*` environment that points clients at it.
 pub fn start_s3(logs: &Path) -> (Proc, Vec<(String, String)>) {
     let moto = python().with_file_name("moto_server");
-    assert!(moto.exists(), "{} is missing: run scripts/setup-python.sh (dev tools)", moto.display());
+    assert!(moto.exists(), "{} is missing: run scripts/setup-python.sh --dev (dev tools)", moto.display());
     let port = free_port();
     let child = Command::new(&moto)
         .args(["-H", "127.0.0.1", "-p", &port.to_string()])
