@@ -141,6 +141,7 @@ impl Metrics {
     pub fn new() -> Metrics {
         // prometheus-client ends each help text with a period.
         let mut registry = Registry::default();
+        vint_telemetry::register_build_info(&mut registry, "coordinator", env!("CARGO_PKG_VERSION"));
         let tasks_leased = Family::default();
         registry.register("vint_tasks_leased", "Tasks handed to workers, by stage", Family::clone(&tasks_leased));
         let tasks_completed = Family::default();

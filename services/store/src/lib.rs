@@ -154,6 +154,9 @@ fn transient_code(code: &str) -> bool {
 
 pub type Result<T, E = StoreError> = std::result::Result<T, E>;
 
+/// Connections a store opens to Postgres unless told otherwise (`Store::connect_with_pool`).
+pub const DEFAULT_POSTGRES_POOL: u32 = 16;
+
 /// Retry policy applied when a task fails retryably or its lease expires.
 #[derive(Clone, Copy, Debug)]
 pub struct RetryPolicy {
@@ -186,6 +189,11 @@ impl Store {
     /// Connects without touching the schema (no DDL): for coordinator replicas whose role may
     /// not change it, which check it with `require_current_schema` instead.
     pub async fn connect(url: &str, retry: RetryPolicy) -> Result<Store> {
+        Store::connect_with_pool(url, retry, DEFAULT_POSTGRES_POOL).await
+    }
+
+    /// `connect` with at most `postgres_pool` connections to Postgres (SQLite always has one).
+    pub async fn connect_with_pool(url: &str, retry: RetryPolicy, postgres_pool: u32) -> Result<Store> {
         install_default_drivers();
         let backend = if url.starts_with("postgres://") || url.starts_with("postgresql://") {
             Backend::Postgres
@@ -197,7 +205,7 @@ impl Store {
         let pool = match backend {
             Backend::Postgres => {
                 AnyPoolOptions::new()
-                    .max_connections(16)
+                    .max_connections(postgres_pool.max(1))
                     .after_connect(|conn, _| Box::pin(on_connect(conn, Backend::Postgres)))
                     .connect(&postgres_url(url, std::env::var("PGSSLMODE").ok().as_deref()))
                     .await?

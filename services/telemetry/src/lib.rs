@@ -35,5 +35,16 @@ pub fn task_seconds_buckets() -> impl Iterator<Item = f64> {
     prometheus_client::metrics::histogram::exponential_buckets(0.01, 2.0, 19)
 }
 
+/// Registers `vint_build_info{component, version} 1`: which build of which process answers, so a
+/// dashboard or an alert can tell a rollout's old replicas from its new ones.
+pub fn register_build_info(registry: &mut prometheus_client::registry::Registry, component: &str, version: &str) {
+    let labels = vec![("component".to_string(), component.to_string()), ("version".to_string(), version.to_string())];
+    registry.register(
+        "vint_build",
+        "The build of this process: its component and version",
+        prometheus_client::metrics::info::Info::new(labels),
+    );
+}
+
 mod redact;
 pub use redact::{REDACTED, redact_url};

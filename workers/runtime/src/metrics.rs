@@ -168,6 +168,7 @@ impl WorkerMetrics {
     pub fn new(stale_after: Duration) -> WorkerMetrics {
         // prometheus-client ends each help text with a period.
         let mut registry = Registry::default();
+        vint_telemetry::register_build_info(&mut registry, "worker", env!("CARGO_PKG_VERSION"));
         let tasks = Family::default();
         registry.register(
             "vint_worker_tasks",
@@ -315,6 +316,8 @@ mod tests {
         let metrics = WorkerMetrics::default();
         let before = exposition(&metrics);
         assert!(before.contains("vint_worker_tasks_total{stage=\"render\",outcome=\"completed\"} 0\n"), "{before}");
+        let build = format!("vint_build_info{{component=\"worker\",version=\"{}\"}} 1\n", env!("CARGO_PKG_VERSION"));
+        assert!(before.contains(&build), "{before}");
         metrics.task_finished(Stage::Render, TaskOutcome::Completed);
         metrics.task_finished(Stage::Render, TaskOutcome::Completed);
         metrics.task_finished(Stage::Grasp, TaskOutcome::LeaseLost);

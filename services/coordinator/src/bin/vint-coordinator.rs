@@ -33,7 +33,7 @@ struct Args {
     auth_tokens: Option<PathBuf>,
     /// Listen on a non-loopback address without --auth-tokens: anyone who reaches the port may
     /// submit, cancel and report tasks.
-    #[arg(long)]
+    #[arg(long, env = "VINT_INSECURE_LISTEN_ANY")]
     insecure_listen_any: bool,
     /// TLS certificate chain (PEM) for gRPC and the --http-listen listener (HTTPS); needs --tls-key.
     #[arg(long, env = "VINT_TLS_CERT", requires = "tls_key")]
@@ -60,25 +60,30 @@ struct Args {
     /// after connecting is closed then (each worker or client process holds one connection).
     #[arg(long, env = "VINT_MAX_CONNECTIONS", default_value_t = 4_096)]
     max_connections: usize,
+    /// Most connections this coordinator opens to Postgres (SQLite: one). Size the server's
+    /// `max_connections` for every replica's pool plus the migration job and administration.
+    #[arg(long, env = "VINT_DATABASE_POOL", default_value_t = vint_store::DEFAULT_POSTGRES_POOL,
+          value_parser = clap::value_parser!(u32).range(1..=1_024))]
+    database_pool: u32,
     /// Default lease length in milliseconds.
-    #[arg(long, default_value_t = 30_000)]
+    #[arg(long, env = "VINT_LEASE_MS", default_value_t = 30_000)]
     lease_ms: i64,
     /// Attempts per task before it fails permanently.
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, env = "VINT_MAX_ATTEMPTS", default_value_t = 4)]
     max_attempts: u32,
     /// Base of the exponential retry backoff, in milliseconds.
-    #[arg(long, default_value_t = 1_000)]
+    #[arg(long, env = "VINT_BACKOFF_MS", default_value_t = 1_000)]
     backoff_ms: i64,
     /// Log as JSON lines.
-    #[arg(long)]
+    #[arg(long, env = "VINT_LOG_JSON")]
     log_json: bool,
     /// Apply the database migrations and exit (a Kubernetes Job or init container whose role may
     /// change the schema). Without it or --no-migrate, the coordinator migrates at start.
-    #[arg(long, conflicts_with = "no_migrate")]
+    #[arg(long, env = "VINT_MIGRATE_ONLY", conflicts_with = "no_migrate")]
     migrate_only: bool,
     /// Never change the schema (replicas whose role has no DDL rights): refuse to start, exit
     /// code 2, while the database lacks any of this binary's migrations.
-    #[arg(long)]
+    #[arg(long, env = "VINT_NO_MIGRATE")]
     no_migrate: bool,
 }
 
@@ -161,7 +166,9 @@ async fn run(args: Args, security: Security) -> anyhow::Result<()> {
     let retry =
         RetryPolicy { max_attempts: args.max_attempts, backoff_base_ms: args.backoff_ms, ..RetryPolicy::default() };
     let database = vint_telemetry::redact_url(&args.database);
-    let store = Store::connect(&args.database, retry).await.with_context(|| format!("opening database {database}"))?;
+    let store = Store::connect_with_pool(&args.database, retry, args.database_pool)
+        .await
+        .with_context(|| format!("opening database {database}"))?;
     if args.no_migrate {
         match store.require_current_schema().await {
             Err(e @ StoreError::SchemaBehind { .. }) => {
@@ -259,4 +266,25 @@ async fn shutdown_signal() {
         }
     }
     tracing::info!("shutting down");
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::CommandFactory;
+
+    use super::Args;
+
+    /// A deployment configures a process through its environment (a ConfigMap, a Secret): every
+    /// flag has a `VINT_*` variable.
+    #[test]
+    fn every_flag_has_an_environment_variable() {
+        let command = Args::command();
+        let missing: Vec<String> = command
+            .get_arguments()
+            .filter(|a| a.get_long().is_some_and(|l| l != "help" && l != "version"))
+            .filter(|a| !a.get_env().is_some_and(|e| e.to_string_lossy().starts_with("VINT_")))
+            .map(|a| format!("--{}", a.get_long().unwrap_or_default()))
+            .collect();
+        assert!(missing.is_empty(), "flags without a VINT_* environment variable: {missing:?}");
+    }
 }

@@ -30,7 +30,7 @@ struct Args {
     #[arg(long, env = "VINT_STORE", hide_env_values = true)]
     store: String,
     /// Stages to serve, comma-separated.
-    #[arg(long, value_delimiter = ',', default_value = "grasp,render,noise,package")]
+    #[arg(long, env = "VINT_STAGES", value_delimiter = ',', default_value = "grasp,render,noise,package")]
     stages: Vec<String>,
     /// Python interpreter with the engines' packages (bpy, mujoco, opencv).
     #[arg(long, env = "VINT_PYTHON")]
@@ -42,10 +42,10 @@ struct Args {
     #[arg(long, env = "VINT_SCRATCH")]
     scratch: Option<PathBuf>,
     /// Lease length requested from the coordinator, in milliseconds; heartbeats renew it.
-    #[arg(long, default_value_t = 30_000)]
+    #[arg(long, env = "VINT_LEASE_MS", default_value_t = 30_000)]
     lease_ms: u32,
     /// Longest one task may run in an engine, in seconds.
-    #[arg(long, default_value_t = 1_800)]
+    #[arg(long, env = "VINT_TASK_TIMEOUT_S", default_value_t = 1_800)]
     task_timeout_s: u64,
     /// Replace an engine process after this many tasks (0: never).
     #[arg(long, env = "VINT_ENGINE_MAX_TASKS", default_value_t = 0)]
@@ -65,10 +65,10 @@ struct Args {
     #[arg(long, env = "VINT_NO_REUSE")]
     no_reuse: bool,
     /// Worker id (default: host name, process id and a random suffix).
-    #[arg(long)]
+    #[arg(long, env = "VINT_WORKER_ID")]
     worker_id: Option<String>,
     /// Log as JSON lines.
-    #[arg(long)]
+    #[arg(long, env = "VINT_LOG_JSON")]
     log_json: bool,
     /// Address to serve HTTP on: Prometheus metrics at /metrics, a health check at /healthz
     /// (200 while the worker's loop comes around). Off when not given.
@@ -77,11 +77,11 @@ struct Args {
     /// `engines` runs each task in its engine (the default, and the only mode that makes data);
     /// `timing-only` runs none and answers each task with outputs of the real names and sizes
     /// but constant bytes, to measure the coordinator, database and store at scale.
-    #[arg(long, value_enum, default_value_t = EngineMode::Engines)]
+    #[arg(long, env = "VINT_ENGINE_MODE", value_enum, default_value_t = EngineMode::Engines)]
     engine_mode: EngineMode,
     /// timing-only: share of grasp trials accepted (by their seeds). 0.84 is the built-in
     /// objects' mean (docs/physics.md).
-    #[arg(long, default_value_t = 0.84, value_parser = share)]
+    #[arg(long, env = "VINT_ACCEPT_RATE", default_value_t = 0.84, value_parser = share)]
     accept_rate: f64,
     /// Tasks per lease (1–256; default 1 with engines, 64 timing-only). With engines, a batch
     /// above 1 suits short tasks (noise, package): the next lease is in flight while a batch's
@@ -90,10 +90,10 @@ struct Args {
     #[arg(long, env = "VINT_WORKER_BATCH", value_parser = clap::value_parser!(u32).range(1..=256))]
     batch: Option<u32>,
     /// timing-only: lease-and-complete loops in flight (1–64).
-    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=64))]
+    #[arg(long, env = "VINT_CONCURRENCY", default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=64))]
     concurrency: u32,
     /// timing-only: append one CSV line per batch (unix_ms,slot,tasks,lease_ms,complete_ms).
-    #[arg(long)]
+    #[arg(long, env = "VINT_LATENCY_LOG")]
     latency_log: Option<PathBuf>,
 }
 
@@ -193,5 +193,26 @@ async fn shutdown_signal() {
     tokio::select! {
         _ = tokio::signal::ctrl_c() => {}
         _ = term.recv() => {}
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::CommandFactory;
+
+    use super::Args;
+
+    /// A deployment configures a process through its environment (a ConfigMap, a Secret): every
+    /// flag has a `VINT_*` variable.
+    #[test]
+    fn every_flag_has_an_environment_variable() {
+        let command = Args::command();
+        let missing: Vec<String> = command
+            .get_arguments()
+            .filter(|a| a.get_long().is_some_and(|l| l != "help" && l != "version"))
+            .filter(|a| !a.get_env().is_some_and(|e| e.to_string_lossy().starts_with("VINT_")))
+            .map(|a| format!("--{}", a.get_long().unwrap_or_default()))
+            .collect();
+        assert!(missing.is_empty(), "flags without a VINT_* environment variable: {missing:?}");
     }
 }
