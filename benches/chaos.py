@@ -498,7 +498,7 @@ class S3:
     def __init__(self, processes: Processes, logs: Path) -> None:
         moto = Path(sys.executable).with_name("moto_server")
         if not moto.exists():
-            raise ChaosError(f"{moto} is missing: run scripts/setup-python.sh --dev (dev tools: moto[server])")
+            raise ChaosError(f"{moto} is missing: run scripts/setup-python.sh --dev (the dev tools)")
         self.port = free_port()
         proc = processes.start([str(moto), "-H", "127.0.0.1", "-p", str(self.port)], logs / "moto.log")
         wait_for_port(self.port, "moto_server", 60, proc)
