@@ -12,14 +12,20 @@ API's OpenAPI schemas of each version in KUBERNETES_VERSIONS, offline, by `kuber
 schemas lack, and no package carries KEDA's CRD schema offline: it is checked against
 SCALED_OBJECT_SCHEMA below, a strict JSON Schema of the ScaledObject fields and prometheus-trigger
 parameters KEDA 2.x documents — written here from KEDA's documentation, not KEDA's own CRD schema —
-and its HPA `behavior` against the Kubernetes autoscaling/v2 schema.
+and its HPA `behavior` against the Kubernetes autoscaling/v2 schema. The Prometheus Operator's
+PodMonitor and PrometheusRule (components/prometheus-operator) are custom resources too: they are
+checked against PODMONITOR_SCHEMA and PROMETHEUS_RULE_SCHEMA, strict JSON Schemas of the fields
+that matter here, a subset written from the operator's monitoring.coreos.com/v1 CRDs.
 
 Then the rules a platform engineer would hold the manifests to (`overlay_findings`): resources that
 fit the engines' memory bound, probes, locked-down security contexts, no Secret in base or production,
 no floating image tags, worker grace periods that cover the lease hand-back, no database credentials
 in workers, one migration Job and replicas that never migrate, autoscaling per stage on queue depth,
-GPU render nodes only where asked for. `dockerfile_findings` checks deploy/Dockerfile's structure
-(no container runtime here builds it).
+GPU render nodes only where asked for, PodMonitors that scrape the port and scheme each pod serves,
+alerts whose every metric is one the Rust code registers (`exported_metrics`: a misspelt name is a
+finding) and whose every alert has `for`, a severity, a summary and a runbook in docs/operations.md,
+which must also quote the query the ScaledObjects scale on. `dockerfile_findings` checks
+deploy/Dockerfile's structure (no container runtime here builds it).
 """
 
 import json
@@ -29,6 +35,7 @@ import subprocess
 import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
+from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -92,6 +99,23 @@ BUILD_INPUTS = frozenset(
     }
 )
 
+# Where vint's processes register their metrics (prometheus-client's `Registry::register`): the
+# telemetry crate (vint_build_info), the coordinator and the worker.
+METRIC_SOURCES = (
+    ROOT / "services" / "telemetry" / "src",
+    ROOT / "services" / "coordinator" / "src",
+    ROOT / "workers" / "runtime" / "src",
+)
+# The series an alert may read besides vint's own, and who writes them.
+EXTERNAL_METRICS = {
+    "up": "Prometheus, one series per scrape target",
+    "kube_pod_status_ready": "kube-state-metrics",
+}
+# What the alerts' runbooks are: docs/operations.md, section "Alerts".
+OPERATIONS_DOC = ROOT / "docs" / "operations.md"
+ALERTS_SECTION = "Alerts"
+ALERT_SEVERITIES = frozenset({"critical", "warning", "info"})
+
 Manifest = dict[str, Any]
 
 
@@ -105,16 +129,47 @@ class Overlay:
     min_coordinators: int
     autoscaled: bool
     gpu_render: bool
+    # PodMonitors and alerts for the Prometheus Operator (components/prometheus-operator).
+    monitored: bool
 
 
 OVERLAYS = (
-    Overlay("dev", external_secrets=False, min_coordinators=1, autoscaled=False, gpu_render=False),
-    Overlay("production", external_secrets=True, min_coordinators=2, autoscaled=True, gpu_render=False),
-    Overlay("production-gpu", external_secrets=True, min_coordinators=2, autoscaled=True, gpu_render=True),
+    Overlay(
+        "dev", external_secrets=False, min_coordinators=1, autoscaled=False, gpu_render=False, monitored=False
+    ),
+    Overlay(
+        "production",
+        external_secrets=True,
+        min_coordinators=2,
+        autoscaled=True,
+        gpu_render=False,
+        monitored=True,
+    ),
+    Overlay(
+        "production-gpu",
+        external_secrets=True,
+        min_coordinators=2,
+        autoscaled=True,
+        gpu_render=True,
+        monitored=True,
+    ),
 )
 
 _STRING = {"type": "string"}
 _INT = {"type": "integer"}
+_BOOLEAN = {"type": "boolean"}
+_STRING_MAP = {"type": "object", "additionalProperties": _STRING}
+_METADATA = {
+    "type": "object",
+    "additionalProperties": False,
+    "required": ["name"],
+    "properties": {
+        "name": _STRING,
+        "namespace": _STRING,
+        "labels": _STRING_MAP,
+        "annotations": _STRING_MAP,
+    },
+}
 # ScaledObject (keda.sh/v1alpha1) as KEDA 2.x documents it: https://keda.sh/docs/latest/reference/scaledobject-spec/
 SCALED_OBJECT_SCHEMA: dict[str, Any] = {
     "type": "object",
@@ -123,17 +178,7 @@ SCALED_OBJECT_SCHEMA: dict[str, Any] = {
     "properties": {
         "apiVersion": {"const": "keda.sh/v1alpha1"},
         "kind": {"const": "ScaledObject"},
-        "metadata": {
-            "type": "object",
-            "additionalProperties": False,
-            "required": ["name"],
-            "properties": {
-                "name": _STRING,
-                "namespace": _STRING,
-                "labels": {"type": "object", "additionalProperties": _STRING},
-                "annotations": {"type": "object", "additionalProperties": _STRING},
-            },
-        },
+        "metadata": _METADATA,
         "spec": {
             "type": "object",
             "additionalProperties": False,
@@ -215,6 +260,206 @@ PROMETHEUS_TRIGGER_KEYS = PROMETHEUS_TRIGGER_REQUIRED | {
     "authModes",
 }
 
+# The Prometheus Operator's monitoring.coreos.com/v1 PodMonitor and PrometheusRule: the fields a vint
+# overlay may use, with the types, enums and patterns of the operator's CRDs
+# (example/prometheus-operator-crd/ in prometheus-operator/prometheus-operator). Strict: a field
+# not listed here is a finding, whether it is a typo or a field these checks do not know.
+_DURATION = {
+    "type": "string",
+    "pattern": r"^(0|(([0-9]+)y)?(([0-9]+)w)?(([0-9]+)d)?(([0-9]+)h)?(([0-9]+)m)?(([0-9]+)s)?(([0-9]+)ms)?)$",
+}
+_KEY_REF = {
+    "type": "object",
+    "additionalProperties": False,
+    "required": ["name", "key"],
+    "properties": {"name": _STRING, "key": _STRING, "optional": _BOOLEAN},
+}
+_CONFIG_MAP_OR_SECRET = {
+    "type": "object",
+    "additionalProperties": False,
+    "minProperties": 1,
+    "maxProperties": 1,
+    "properties": {"configMap": _KEY_REF, "secret": _KEY_REF},
+}
+_TLS_VERSION = {"enum": ["TLS10", "TLS11", "TLS12", "TLS13"]}
+# Each relabeling action as the CRD spells it, CamelCase or lower case.
+_RELABEL_ACTIONS = [
+    spelling
+    for action in (
+        "Replace",
+        "Keep",
+        "Drop",
+        "HashMod",
+        "LabelMap",
+        "LabelDrop",
+        "LabelKeep",
+        "Lowercase",
+        "Uppercase",
+        "KeepEqual",
+        "DropEqual",
+    )
+    for spelling in (action, action.lower())
+]
+_RELABELINGS = {
+    "type": "array",
+    "items": {
+        "type": "object",
+        "additionalProperties": False,
+        "properties": {
+            "sourceLabels": {"type": "array", "items": _STRING},
+            "separator": _STRING,
+            "targetLabel": _STRING,
+            "regex": _STRING,
+            "modulus": _INT,
+            "replacement": _STRING,
+            "action": {"enum": _RELABEL_ACTIONS},
+        },
+    },
+}
+PODMONITOR_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "additionalProperties": False,
+    "required": ["apiVersion", "kind", "metadata", "spec"],
+    "properties": {
+        "apiVersion": {"const": "monitoring.coreos.com/v1"},
+        "kind": {"const": "PodMonitor"},
+        "metadata": _METADATA,
+        "spec": {
+            "type": "object",
+            "additionalProperties": False,
+            "required": ["selector", "podMetricsEndpoints"],
+            "properties": {
+                "selector": {
+                    "type": "object",
+                    "additionalProperties": False,
+                    "properties": {
+                        "matchLabels": _STRING_MAP,
+                        "matchExpressions": {
+                            "type": "array",
+                            "items": {
+                                "type": "object",
+                                "additionalProperties": False,
+                                "required": ["key", "operator"],
+                                "properties": {
+                                    "key": _STRING,
+                                    "operator": {"enum": ["In", "NotIn", "Exists", "DoesNotExist"]},
+                                    "values": {"type": "array", "items": _STRING},
+                                },
+                            },
+                        },
+                    },
+                },
+                "namespaceSelector": {
+                    "type": "object",
+                    "additionalProperties": False,
+                    "properties": {"any": _BOOLEAN, "matchNames": {"type": "array", "items": _STRING}},
+                },
+                "jobLabel": _STRING,
+                "podTargetLabels": {"type": "array", "items": _STRING},
+                "sampleLimit": {"type": "integer", "minimum": 0},
+                "targetLimit": {"type": "integer", "minimum": 0},
+                "podMetricsEndpoints": {
+                    "type": "array",
+                    "minItems": 1,
+                    "items": {
+                        "type": "object",
+                        "additionalProperties": False,
+                        "properties": {
+                            "port": _STRING,
+                            "portNumber": {"type": "integer", "minimum": 1, "maximum": 65535},
+                            "path": _STRING,
+                            "scheme": {"enum": ["http", "https", "HTTP", "HTTPS"]},
+                            "interval": _DURATION,
+                            "scrapeTimeout": _DURATION,
+                            "honorLabels": _BOOLEAN,
+                            "honorTimestamps": _BOOLEAN,
+                            "enableHttp2": _BOOLEAN,
+                            "followRedirects": _BOOLEAN,
+                            "filterRunning": _BOOLEAN,
+                            "params": {
+                                "type": "object",
+                                "additionalProperties": {"type": "array", "items": _STRING},
+                            },
+                            "relabelings": _RELABELINGS,
+                            "metricRelabelings": _RELABELINGS,
+                            "authorization": {
+                                "type": "object",
+                                "additionalProperties": False,
+                                "properties": {"type": _STRING, "credentials": _KEY_REF},
+                            },
+                            "tlsConfig": {
+                                "type": "object",
+                                "additionalProperties": False,
+                                "properties": {
+                                    "ca": _CONFIG_MAP_OR_SECRET,
+                                    "cert": _CONFIG_MAP_OR_SECRET,
+                                    "keySecret": _KEY_REF,
+                                    "serverName": _STRING,
+                                    "insecureSkipVerify": _BOOLEAN,
+                                    "minVersion": _TLS_VERSION,
+                                    "maxVersion": _TLS_VERSION,
+                                },
+                            },
+                        },
+                    },
+                },
+            },
+        },
+    },
+}
+PROMETHEUS_RULE_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "additionalProperties": False,
+    "required": ["apiVersion", "kind", "metadata", "spec"],
+    "properties": {
+        "apiVersion": {"const": "monitoring.coreos.com/v1"},
+        "kind": {"const": "PrometheusRule"},
+        "metadata": _METADATA,
+        "spec": {
+            "type": "object",
+            "additionalProperties": False,
+            "required": ["groups"],
+            "properties": {
+                "groups": {
+                    "type": "array",
+                    "minItems": 1,
+                    "items": {
+                        "type": "object",
+                        "additionalProperties": False,
+                        "required": ["name", "rules"],
+                        "properties": {
+                            "name": {"type": "string", "minLength": 1},
+                            "interval": _DURATION,
+                            "query_offset": _DURATION,
+                            "limit": _INT,
+                            "labels": _STRING_MAP,
+                            "rules": {
+                                "type": "array",
+                                "minItems": 1,
+                                "items": {
+                                    "type": "object",
+                                    "additionalProperties": False,
+                                    "required": ["expr"],
+                                    "properties": {
+                                        "alert": _STRING,
+                                        "record": _STRING,
+                                        "expr": {"type": ["string", "integer"]},
+                                        "for": _DURATION,
+                                        "keep_firing_for": _DURATION,
+                                        "labels": _STRING_MAP,
+                                        "annotations": _STRING_MAP,
+                                    },
+                                },
+                            },
+                        },
+                    },
+                },
+            },
+        },
+    },
+}
+MONITORING_SCHEMAS = {"PodMonitor": PODMONITOR_SCHEMA, "PrometheusRule": PROMETHEUS_RULE_SCHEMA}
+
 
 class DeployCheckError(Exception):
     """The check itself cannot run (no renderer, an overlay kustomize refuses)."""
@@ -264,6 +509,9 @@ def schema_findings(objects: list[Manifest], version: str) -> list[str]:
         if obj.get("apiVersion", "").startswith("keda.sh/"):
             findings += [f"{where(obj)}: {f}" for f in scaled_object_schema_findings(obj, version)]
             continue
+        if obj.get("apiVersion", "").startswith("monitoring.coreos.com/"):
+            findings += [f"{where(obj)}: {f}" for f in monitoring_schema_findings(obj)]
+            continue
         try:
             kubernetes_validate.validate(obj, version, strict=True)
         except kubernetes_validate.ValidationError as e:
@@ -311,6 +559,18 @@ def scaled_object_schema_findings(obj: Manifest, version: str) -> list[str]:
         except kubernetes_validate.ValidationError as e:
             findings.append(f"advanced.horizontalPodAutoscalerConfig.behavior: {e.message}")
     return findings
+
+
+def monitoring_schema_findings(obj: Manifest) -> list[str]:
+    schema = MONITORING_SCHEMAS.get(obj.get("kind", ""))
+    if schema is None:
+        known = sorted(MONITORING_SCHEMAS)
+        return [f"{obj.get('kind')} of {obj.get('apiVersion')}: no schema here (only {known})"]
+    validator = jsonschema.Draft202012Validator(schema)
+    return [
+        f"{obj['kind']} schema: {'.'.join(str(p) for p in e.path)}: {e.message}"
+        for e in validator.iter_errors(obj)
+    ]
 
 
 # --- reading workloads ---------------------------------------------------------------------------
@@ -416,6 +676,205 @@ def image_parts(image: str) -> tuple[str, str | None, str | None]:
 def selects(selector: Manifest, labels: Manifest) -> bool:
     match_labels = selector.get("matchLabels", selector)
     return bool(match_labels) and all(labels.get(k) == v for k, v in match_labels.items())
+
+
+# --- metrics and PromQL ------------------------------------------------------------------------------
+
+# A Rust string or char literal, or a comment: what the metric reader must not read as code.
+_RUST_TOKENS = re.compile(r"""'(?:\\.|[^'\\])'|"(?:\\.|[^"\\])*"|//[^\n]*|/\*.*?\*/""", re.DOTALL)
+# The metric types prometheus-client registers, and the words in Rust that say which one it is.
+_RUST_METRIC_TYPES = (
+    ("info", re.compile(r"\bInfo\b")),
+    ("histogram", re.compile(r"\b[Hh]istogram")),
+    ("counter", re.compile(r"\bCounter\b")),
+    ("gauge", re.compile(r"\bGauge\b")),
+)
+# The series names each type is exposed under, from its registered name (prometheus-client adds
+# the suffix); a registration whose type this reading cannot tell may be any of them.
+EXPOSED_SUFFIXES = {
+    "counter": ("_total",),
+    "gauge": ("",),
+    "histogram": ("_bucket", "_count", "_sum"),
+    "info": ("_info",),
+    "": ("", "_total", "_bucket", "_count", "_sum", "_info"),
+}
+
+
+def _metric_types(code: str) -> set[str]:
+    return {kind for kind, pattern in _RUST_METRIC_TYPES if pattern.search(code)}
+
+
+def _rust_type_at(code: str, start: int) -> str:
+    """The type written at `start` (after `name:`), up to the first `,` `;` `=` `{` `)` or line end
+    outside its angle brackets."""
+    depth = 0
+    for end in range(start, len(code)):
+        char = code[end]
+        depth += {"<": 1, ">": -1}.get(char, 0)
+        if depth <= 0 and char in ",;={)\n":
+            return code[start:end]
+    return code[start:]
+
+
+def registered_metrics(source: str) -> dict[str, str]:
+    """The `vint_*` metrics one Rust file registers (its `#[cfg(test)]` part left out): {registered name:
+    type}, the type "" when neither the registering statement nor the declared type of what it
+    registers names one.
+
+    A registration is a statement that names `register` or `registry` and holds a string literal
+    `vint_…`: `registry.register("vint_jobs", "help", Family::clone(&jobs))`, or a helper such as
+    `histogram(&mut registry, "vint_worker_fetch_seconds", "help")`. Its type is the one the
+    statement names (`Counter::default()`, `Info::new`, `histogram(`), else the one the declarations
+    of the identifiers it uses name (`jobs: Family<JobLabels, Gauge>`).
+    """
+    literals: list[str] = []
+
+    def placeholder(match: re.Match[str]) -> str:
+        token = match.group(0)
+        if token.startswith('"'):
+            literals.append(token[1:-1])
+            return f'"{len(literals) - 1}"'
+        return " " if token.startswith("/") else "''"
+
+    code = _RUST_TOKENS.sub(placeholder, source.split("#[cfg(test)]", 1)[0])
+    found: dict[str, str] = {}
+    for statement in code.split(";"):
+        if not re.search(r"\bregist(?:er|ry)\b", statement):
+            continue
+        names = [
+            literals[int(i)]
+            for i in re.findall(r'"(\d+)"', statement)
+            if re.fullmatch(r"vint_[a-z0-9_]+", literals[int(i)])
+        ]
+        if not names:
+            continue
+        kinds = _metric_types(statement)
+        if not kinds:
+            for identifier in set(re.findall(r"\b[a-z_][a-z0-9_]*\b", statement)):
+                for declared in re.finditer(rf"(?<!:)\b{identifier}\s*:(?!:)", code):
+                    kinds |= _metric_types(_rust_type_at(code, declared.end()))
+                for declared in re.finditer(rf"\blet\s+(?:mut\s+)?{identifier}\s*=\s*([^;]+)", code):
+                    kinds |= _metric_types(declared.group(1))
+        for name in names:
+            found[name] = kinds.pop() if len(kinds) == 1 else ""
+    return found
+
+
+@cache
+def exported_metrics(sources: tuple[Path, ...] = METRIC_SOURCES) -> frozenset[str]:
+    """Every series name a vint process exports, as a query names it (`vint_tasks_completed_total`,
+    `vint_queue_tasks`, `vint_rpc_duration_seconds_bucket`), read from the Rust sources."""
+    names: set[str] = set()
+    for directory in sources:
+        for path in sorted(directory.rglob("*.rs")):
+            for name, kind in registered_metrics(path.read_text(encoding="utf-8")).items():
+                names.update(name + suffix for suffix in EXPOSED_SUFFIXES[kind])
+    return frozenset(names)
+
+
+_PROMQL_STRING = re.compile(r""""(?:\\.|[^"\\])*"|'(?:\\.|[^'\\])*'|`[^`]*`""")
+# Words of PromQL that are not series names: aggregations (which may take `by (…)` before their
+# parenthesis), binary operators and modifiers, and the float literals.
+PROMQL_KEYWORDS = frozenset(
+    {
+        "sum",
+        "min",
+        "max",
+        "avg",
+        "group",
+        "stddev",
+        "stdvar",
+        "count",
+        "count_values",
+        "bottomk",
+        "topk",
+        "quantile",
+        "limitk",
+        "limit_ratio",
+        "by",
+        "without",
+        "on",
+        "ignoring",
+        "group_left",
+        "group_right",
+        "and",
+        "or",
+        "unless",
+        "atan2",
+        "bool",
+        "offset",
+        "inf",
+        "nan",
+    }
+)
+
+
+def promql_findings(expr: str) -> list[str]:
+    """What is lexically wrong with a PromQL expression: empty, an unclosed string, unbalanced brackets.
+    (No PromQL parser is a Python package; Prometheus parses the rest when it loads the rule.)"""
+    if not expr.strip():
+        return ["the expression is empty"]
+    closing = {"(": ")", "[": "]", "{": "}"}
+    stack: list[str] = []
+    at = 0
+    while at < len(expr):
+        char = expr[at]
+        if char in "\"'`":
+            end = at + 1
+            while end < len(expr) and expr[end] != char:
+                end += 2 if expr[end] == "\\" and char != "`" else 1
+            if end >= len(expr):
+                return [f"a string opened at character {at} is never closed"]
+            at = end
+        elif char in closing:
+            stack.append(closing[char])
+        elif char in ")]}" and (not stack or stack.pop() != char):
+            return [f"unbalanced {char!r} at character {at}"]
+        at += 1
+    return [f"unclosed brackets, {''.join(reversed(stack))!r} missing"] if stack else []
+
+
+def promql_metrics(expr: str) -> set[str]:
+    """The series names a PromQL expression reads: its identifiers, less strings, label matchers,
+    ranges, grouping labels, function calls and keywords."""
+    text = _PROMQL_STRING.sub('""', expr)
+    text = re.sub(r"#[^\n]*", " ", text)
+    text = re.sub(r"\{[^{}]*\}", "{}", text)
+    text = re.sub(r"\[[^\[\]]*\]", "[]", text)
+    text = re.sub(r"\b(by|without|on|ignoring|group_left|group_right)\s*\([^()]*\)", r"\1", text)
+    text = re.sub(r"\boffset\s+-?\w+", " ", text)
+    text = re.sub(r"@\s*(?:\w+\(\)|[\d.]+)", " ", text)
+    names = set()
+    for match in re.finditer(r"(?<![\w.:])[A-Za-z_:][\w:]*", text):
+        name = match.group(0)
+        if name.lower() in PROMQL_KEYWORDS or re.match(r"\s*\(", text[match.end() :]):
+            continue
+        names.add(name)
+    return names
+
+
+def doc_section(text: str, title: str) -> str:
+    """The body of the Markdown section titled `title` (to the next heading of its level or above)."""
+    lines = text.splitlines()
+    for i, line in enumerate(lines):
+        heading = re.match(r"(#+)\s+(.*?)\s*$", line)
+        if heading and heading.group(2) == title:
+            level = len(heading.group(1))
+            end = next(
+                (
+                    j
+                    for j in range(i + 1, len(lines))
+                    if (h := re.match(r"(#+)\s", lines[j])) and len(h.group(1)) <= level
+                ),
+                len(lines),
+            )
+            return "\n".join(lines[i + 1 : end])
+    return ""
+
+
+@cache
+def operations_doc() -> str:
+    return OPERATIONS_DOC.read_text(encoding="utf-8")
 
 
 # --- the rules -----------------------------------------------------------------------------------
@@ -572,8 +1031,10 @@ def coordinator_findings(obj: Manifest, spec: Manifest, container: Manifest, ove
     return findings
 
 
-def overlay_findings(overlay: Overlay, objects: list[Manifest], readme: str) -> list[str]:
-    """Every rule, over one rendered overlay."""
+def overlay_findings(
+    overlay: Overlay, objects: list[Manifest], readme: str, operations: str | None = None
+) -> list[str]:
+    """Every rule, over one rendered overlay (`operations`: docs/operations.md's text, read if None)."""
     findings = []
     by_kind: dict[str, list[Manifest]] = {}
     for obj in objects:
@@ -680,6 +1141,9 @@ def overlay_findings(overlay: Overlay, objects: list[Manifest], readme: str) -> 
 
     findings += autoscaling_findings(overlay, workers, by_kind.get("ScaledObject", []))
     findings += gpu_findings(overlay, workers)
+    findings += monitoring_findings(
+        overlay, objects, coordinators + workers, operations_doc() if operations is None else operations
+    )
     return findings
 
 
@@ -736,6 +1200,158 @@ def gpu_findings(overlay: Overlay, workers: list[Manifest]) -> list[str]:
             findings.append(f"{where(worker)}: no toleration for the GPU nodes' nvidia.com/gpu taint")
         if not wants_gpu and gpus is not None:
             findings.append(f"{where(worker)}: asks for a GPU in {overlay.name}")
+    return findings
+
+
+def monitoring_findings(
+    overlay: Overlay,
+    objects: list[Manifest],
+    scraped: list[Manifest],
+    operations: str,
+) -> list[str]:
+    """PodMonitors that scrape every coordinator and worker where it serves /metrics, and alerts over
+    metrics that exist, each documented in docs/operations.md. `scraped`: the coordinator and worker
+    Deployments."""
+    monitors = [o for o in objects if o["kind"] == "PodMonitor"]
+    rules = [o for o in objects if o["kind"] == "PrometheusRule"]
+    if not overlay.monitored:
+        return [
+            f"{where(o)} in {overlay.name}, which promises no Prometheus Operator" for o in monitors + rules
+        ]
+    findings = []
+    rendered = {(o["kind"], o["metadata"]["name"]) for o in objects}
+    metrics = exported_metrics()
+    jobs: set[str] = set()
+    used: set[str] = set()
+    for workload in scraped:
+        labels = workload["spec"]["template"]["metadata"].get("labels", {})
+        selecting = [m for m in monitors if selects(m["spec"]["selector"], labels)]
+        if len(selecting) != 1:
+            findings.append(f"{where(workload)}: {len(selecting)} PodMonitors select its pods; expected 1")
+            continue
+        monitor = selecting[0]
+        used.add(monitor["metadata"]["name"])
+        meta = monitor["metadata"]
+        job_label = monitor["spec"].get("jobLabel")
+        # The operator names the job after the pod's jobLabel, else `<namespace>/<PodMonitor name>`.
+        jobs.add(labels[job_label] if job_label in labels else f"{meta.get('namespace', '')}/{meta['name']}")
+        container = workload["spec"]["template"]["spec"]["containers"][0]
+        coordinator = program(container) == "vint-coordinator"
+        listen_flag = "--http-listen" if coordinator else "--metrics-listen"
+        listen = flag(container, listen_flag)
+        port = int(listen.rsplit(":", 1)[1]) if listen else None
+        ports = {p.get("name"): p["containerPort"] for p in container.get("ports", [])}
+        https = coordinator and flag(container, "--tls-cert") is not None
+        at = f"{where(monitor)} on {where(workload)}"
+        for endpoint in monitor["spec"]["podMetricsEndpoints"]:
+            named = endpoint.get("port", endpoint.get("portNumber"))
+            target = ports.get(endpoint["port"]) if "port" in endpoint else endpoint.get("portNumber")
+            if port is None or target != port:
+                findings.append(f"{at}: scrapes port {named!r}, not the {listen_flag} port {port}")
+            if endpoint.get("path", "/metrics") != "/metrics":
+                findings.append(f"{at}: scrapes {endpoint['path']}, not /metrics")
+            scheme = endpoint.get("scheme", "http").lower()
+            if scheme != ("https" if https else "http"):
+                serves = "HTTPS (--tls-cert)" if https else "plain HTTP"
+                findings.append(f"{at}: scrapes with {scheme}, but the pod serves {serves}")
+            tls = endpoint.get("tlsConfig", {})
+            if https and (tls.get("insecureSkipVerify") or "ca" not in tls or not tls.get("serverName")):
+                findings.append(
+                    f"{at}: an HTTPS scrape needs tlsConfig.ca and serverName (and no insecureSkipVerify)"
+                )
+            for field, kind, external in (
+                ("configMap", "ConfigMap", EXTERNAL_CONFIGMAPS),
+                ("secret", "Secret", EXTERNAL_SECRETS),
+            ):
+                name = tls.get("ca", {}).get(field, {}).get("name")
+                if name is not None and (kind, name) not in rendered and name not in external:
+                    findings.append(f"{at}: its CA is {kind} {name}: not rendered, not a known external one")
+    for monitor in monitors:
+        if monitor["metadata"]["name"] not in used:
+            findings.append(f"{where(monitor)}: selects no coordinator or worker pod")
+        for endpoint in monitor["spec"]["podMetricsEndpoints"]:
+            for relabeling in endpoint.get("metricRelabelings", []):
+                if relabeling.get("sourceLabels") != ["__name__"]:
+                    continue
+                for name in re.split(r"[|()^$]", relabeling.get("regex", "")):
+                    if re.fullmatch(r"[A-Za-z_:][\w:]*", name) and name not in metrics:
+                        findings.append(
+                            f"{where(monitor)}: metricRelabelings name {name}, which no vint process exports"
+                        )
+    if not any(r.get("alert") for o in rules for g in o["spec"]["groups"] for r in g["rules"]):
+        findings.append(f"no PrometheusRule with alerts in {overlay.name}")
+    documented = doc_section(operations, ALERTS_SECTION)
+    for rule in rules:
+        findings += prometheus_rule_findings(rule, metrics, jobs)
+        for group in rule["spec"]["groups"]:
+            for alert in (r["alert"] for r in group["rules"] if r.get("alert")):
+                if f"`{alert}`" not in documented:
+                    findings.append(
+                        f"{where(rule)} {alert}: not documented in {OPERATIONS_DOC.relative_to(ROOT)}, "
+                        f'section "{ALERTS_SECTION}"'
+                    )
+    return findings
+
+
+def prometheus_rule_findings(rule: Manifest, metrics: frozenset[str], jobs: set[str]) -> list[str]:
+    """Every rule: a non-empty expression over series that exist (`metrics`, EXTERNAL_METRICS, or
+    recorded by a rule here) and jobs a PodMonitor makes (`jobs`); every alert: `for`, a severity, a
+    summary and a description that points at its runbook."""
+    findings = []
+    groups = rule["spec"]["groups"]
+    recorded = {r["record"] for g in groups for r in g["rules"] if r.get("record")}
+    known = metrics | EXTERNAL_METRICS.keys() | recorded
+    alerts: set[str] = set()
+    for group in groups:
+        for entry in group["rules"]:
+            name = entry.get("alert") or entry.get("record") or "?"
+            at = f"{where(rule)} {name}"
+            if bool(entry.get("alert")) == bool(entry.get("record")):
+                findings.append(f"{at}: has both or neither of alert and record (a rule is one of them)")
+            expr = str(entry.get("expr", ""))
+            findings += [f"{at}: {f}" for f in promql_findings(expr)]
+            for metric in sorted(promql_metrics(expr) - known):
+                findings.append(
+                    f"{at}: reads {metric}, which no vint process exports and which is not one of "
+                    f"{sorted(EXTERNAL_METRICS)}"
+                )
+            for job in re.findall(r'\bjob\s*=\s*"([^"]*)"', expr):
+                if job not in jobs:
+                    findings.append(
+                        f"{at}: reads job {job!r}, which no PodMonitor here makes ({sorted(jobs)})"
+                    )
+            if not entry.get("alert"):
+                continue
+            if name in alerts:
+                findings.append(f"{at}: a second alert of that name")
+            alerts.add(name)
+            if not entry.get("for"):
+                findings.append(f"{at}: no `for`: one bad evaluation would fire it")
+            if entry.get("labels", {}).get("severity") not in ALERT_SEVERITIES:
+                findings.append(f"{at}: labels.severity is not one of {sorted(ALERT_SEVERITIES)}")
+            annotations = entry.get("annotations", {})
+            for key in ("summary", "description"):
+                if not str(annotations.get(key, "")).strip():
+                    findings.append(f"{at}: no annotations.{key}")
+            if "docs/operations.md" not in annotations.get("description", ""):
+                findings.append(f"{at}: its description does not name its runbook in docs/operations.md")
+    return findings
+
+
+def docs_findings(base: list[Manifest], readme: str, operations: str) -> list[str]:
+    """The docs quote the query the shipped ScaledObjects scale on, word for word."""
+    findings = []
+    for scaled in (o for o in base if o["kind"] == "ScaledObject"):
+        if scaled["metadata"]["name"] != "vint-worker-render":
+            continue
+        for trigger in scaled["spec"]["triggers"]:
+            query = trigger["metadata"].get("query", "")
+            for doc, text in (
+                ("deploy/README.md", readme),
+                (str(OPERATIONS_DOC.relative_to(ROOT)), operations),
+            ):
+                if query not in text:
+                    findings.append(f"{doc} does not quote {where(scaled)}'s query {query!r}")
     return findings
 
 
@@ -808,7 +1424,7 @@ def all_findings() -> tuple[list[str], list[str]]:
         objects = render(directory, command)
         found = [] if overlay is None else overlay_findings(overlay, objects, readme)
         if overlay is None:
-            found += base_findings(objects)
+            found += base_findings(objects) + docs_findings(objects, readme, operations_doc())
         for version in KUBERNETES_VERSIONS:
             found += schema_findings(objects, version)
         findings += [f"{name}: {f}" for f in dict.fromkeys(found)]

@@ -355,3 +355,222 @@ def test_quantities_flags_and_images_parse() -> None:
     assert vd.flag(worker, "--metrics-listen") is None
     assert vd.image_parts("localhost:5000/vint:1.2@sha256:ab") == ("localhost:5000/vint", "1.2", "sha256:ab")
     assert vd.image_parts("localhost:5000/vint") == ("localhost:5000/vint", None, None)
+
+
+# --- the Prometheus Operator's objects (components/prometheus-operator) --------------------------
+
+
+def alert(objects: list[Manifest], name: str) -> Manifest:
+    rule = find(objects, "PrometheusRule", "vint")
+    return next(r for g in rule["spec"]["groups"] for r in g["rules"] if r.get("alert") == name)
+
+
+def test_the_exported_metrics_are_read_from_the_rust_sources() -> None:
+    exported = vd.exported_metrics()
+    # A counter is exposed with _total, a histogram as _bucket/_count/_sum, a gauge as registered.
+    for name in (
+        "vint_tasks_completed_total",
+        "vint_tasks_failed_total",
+        "vint_queue_tasks",
+        "vint_jobs",
+        "vint_rpc_duration_seconds_bucket",
+        "vint_worker_tasks_total",
+        "vint_worker_engine_seconds_count",
+    ):
+        assert name in exported, name
+    for name in (
+        "vint_tasks_completed",
+        "vint_queue_tasks_total",
+        "vint_rpc_duration_seconds",
+        "vint_test_events",
+    ):
+        assert name not in exported, name
+
+
+def test_a_registration_s_type_comes_from_the_statement_or_the_declarations() -> None:
+    source = """
+        struct M { hits: Family<Labels, Counter>, depth: Gauge }
+        fn new() -> M {
+            // registry.register("vint_commented_out", "a comment is no registration", x);
+            let mut registry = Registry::default();
+            let hits = Family::default();
+            registry.register("vint_hits", "Hits; \\"Gauge\\" in help says nothing", Family::clone(&hits));
+            let depth = Gauge::default();
+            registry.register("vint_depth", "Depth", depth.clone());
+            registry.register("vint_build", "Build", prometheus_client::metrics::info::Info::new(labels));
+            let seconds = histogram(&mut registry, "vint_seconds", "Time");
+            registry.register("vint_mystery", "Unknown", mystery());
+            let _ = Command::new("python").args(["-m", "vint_engines"]);
+        }
+        #[cfg(test)]
+        mod tests { fn t() { registry.register("vint_test_only", "x", c.clone()); } }
+    """
+    assert vd.registered_metrics(source) == {
+        "vint_hits": "counter",
+        "vint_depth": "gauge",
+        "vint_build": "info",
+        "vint_seconds": "histogram",
+        "vint_mystery": "",
+    }
+
+
+def test_promql_is_read_for_its_series_and_its_brackets() -> None:
+    expr = (
+        "histogram_quantile(0.99,"
+        ' sum by (le, vint_label) (rate(vint_a_bucket{rpc="x",b=~"c|d"}[5m] offset 1h)))'
+        " / on (namespace) group_left (pod) max without (instance) (vint_b) > 1e3 and bool up"
+        ' unless label_replace(vint_c, "dst", "$1", "vint_not_a_metric", "(.+)")'
+    )
+    assert vd.promql_metrics(expr) == {"vint_a_bucket", "vint_b", "up", "vint_c"}
+    assert vd.promql_findings(expr) == []
+    assert_named(vd.promql_findings("sum(rate(vint_a[5m])"), "unclosed")
+    assert_named(vd.promql_findings('sum(vint_a{b="c})'), "never closed")
+    assert_named(vd.promql_findings("sum(vint_a))"), "unbalanced")
+    assert_named(vd.promql_findings("  "), "empty")
+
+
+@pytest.mark.parametrize(
+    ("old", "new"),
+    [
+        ("vint_tasks_completed_total", "vint_tasks_complete_total"),  # a typo
+        ("vint_queue_tasks{", "vint_queue_tasks_total{"),  # a gauge read as a counter
+        ("vint_tasks_completed_total", "vint_tasks_completed"),  # a counter without its _total
+    ],
+)
+def test_an_alert_on_a_metric_nothing_exports_is_refused(
+    rendered: dict[str, list[Manifest]], readme: str, old: str, new: str
+) -> None:
+    def edit(objects: list[Manifest]) -> None:
+        rule = alert(objects, "VintQueueStalled")
+        assert old in rule["expr"]
+        rule["expr"] = rule["expr"].replace(old, new)
+
+    name = new.rstrip("{")
+    assert_named(
+        findings_after(rendered, readme, "production", edit), "VintQueueStalled", name, "no vint process"
+    )
+
+
+def test_an_alert_on_a_job_no_podmonitor_makes_is_refused(
+    rendered: dict[str, list[Manifest]], readme: str
+) -> None:
+    def edit(objects: list[Manifest]) -> None:
+        del find(objects, "PodMonitor", "vint-coordinator")["spec"]["jobLabel"]
+
+    found = findings_after(rendered, readme, "production", edit)
+    assert_named(found, "VintCoordinatorDown", "job 'vint-coordinator'")
+
+
+def test_an_alert_without_for_severity_summary_or_runbook_is_refused(
+    rendered: dict[str, list[Manifest]], readme: str
+) -> None:
+    def edit(objects: list[Manifest]) -> None:
+        rule = alert(objects, "VintWorkersGone")
+        del rule["for"]
+        rule["labels"]["severity"] = "page"
+        del rule["annotations"]["summary"]
+        rule["annotations"]["description"] = "Workers are gone."
+        alert(objects, "VintCoordinatorDown")["expr"] = 'absent(up{job="vint-coordinator"} == 1'
+
+    found = findings_after(rendered, readme, "production", edit)
+    assert_named(found, "VintWorkersGone", "no `for`")
+    assert_named(found, "VintWorkersGone", "severity")
+    assert_named(found, "VintWorkersGone", "annotations.summary")
+    assert_named(found, "VintWorkersGone", "runbook")
+    assert_named(found, "VintCoordinatorDown", "unclosed")
+
+
+def test_an_alert_missing_from_the_operations_doc_is_refused(
+    rendered: dict[str, list[Manifest]], readme: str
+) -> None:
+    operations = vd.operations_doc().replace("`VintTasksFailedPermanently`", "VintTasksFailedPermanently")
+    found = vd.overlay_findings(OVERLAYS["production"], rendered["production"], readme, operations)
+    assert_named(found, "VintTasksFailedPermanently", "not documented")
+    assert len(found) == 1
+
+
+def test_podmonitors_on_the_wrong_port_path_or_scheme_are_refused(
+    rendered: dict[str, list[Manifest]], readme: str
+) -> None:
+    def edit(objects: list[Manifest]) -> None:
+        coordinator = find(objects, "PodMonitor", "vint-coordinator")["spec"]["podMetricsEndpoints"][0]
+        coordinator["scheme"] = "http"
+        worker = find(objects, "PodMonitor", "vint-worker")["spec"]["podMetricsEndpoints"][0]
+        worker["port"] = "http"
+        worker["path"] = "/healthz"
+
+    found = findings_after(rendered, readme, "production", edit)
+    assert_named(found, "PodMonitor/vint-coordinator", "Deployment/vint-coordinator", "HTTPS")
+    assert_named(
+        found, "PodMonitor/vint-worker", "Deployment/vint-worker-render", "--metrics-listen port 9090"
+    )
+    assert_named(found, "PodMonitor/vint-worker", "/healthz")
+
+
+def test_an_https_scrape_that_cannot_verify_the_coordinator_is_refused(
+    rendered: dict[str, list[Manifest]], readme: str
+) -> None:
+    def edit(objects: list[Manifest]) -> None:
+        endpoint = find(objects, "PodMonitor", "vint-coordinator")["spec"]["podMetricsEndpoints"][0]
+        endpoint["tlsConfig"] = {"insecureSkipVerify": True}
+
+    assert_named(findings_after(rendered, readme, "production", edit), "vint-coordinator", "tlsConfig.ca")
+
+
+def test_a_worker_no_podmonitor_scrapes_is_refused(rendered: dict[str, list[Manifest]], readme: str) -> None:
+    def edit(objects: list[Manifest]) -> None:
+        find(objects, "PodMonitor", "vint-worker")["spec"]["selector"]["matchLabels"]["vint/stage"] = "render"
+
+    found = findings_after(rendered, readme, "production", edit)
+    assert_named(found, "Deployment/vint-worker-grasp", "0 PodMonitors")
+    assert not any("vint-worker-render" in f and "PodMonitors select" in f for f in found)
+
+
+def test_a_metric_relabeling_that_names_a_missing_metric_is_refused(
+    rendered: dict[str, list[Manifest]], readme: str
+) -> None:
+    def edit(objects: list[Manifest]) -> None:
+        endpoint = find(objects, "PodMonitor", "vint-worker")["spec"]["podMetricsEndpoints"][0]
+        endpoint["metricRelabelings"] = [
+            {
+                "sourceLabels": ["__name__"],
+                "regex": "(vint_worker_fetch_seconds_bucket|vint_worker_fetch_second_bucket)",
+                "action": "drop",
+            }
+        ]
+
+    found = findings_after(rendered, readme, "production", edit)
+    assert_named(found, "PodMonitor/vint-worker", "vint_worker_fetch_second_bucket")
+    assert not any("vint_worker_fetch_seconds_bucket" in f for f in found)
+
+
+def test_monitoring_objects_off_schema_are_refused(rendered: dict[str, list[Manifest]], readme: str) -> None:
+    def edit(objects: list[Manifest]) -> None:
+        find(objects, "PodMonitor", "vint-worker")["spec"]["podMetricsEndpoints"][0]["targetport"] = 9090
+        alert(objects, "VintQueueStalled")["for"] = "15 minutes"
+
+    found = findings_after(rendered, readme, "production", edit)
+    assert_named(found, "PodMonitor/vint-worker", "PodMonitor schema", "targetport")
+    assert_named(found, "PrometheusRule/vint", "PrometheusRule schema", "15 minutes")
+
+
+def test_monitoring_objects_where_no_operator_is_promised_are_refused(
+    rendered: dict[str, list[Manifest]], readme: str
+) -> None:
+    def edit(objects: list[Manifest]) -> None:
+        objects.append(copy.deepcopy(find(rendered["production"], "PodMonitor", "vint-worker")))
+
+    assert_named(
+        findings_after(rendered, readme, "dev", edit), "PodMonitor/vint-worker", "no Prometheus Operator"
+    )
+
+
+def test_the_docs_quote_the_shipped_keda_query(rendered: dict[str, list[Manifest]], readme: str) -> None:
+    objects = copy.deepcopy(rendered["production"])
+    operations = vd.operations_doc()
+    assert vd.docs_findings(objects, readme, operations) == []
+    trigger = find(objects, "ScaledObject", "vint-worker-render")["spec"]["triggers"][0]["metadata"]
+    trigger["query"] = 'max(vint_queue_tasks{stage="render",state="queued"})'
+    found = vd.docs_findings(objects, readme, operations)
+    assert_named(found, "deploy/README.md", "vint-worker-render")
+    assert_named(found, "docs/operations.md", "vint-worker-render")
