@@ -15,6 +15,10 @@ shared with the writer:
   extents equal to models_info.json's and dataset.json's;
 - checks that every per-image file and folder of a scene lists the same images, and the scene ids
   against dataset.json's grasps and split;
+- loads camera.json as `inout.load_cam_params` does and compares it with the images' cam_K, and
+  enumerates the test targets by the toolkit's rules from scene_gt and scene_gt_info (BOP 19: per
+  test image, each object with instances at least 10 % visible and their count; BOP 24: every test
+  image), comparing them with test_targets_bop19.json and test_targets_bop24.json;
 - takes each active taxel's p_cam_mm back into the model frame with the ground-truth pose and
   measures its distance to the model surface (the touch frames, checked through the camera).
 """
@@ -445,6 +449,42 @@ def check_touch(
     fail.check(isinstance(touch.get("readings"), list), f"{where}: scene_touch has no readings vector")
 
 
+def check_dataset_files(
+    root: Path,
+    cameras: list[dict[str, Any]],
+    test_images: list[tuple[int, int, list[Any], list[Any]]],
+    fail: Failures,
+) -> dict[str, Any]:
+    """camera.json against the images' cameras; the test targets, enumerated here from
+    (scene_id, im_id, scene_gt entries, scene_gt_info entries) of each test image."""
+    c = load_json(root / "camera.json")
+    k = np.array([[c["fx"], 0.0, c["cx"]], [0.0, c["fy"], c["cy"]], [0.0, 0.0, 1.0]])  # load_cam_params
+    ks = np.array([np.reshape(cam["cam_K"], (3, 3)) for cam in cameras])
+    median = np.median(ks, axis=0)
+    fail.check(
+        np.allclose(k, median, atol=1e-6), f"camera.json K {k.tolist()} is not the images' {median.tolist()}"
+    )
+    sizes = {(cam["width"], cam["height"]) for cam in cameras}
+    fail.check(sizes == {(c["width"], c["height"])}, f"camera.json size vs the images' {sizes}")
+    fail.check(c["depth_scale"] == cameras[0]["depth_scale"], "camera.json depth_scale")
+    bop19 = []
+    for scene_id, im_id, gts, infos in sorted(test_images, key=lambda t: (t[0], t[1])):
+        counts: dict[int, int] = {}
+        for gt, info in zip(gts, infos, strict=True):
+            if info["visib_fract"] >= 0.1:
+                counts[gt["obj_id"]] = counts.get(gt["obj_id"], 0) + 1
+        bop19 += [
+            {"im_id": im_id, "inst_count": n, "obj_id": obj_id, "scene_id": scene_id}
+            for obj_id, n in sorted(counts.items())
+        ]
+    bop24 = [{"im_id": im, "scene_id": s} for s, im, _, _ in sorted(test_images, key=lambda t: (t[0], t[1]))]
+    written19 = load_json(root / "test_targets_bop19.json")
+    written24 = load_json(root / "test_targets_bop24.json")
+    fail.check(written19 == bop19, f"test_targets_bop19.json: {written19[:3]}…, enumerated {bop19[:3]}…")
+    fail.check(written24 == bop24, f"test_targets_bop24.json: {written24[:3]}…, enumerated {bop24[:3]}…")
+    return {"bop19": len(bop19), "bop24": len(bop24), "test_images": len(test_images)}
+
+
 def check(root: Path) -> tuple[dict[str, Any], list[str]]:
     fail = Failures()
     dataset = load_json(root / "dataset.json")
@@ -454,6 +494,8 @@ def check(root: Path) -> tuple[dict[str, Any], list[str]]:
         k: [] for k in ("iou", "iou_raw", "depth_median", "depth_all", "touch_mm")
     }
     images = 0
+    cameras: list[dict[str, Any]] = []
+    test_images: list[tuple[int, int, list[Any], list[Any]]] = []
     scenes = check_scene_ids(root, dataset, fail)
     for split, scene_id, grasp in scenes:
         scene = root / split / f"{scene_id:06d}"
@@ -466,6 +508,7 @@ def check(root: Path) -> tuple[dict[str, Any], list[str]]:
             "models": models,
         }
         meta = load_json(scene / "scene_meta.json", keys_to_int=True)
+        raw_cameras = load_json(scene / "scene_camera.json", keys_to_int=True)
         for im in ids:
             fail.check(
                 meta[im]["grasp_id"] == grasp,
@@ -473,6 +516,10 @@ def check(root: Path) -> tuple[dict[str, Any], list[str]]:
             )
             check_image(scene, im, ctx, fail, stats)
             images += 1
+            cameras.append(raw_cameras[im])
+            if split == "test":
+                test_images.append((scene_id, im, ctx["gt"][im], ctx["gt_info"][im]))
+    targets = check_dataset_files(root, cameras, test_images, fail) if cameras else {}
     depth_all = np.array(stats["depth_all"] or [np.nan])
     summary = {
         "scenes": len(scenes),
@@ -494,6 +541,7 @@ def check(root: Path) -> tuple[dict[str, Any], list[str]]:
             "median": float(np.median(stats["touch_mm"])) if stats["touch_mm"] else None,
             "max": max(stats["touch_mm"], default=None),
         },
+        "targets": targets,
         "failures": len(fail.messages),
     }
     return summary, fail.messages

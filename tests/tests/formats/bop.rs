@@ -111,6 +111,11 @@ fn bop_export_matches_an_independent_reprojection_of_the_models() {
     assert!(summary["mask_iou"]["min"].as_f64().is_some_and(|iou| iou >= 0.98), "{summary}");
     assert!(summary["touch_surface_mm"]["taxels"].as_u64().is_some_and(|n| n > 0), "tiny's grasps touch: {summary}");
     assert!(summary["touch_surface_mm"]["max"].as_f64().is_some_and(|d| d <= 2.0), "{summary}");
+    // camera.json and the test targets, enumerated by the toolkit's rules in the check.
+    let targets = &summary["targets"];
+    assert_eq!(targets["bop24"], targets["test_images"], "one detection target per test image: {summary}");
+    assert!(targets["bop19"].as_u64() <= targets["test_images"].as_u64(), "{summary}");
+    assert!(bop().join("camera.json").is_file() && bop().join("test_targets_bop24.json").is_file());
 }
 
 #[test]
@@ -133,11 +138,23 @@ fn the_reprojection_check_fails_on_a_pose_off_by_millimetres_and_on_a_wrong_box(
     info[&im][0]["bbox_visib"][2] = Value::from(w + 1);
     std::fs::write(dir.join("scene_gt_info.json"), serde_json::to_vec(&info).expect("json")).expect("write");
 
+    let mut camera = read_json(&broken.join("camera.json"));
+    camera["fx"] = Value::from(camera["fx"].as_f64().expect("fx") + 1.0);
+    std::fs::write(broken.join("camera.json"), serde_json::to_vec(&camera).expect("json")).expect("write");
+    let mut targets = read_json(&broken.join("test_targets_bop19.json"));
+    targets
+        .as_array_mut()
+        .expect("targets")
+        .push(serde_json::json!({"im_id": 0, "inst_count": 1, "obj_id": 1, "scene_id": 999}));
+    std::fs::write(broken.join("test_targets_bop19.json"), serde_json::to_vec(&targets).expect("json")).expect("write");
+
     let run = check_bop(&broken);
     let errors = String::from_utf8_lossy(&run.stderr);
     assert_eq!(run.status.code(), Some(1), "{errors}");
     assert!(errors.contains("median depth error"), "{errors}");
     assert!(errors.contains("bbox_visib"), "{errors}");
+    assert!(errors.contains("camera.json K"), "{errors}");
+    assert!(errors.contains("test_targets_bop19.json"), "{errors}");
 }
 
 #[test]
@@ -176,4 +193,33 @@ fn copy_dir(from: &Path, to: &Path) {
         std::fs::create_dir_all(path.parent().expect("parent")).expect("mkdir");
         std::fs::write(path, bytes).expect("write");
     }
+}
+
+#[test]
+fn test_targets_are_what_the_toolkit_enumerates_for_the_test_split() {
+    // Tiny's split puts no grasp in test: a copy whose every grasp is a test grasp has targets.
+    let copy = tempfile::tempdir().expect("tempdir");
+    let native = copy.path().join("native");
+    copy_dir(tiny(), &native);
+    let mut dataset = read_json(&native.join("dataset.json"));
+    for split in dataset["split"]["grasps"].as_object_mut().expect("grasps").values_mut() {
+        *split = Value::from("test");
+    }
+    std::fs::write(native.join("dataset.json"), serde_json::to_vec(&dataset).expect("json")).expect("write");
+    let out = copy.path().join("bop");
+    let run = vintctl(&["convert", path_str(&native), "--out", path_str(&out), "--format", "bop"]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let check = check_bop(&out);
+    assert!(
+        check.status.success(),
+        "check_bop.py failed:\n{}\n{}",
+        stdout(&check),
+        String::from_utf8_lossy(&check.stderr)
+    );
+    let summary: Value = serde_json::from_str(&stdout(&check)).expect("check_bop prints JSON");
+    let samples: usize = native_samples().values().map(BTreeMap::len).sum();
+    let targets = &summary["targets"];
+    assert_eq!(targets["test_images"].as_u64(), Some(samples as u64), "{summary}");
+    assert_eq!(targets["bop24"], targets["test_images"], "{summary}");
+    assert!(targets["bop19"].as_u64().is_some_and(|n| n > 0), "tiny's views see their object: {summary}");
 }

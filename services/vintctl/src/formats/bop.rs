@@ -15,6 +15,7 @@
 mod frames;
 mod images;
 mod model;
+mod targets;
 
 use std::collections::BTreeMap;
 use std::fs;
@@ -31,6 +32,7 @@ use frames::{Mat3, Rigid, Vec3, row_major};
 pub use images::DEPTH_SCALE_MM;
 use images::{Mask, depth_units, encode_depth};
 use model::{ModelGeometry, moved_ply};
+use targets::ImageFacts;
 
 /// Lengths are written in mm to 1 nm and unitless numbers (rotations, normals) to 1e-9: far below
 /// anything measured, short and stable text.
@@ -59,7 +61,7 @@ pub fn write(native: &Path, out: &Path) -> anyhow::Result<Converted> {
             .as_str()
             .filter(|s| vint_core::split::Split::NAMES.contains(s))
             .ok_or_else(|| anyhow!("dataset.json: split.grasps has no train/val/test entry for grasp {grasp_id}"))?;
-        work.push((format!("{split}/{scene_id:06}"), grasp_id, views));
+        work.push((scene_id as u64, split, format!("{split}/{scene_id:06}"), grasp_id, views));
         scenes.push(json!({
             "scene_id": scene_id,
             "split": split,
@@ -75,13 +77,15 @@ pub fn write(native: &Path, out: &Path) -> anyhow::Result<Converted> {
         let handles: Vec<_> = (0..threads)
             .map(|t| {
                 let (work, objects) = (&work, &objects);
-                scope.spawn(move || -> anyhow::Result<(usize, u64)> {
+                scope.spawn(move || -> anyhow::Result<Written<'_>> {
                     let mut sink = Sink { root: out.to_path_buf(), files: 0, bytes: 0 };
-                    for (dir, grasp_id, views) in work.iter().skip(t).step_by(threads) {
-                        write_scene(native, dir, grasp_id, views, objects, &mut sink)
+                    let mut facts = Vec::new();
+                    for (scene_id, split, dir, grasp_id, views) in work.iter().skip(t).step_by(threads) {
+                        let images = write_scene(native, *scene_id, dir, grasp_id, views, objects, &mut sink)
                             .with_context(|| format!("grasp {grasp_id}"))?;
+                        facts.extend(images.into_iter().map(|i| (*split, i)));
                     }
-                    Ok((sink.files, sink.bytes))
+                    Ok((sink.files, sink.bytes, facts))
                 })
             })
             .collect();
@@ -90,10 +94,14 @@ pub fn write(native: &Path, out: &Path) -> anyhow::Result<Converted> {
             .map(|h| h.join().map_err(|_| anyhow!("a BOP writer thread panicked"))?)
             .collect::<anyhow::Result<Vec<_>>>()
     })?;
-    for (files, bytes) in written {
+    let mut images = Vec::new();
+    for (files, bytes, facts) in written {
         sink.files += files;
         sink.bytes += bytes;
+        images.extend(facts);
     }
+    images.sort_by_key(|(_, i)| (i.scene_id, i.im_id));
+    let camera = write_dataset_files(&images, &mut sink)?;
 
     let mut described = dataset.clone();
     described["format"] = json!("vint-bop");
@@ -118,10 +126,40 @@ pub fn write(native: &Path, out: &Path) -> anyhow::Result<Converted> {
             "scene": "one scene per grasp: scene_id is the grasp's position in the sorted list of all grasp ids; im_id is the view index",
             "units": "mm (models, cam_t_*, depth × depth_scale, touch *_mm); rotations row-major",
             "camera": "OpenCV: x right, y down, z forward; pixel centres at integer coordinates",
+            "camera.json": camera,
+            "test_targets": format!(
+                "test_targets_bop19.json: per test image, the objects at least {} visible (BOP 19's rule; absent without masks); test_targets_bop24.json: every test image",
+                targets::MIN_VISIB_FRACT
+            ),
         },
     });
     sink.put("dataset.json", &pretty(&described)?)?;
     Ok(Converted { samples, files: sink.files, bytes: sink.bytes })
+}
+
+/// What one writer thread wrote: files, bytes, and each image's split and facts.
+type Written<'a> = (usize, u64, Vec<(&'a str, ImageFacts)>);
+
+/// `camera.json` and the test targets; returns what `camera.json` is (`dataset.json` says so).
+fn write_dataset_files(images: &[(&str, ImageFacts)], sink: &mut Sink) -> anyhow::Result<&'static str> {
+    let all: Vec<ImageFacts> = images.iter().map(|(_, i)| i.clone()).collect();
+    let test: Vec<ImageFacts> = images.iter().filter(|(split, _)| *split == "test").map(|(_, i)| i.clone()).collect();
+    let what = match targets::camera(&all) {
+        Some((camera, shared)) => {
+            sink.put("camera.json", &pretty(&camera)?)?;
+            if shared {
+                "the camera every image shares"
+            } else {
+                "each intrinsic's median over the images, whose cameras vary (scene_camera.json)"
+            }
+        }
+        None => "absent: no image",
+    };
+    if let Some(bop19) = targets::bop19(&test) {
+        sink.put("test_targets_bop19.json", &pretty(&bop19)?)?;
+    }
+    sink.put("test_targets_bop24.json", &pretty(&targets::bop24(&test))?)?;
+    Ok(what)
 }
 
 /// Files written, counted as they go.
@@ -313,23 +351,38 @@ fn symmetries_in_mm(key: &str, symmetries: &Value, name: &str) -> anyhow::Result
     Ok(Value::Array(converted?))
 }
 
-/// One grasp's scene: its images and the per-image JSON files.
+/// One grasp's scene: its images and the per-image JSON files; what the dataset-level files need
+/// of each image.
 fn write_scene(
     native: &Path,
+    scene_id: u64,
     dir: &str,
     grasp_id: &str,
     views: &BTreeMap<u32, String>,
     objects: &Objects,
     sink: &mut Sink,
-) -> anyhow::Result<()> {
+) -> anyhow::Result<Vec<ImageFacts>> {
     let grasp_path = native.join(grasp_id).join("grasp.json");
     let grasp = read_json(&grasp_path)?;
     let grasp = Grasp::of(&grasp, objects).with_context(|| format!("{}", grasp_path.display()))?;
     let mut files: BTreeMap<&str, BTreeMap<u64, Value>> = BTreeMap::new();
+    let mut images = Vec::new();
     for (&view, sample_id) in views {
         let im = u64::from(view);
-        let records =
+        let (records, view) =
             write_image(native, dir, im, sample_id, &grasp, sink).with_context(|| format!("sample {sample_id}"))?;
+        let visib_fract = records
+            .iter()
+            .find(|(file, _)| *file == "scene_gt_info.json")
+            .and_then(|(_, r)| r[GT_ID]["visib_fract"].as_f64());
+        images.push(ImageFacts {
+            scene_id,
+            im_id: im,
+            obj_id: grasp.obj_id,
+            visib_fract,
+            intrinsics: [view.k[0][0], view.k[1][1], view.k[0][2], view.k[1][2]],
+            size: (view.width, view.height),
+        });
         for (file, record) in records {
             files.entry(file).or_default().insert(im, record);
         }
@@ -337,7 +390,7 @@ fn write_scene(
     for (file, records) in files {
         sink.put(&format!("{dir}/{file}"), &by_id(&records)?)?;
     }
-    Ok(())
+    Ok(images)
 }
 
 /// What every view of a grasp shares, read once from its `grasp.json`.
@@ -382,7 +435,7 @@ fn write_image(
     sample_id: &str,
     grasp: &Grasp<'_>,
     sink: &mut Sink,
-) -> anyhow::Result<Vec<(&'static str, Value)>> {
+) -> anyhow::Result<(Vec<(&'static str, Value)>, View)> {
     let sample = native.join(sample_id);
     let meta_path = sample.join("meta.json");
     let meta = read_json(&meta_path)?;
@@ -435,7 +488,7 @@ fn write_image(
         sink.put(&format!("{dir}/mask_visib/{im:06}_{GT_ID:06}.png"), &visible.encode()?)?;
         records.push(("scene_gt_info.json", json!([gt_info(&full, &visible, depth.as_deref())])));
     }
-    Ok(records)
+    Ok((records, view))
 }
 
 /// The camera of one view, from `meta.json`'s `camera` (metres, OpenCV).
