@@ -79,7 +79,8 @@ struct Args {
     log_json: bool,
     /// Apply the database migrations and exit (a Kubernetes Job or init container whose role may
     /// change the schema). Without it or --no-migrate, the coordinator migrates at start.
-    #[arg(long, env = "VINT_MIGRATE_ONLY", conflicts_with = "no_migrate")]
+    /// (Not clap's `conflicts_with`: it counts a variable set to false as given.)
+    #[arg(long, env = "VINT_MIGRATE_ONLY")]
     migrate_only: bool,
     /// Never change the schema (replicas whose role has no DDL rights): refuse to start, exit
     /// code 2, while the database lacks any of this binary's migrations.
@@ -126,6 +127,12 @@ struct Security {
 
 impl Security {
     fn from_args(args: &Args) -> Result<Security, BadInput> {
+        if args.migrate_only && args.no_migrate {
+            return Err(BadInput(anyhow!(
+                "--migrate-only and --no-migrate (or VINT_MIGRATE_ONLY and VINT_NO_MIGRATE) are both true: \
+                 migrate and exit, or never migrate, not both"
+            )));
+        }
         let tokens = match &args.auth_tokens {
             Some(path) => Some(Arc::new(Tokens::load(path).map_err(|e| BadInput(e.into()))?)),
             None => None,
@@ -270,9 +277,37 @@ async fn shutdown_signal() {
 
 #[cfg(test)]
 mod tests {
-    use clap::CommandFactory;
+    use clap::{CommandFactory, Parser};
 
     use super::Args;
+
+    #[test]
+    fn a_switch_set_false_in_the_environment_is_off_and_conflicts_with_nothing() {
+        let parsed = temp_env(&[("VINT_MIGRATE_ONLY", "false"), ("VINT_NO_MIGRATE", "true")], || {
+            Args::try_parse_from(["vint-coordinator", "--database", "sqlite://x.db"])
+        });
+        let args = parsed.expect("parses");
+        assert!(!args.migrate_only && args.no_migrate);
+        let both = temp_env(&[("VINT_MIGRATE_ONLY", "true"), ("VINT_NO_MIGRATE", "true")], || {
+            Args::try_parse_from(["vint-coordinator", "--database", "sqlite://x.db"])
+        });
+        let err = super::Security::from_args(&both.expect("parses")).err().expect("refused");
+        assert!(err.0.to_string().contains("both true"), "{}", err.0);
+    }
+
+    /// Runs `f` with the variables set, then removes them.
+    fn temp_env<T>(vars: &[(&str, &str)], f: impl FnOnce() -> T) -> T {
+        for (k, v) in vars {
+            // SAFETY: tests of this binary that read the environment run in this one function.
+            unsafe { std::env::set_var(k, v) };
+        }
+        let out = f();
+        for (k, _) in vars {
+            // SAFETY: as above.
+            unsafe { std::env::remove_var(k) };
+        }
+        out
+    }
 
     /// A deployment configures a process through its environment (a ConfigMap, a Secret): every
     /// flag has a `VINT_*` variable.
