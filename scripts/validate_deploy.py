@@ -109,7 +109,6 @@ METRIC_SOURCES = (
 # The series an alert may read besides vint's own, and who writes them.
 EXTERNAL_METRICS = {
     "up": "Prometheus, one series per scrape target",
-    "kube_pod_status_ready": "kube-state-metrics",
 }
 # What the alerts' runbooks are: docs/operations.md, section "Alerts".
 OPERATIONS_DOC = ROOT / "docs" / "operations.md"

@@ -247,6 +247,7 @@ async fn reap_forever(store: Store, every: Duration, metrics: Metrics) {
             // When the call ended, not when the tick began: after an outage the pool may take
             // seconds to connect again, and the workers' heartbeats wait in the same queue.
             hearing.heard(transient(&reaped), called.elapsed(), now_ms());
+            metrics.set_database_up(hearing.may_reap());
             match reaped {
                 Ok(0) => {}
                 Ok(n) => {
@@ -259,6 +260,7 @@ async fn reap_forever(store: Store, every: Duration, metrics: Metrics) {
         let called = Instant::now();
         let finalized = store.finalize_jobs(now).await;
         hearing.heard(transient(&finalized), called.elapsed(), now_ms());
+        metrics.set_database_up(hearing.may_reap());
         if let Err(e) = finalized {
             tracing::error!(error = %e, "finalizing jobs failed");
         }

@@ -119,6 +119,7 @@ pub struct Metrics {
     queue_tasks: Family<QueueLabels, Gauge>,
     jobs: Family<JobLabels, Gauge>,
     watch_streams: Gauge,
+    database_up: Gauge,
 }
 
 /// One open `WatchJob` stream, counted in `vint_watch_streams` until it is dropped.
@@ -204,6 +205,13 @@ impl Metrics {
             "WatchJob streams open, each polling the store; one ends with its job or when its client leaves",
             watch_streams.clone(),
         );
+        let database_up = Gauge::default();
+        registry.register(
+            "vint_database_up",
+            "1 while the database answered the reaper's last call (every reap interval), 0 after it failed to connect",
+            database_up.clone(),
+        );
+        database_up.set(1);
         let metrics = Metrics {
             registry: Arc::new(registry),
             tasks_leased,
@@ -217,6 +225,7 @@ impl Metrics {
             queue_tasks,
             jobs,
             watch_streams,
+            database_up,
         };
         // Every series exists from the start, at 0: a rate or an autoscaler query needs no
         // special case for a stage that has not run yet.
@@ -242,6 +251,11 @@ impl Metrics {
     /// The registry `/metrics` encodes.
     pub fn registry(&self) -> Arc<Registry> {
         self.registry.clone()
+    }
+
+    /// Whether the database answered the reaper's last call (`vint_database_up`).
+    pub(crate) fn set_database_up(&self, up: bool) {
+        self.database_up.set(i64::from(up));
     }
 
     /// A `WatchJob` stream opened; it counts until the returned guard is dropped.

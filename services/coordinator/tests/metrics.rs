@@ -86,6 +86,7 @@ async fn leases_completions_failures_and_refusals_are_counted_by_stage() {
     let build = format!("vint_build_info{{component=\"coordinator\",version=\"{}\"}} 1", env!("CARGO_PKG_VERSION"));
     for line in [
         build.as_str(),
+        "vint_database_up 1",
         "vint_tasks_leased_total{stage=\"noise\"} 2",
         "vint_tasks_leased_total{stage=\"render\"} 0",
         "vint_tasks_completed_total{stage=\"noise\"} 1",
