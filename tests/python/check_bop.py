@@ -12,7 +12,8 @@ shared with the writer:
   with depth/ × depth_scale on the visible-mask pixels and with the silhouette in mask/;
 - recomputes scene_gt_info from the masks (and px_count_valid from depth/);
 - checks the models: watertight and consistently wound, outward, in millimetres, diameter and
-  extents equal to models_info.json's and dataset.json's;
+  extents equal to models_info.json's and dataset.json's, and their vertex normals (every BOP model
+  has them) equal to the angle-weighted sums of the incident triangles' normals computed here;
 - checks that every per-image file and folder of a scene lists the same images, and the scene ids
   against dataset.json's grasps and split;
 - loads camera.json as `inout.load_cam_params` does and compares it with the images' cam_K, and
@@ -138,6 +139,44 @@ def load_ply(path: Path) -> tuple[Array, npt.NDArray[np.int64]]:
 # --- geometry ------------------------------------------------------------------------------------
 
 
+def ply_normals(path: Path) -> Array | None:
+    """The vertex normals (nx, ny, nz) of a binary little-endian PLY of float vertex properties."""
+    data = path.read_bytes()
+    end = data.index(b"end_header\n") + len(b"end_header\n")
+    header = data[:end].decode("ascii").splitlines()
+    names: list[str] = []
+    count = 0
+    for line in header:
+        words = line.split()
+        if words[:2] == ["element", "vertex"]:
+            count = int(words[2])
+        elif words[:1] == ["element"] and count:
+            break
+        elif words[:2] == ["property", "float"] and count:
+            names.append(words[2])
+    if not {"nx", "ny", "nz"} <= set(names):
+        return None
+    table = np.frombuffer(data, np.dtype([(n, "<f4") for n in names]), count, end)
+    return np.stack([table["nx"], table["ny"], table["nz"]], axis=1).astype(np.float64)
+
+
+def angle_weighted_normals(vertices: Array, faces: npt.NDArray[np.int64]) -> Array:
+    """Each vertex's normal: the incident triangles' unit normals weighted by the triangle's angle
+    at the vertex (Thürrner and Wüthrich 1998, as MeshLab computes the BOP models'), normalized."""
+    tri = vertices[faces]
+    face_n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    face_n /= np.maximum(np.linalg.norm(face_n, axis=1, keepdims=True), 1e-30)
+    normals = np.zeros_like(vertices)
+    for k in range(3):
+        a = tri[:, (k + 1) % 3] - tri[:, k]
+        b = tri[:, (k + 2) % 3] - tri[:, k]
+        cos = np.einsum("ij,ij->i", a, b) / np.maximum(
+            np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-30
+        )
+        np.add.at(normals, faces[:, k], face_n * np.arccos(np.clip(cos, -1.0, 1.0))[:, None])
+    return normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
+
+
 def render_depth(
     vertices: Array, faces: npt.NDArray[np.int64], K: Array, R: Array, t: Array, shape: tuple[int, int]
 ) -> Array:
@@ -261,6 +300,14 @@ def check_models(
             all((b, a) in directed for a, b in directed),
             f"{path.name}: an edge lacks its opposite (not watertight)",
         )
+        normals = ply_normals(path)
+        if fail.check(normals is not None, f"{path.name}: no vertex normals (nx, ny, nz)"):
+            assert normals is not None
+            dots = np.einsum("ij,ij->i", normals, angle_weighted_normals(vertices, faces))
+            fail.check(
+                float(dots.min()) >= 0.9999,
+                f"{path.name}: vertex normals differ from the angle-weighted ones (min cos {dots.min():.6f})",
+            )
         tri = vertices[faces]
         volume = float(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6.0)
         fail.check(volume > 0, f"{path.name}: faces point inwards (signed volume {volume:.1f} mm³)")

@@ -148,10 +148,21 @@ fn the_reprojection_check_fails_on_a_pose_off_by_millimetres_and_on_a_wrong_box(
         .push(serde_json::json!({"im_id": 0, "inst_count": 1, "obj_id": 1, "scene_id": 999}));
     std::fs::write(broken.join("test_targets_bop19.json"), serde_json::to_vec(&targets).expect("json")).expect("write");
 
+    // The first vertex's normal turned inside out (each float's sign bit: little-endian, byte 3).
+    let id = dataset["objects"][0]["obj_id"].as_u64().expect("obj_id");
+    let model = broken.join(format!("models/obj_{id:06}.ply"));
+    let mut ply = std::fs::read(&model).expect("model");
+    let end = ply.windows(11).position(|w| w == b"end_header\n").expect("PLY header") + 11;
+    for k in 3..6 {
+        ply[end + 4 * k + 3] ^= 0x80;
+    }
+    std::fs::write(&model, ply).expect("write");
+
     let run = check_bop(&broken);
     let errors = String::from_utf8_lossy(&run.stderr);
     assert_eq!(run.status.code(), Some(1), "{errors}");
     assert!(errors.contains("median depth error"), "{errors}");
+    assert!(errors.contains("vertex normals differ"), "{errors}");
     assert!(errors.contains("bbox_visib"), "{errors}");
     assert!(errors.contains("camera.json K"), "{errors}");
     assert!(errors.contains("test_targets_bop19.json"), "{errors}");

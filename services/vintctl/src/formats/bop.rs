@@ -31,7 +31,7 @@ pub use frames::moved_symmetries;
 use frames::{Mat3, Rigid, Vec3, row_major};
 pub use images::DEPTH_SCALE_MM;
 use images::{Mask, depth_units, encode_depth};
-use model::{ModelGeometry, moved_ply};
+use model::{ModelGeometry, moved_ply, with_normals};
 use targets::ImageFacts;
 
 /// Lengths are written in mm to 1 nm and unitless numbers (rotations, normals) to 1e-9: far below
@@ -244,8 +244,9 @@ fn views_by_grasp(native: &Path) -> anyhow::Result<BTreeMap<String, BTreeMap<u32
     Ok(grasps)
 }
 
-/// `models/obj_NNNNNN.ply` (the native model, byte for byte) and `models/models_info.json`, whose
-/// geometry is measured on those bytes and checked against what `dataset.json` declares.
+/// `models/obj_NNNNNN.ply` (the native model's vertices and triangles, with BOP's vertex normals
+/// added) and `models/models_info.json`, whose geometry is measured on those bytes and checked
+/// against what `dataset.json` declares.
 fn write_models(native: &Path, objects: &Objects, sink: &mut Sink) -> anyhow::Result<()> {
     let mut info = BTreeMap::new();
     for (&id, o) in &objects.by_id {
@@ -259,6 +260,7 @@ fn write_models(native: &Path, objects: &Objects, sink: &mut Sink) -> anyhow::Re
         } else {
             moved_ply(&bytes, c.map(|v| v * 1000.0)).with_context(|| format!("{}", path.display()))?
         };
+        let bytes = with_normals(&bytes).with_context(|| format!("{}", path.display()))?;
         let vertices = crate::eval::ply::vertices(&bytes).with_context(|| format!("{}", path.display()))?;
         let geometry = ModelGeometry::of(&vertices).with_context(|| format!("{}", path.display()))?;
         check_declared(name, &geometry, o)?;

@@ -67,6 +67,109 @@ pub fn moved_ply(bytes: &[u8], d: Vec3) -> anyhow::Result<Vec<u8>> {
     Ok(out)
 }
 
+/// The model PLY in vint's layout (`moved_ply`'s), its triangles as they are, with BOP's vertex
+/// normals added (`nx ny nz` after `x y z`): each vertex's the angle-weighted sum of the normals of
+/// the triangles around it, normalized, as MeshLab computes the BOP datasets' (Thürrner and
+/// Wüthrich, "Computing vertex normals from polygonal facets", 1998). A vertex no triangle uses
+/// gets (0, 0, 0).
+pub fn with_normals(bytes: &[u8]) -> anyhow::Result<Vec<u8>> {
+    const END: &[u8] = b"end_header\n";
+    let end =
+        bytes.windows(END.len()).position(|w| w == END).ok_or_else(|| anyhow!("PLY has no end_header"))? + END.len();
+    let header = std::str::from_utf8(&bytes[..end]).map_err(|_| anyhow!("PLY header is not text"))?;
+    let comments: Vec<&str> = header.lines().map(str::trim).filter(|l| l.starts_with("comment")).collect();
+    let lines: Vec<&str> =
+        header.lines().map(str::trim).filter(|l| !l.is_empty() && !l.starts_with("comment")).collect();
+    let counts = match lines.as_slice() {
+        [
+            "ply",
+            "format binary_little_endian 1.0",
+            vertex,
+            "property float x",
+            "property float y",
+            "property float z",
+            face,
+            "property list uchar int vertex_indices",
+            "end_header",
+        ] => vertex
+            .strip_prefix("element vertex ")
+            .and_then(|n| n.parse::<usize>().ok())
+            .zip(face.strip_prefix("element face ").and_then(|n| n.parse::<usize>().ok())),
+        _ => None,
+    };
+    let Some((n, m)) = counts else {
+        bail!("the model PLY is not vint's layout (binary little-endian, float x y z, then triangles)");
+    };
+    let body = &bytes[end..];
+    let (vertex_bytes, face_bytes) = (n * 12, m * 13);
+    if body.len() != vertex_bytes + face_bytes {
+        bail!("the model PLY holds {} data bytes, its header {}", body.len(), vertex_bytes + face_bytes);
+    }
+    let float = |at: usize| f64::from(f32::from_le_bytes([body[at], body[at + 1], body[at + 2], body[at + 3]]));
+    let vertices: Vec<Vec3> = (0..n).map(|i| [0, 1, 2].map(|k| float(i * 12 + k * 4))).collect();
+    let mut normals = vec![[0.0f64; 3]; n];
+    for f in body[vertex_bytes..].chunks_exact(13) {
+        if f[0] != 3 {
+            bail!("the model PLY has a face of {} vertices; only triangles are written", f[0]);
+        }
+        let index = |k: usize| {
+            let i = i32::from_le_bytes([f[1 + 4 * k], f[2 + 4 * k], f[3 + 4 * k], f[4 + 4 * k]]);
+            usize::try_from(i).ok().filter(|&i| i < n).ok_or_else(|| anyhow!("the model PLY names vertex {i} of {n}"))
+        };
+        let ids = [index(0)?, index(1)?, index(2)?];
+        let p = ids.map(|i| vertices[i]);
+        let face_normal = unit(cross(sub(p[1], p[0]), sub(p[2], p[0])));
+        for k in 0..3 {
+            let (a, b) = (sub(p[(k + 1) % 3], p[k]), sub(p[(k + 2) % 3], p[k]));
+            let angle = angle_between(a, b);
+            for c in 0..3 {
+                normals[ids[k]][c] += angle * face_normal[c];
+            }
+        }
+    }
+    let mut out = String::from("ply\nformat binary_little_endian 1.0\n");
+    for c in &comments {
+        out.push_str(c);
+        out.push('\n');
+    }
+    out.push_str("comment nx ny nz: angle-weighted vertex normals (as the BOP datasets' models)\n");
+    out.push_str(&format!(
+        "element vertex {n}\nproperty float x\nproperty float y\nproperty float z\n\
+         property float nx\nproperty float ny\nproperty float nz\n\
+         element face {m}\nproperty list uchar int vertex_indices\nend_header\n"
+    ));
+    let mut out = out.into_bytes();
+    for (i, normal) in normals.iter().enumerate() {
+        out.extend_from_slice(&body[i * 12..i * 12 + 12]);
+        for v in unit(*normal) {
+            out.extend_from_slice(&(v as f32).to_le_bytes());
+        }
+    }
+    out.extend_from_slice(&body[vertex_bytes..]);
+    Ok(out)
+}
+
+fn sub(a: Vec3, b: Vec3) -> Vec3 {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+fn cross(a: Vec3, b: Vec3) -> Vec3 {
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+}
+
+/// `v` scaled to length 1; the zero vector as it is (a degenerate triangle adds nothing).
+fn unit(v: Vec3) -> Vec3 {
+    let length = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    if length > 0.0 { v.map(|x| x / length) } else { [0.0; 3] }
+}
+
+/// The angle between two edges at a corner, in radians (0 for a zero-length edge).
+fn angle_between(a: Vec3, b: Vec3) -> f64 {
+    let (ua, ub) = (unit(a), unit(b));
+    let dot = ua[0] * ub[0] + ua[1] * ub[1] + ua[2] * ub[2];
+    if ua == [0.0; 3] || ub == [0.0; 3] { 0.0 } else { dot.clamp(-1.0, 1.0).acos() }
+}
+
 /// The exact largest vertex distance. Pairs are visited farthest-from-the-centroid first and the
 /// search stops once no remaining pair can beat the best (|a − b| ≤ |a − c| + |b − c|), which
 /// prunes almost all of the n² pairs of a convex-ish model without approximating.
@@ -140,6 +243,62 @@ mod tests {
         let line: Vec<Vec3> = (0..50).map(|i| [f64::from(i), 0.0, 0.0]).collect();
         assert_eq!(diameter(&line), 49.0);
         assert_eq!(diameter(&[[1.0, 2.0, 3.0], [1.0, 2.0, 3.0]]), 0.0);
+    }
+
+    /// A closed cube of 8 shared corners and 12 outward triangles, in vint's layout.
+    fn cube_ply() -> Vec<u8> {
+        let mut ply = b"ply\nformat binary_little_endian 1.0\ncomment vint object model, units: mm\nelement vertex 8\n\
+            property float x\nproperty float y\nproperty float z\nelement face 12\nproperty list uchar int vertex_indices\nend_header\n"
+            .to_vec();
+        for i in 0..8 {
+            for bit in [1, 2, 4] {
+                ply.extend_from_slice(&(if i & bit == 0 { -10.0f32 } else { 10.0f32 }).to_le_bytes());
+            }
+        }
+        let faces: [[i32; 3]; 12] = [
+            [0, 2, 1],
+            [1, 2, 3],
+            [4, 5, 6],
+            [5, 7, 6], // z = -10, z = +10
+            [0, 1, 4],
+            [1, 5, 4],
+            [2, 6, 3],
+            [3, 6, 7], // y = -10, y = +10
+            [0, 4, 2],
+            [2, 4, 6],
+            [1, 3, 5],
+            [3, 7, 5], // x = -10, x = +10
+        ];
+        for f in faces {
+            ply.push(3);
+            for i in f {
+                ply.extend_from_slice(&i.to_le_bytes());
+            }
+        }
+        ply
+    }
+
+    #[test]
+    fn a_cube_s_corner_normals_point_along_its_diagonals() {
+        let ply = with_normals(&cube_ply()).expect("vint's layout");
+        let vertices = crate::eval::ply::vertices(&ply).expect("still a PLY");
+        assert_eq!(vertices.len(), 8);
+        let end = ply.windows(11).position(|w| w == b"end_header\n").expect("header") + 11;
+        let header = std::str::from_utf8(&ply[..end]).expect("text");
+        assert!(
+            header.contains("property float nx\nproperty float ny\nproperty float nz\nelement face 12"),
+            "{header}"
+        );
+        for (i, record) in ply[end..end + 8 * 24].chunks_exact(24).enumerate() {
+            let f = |k: usize| f64::from(f32::from_le_bytes(record[k * 4..k * 4 + 4].try_into().expect("4 bytes")));
+            let (p, nrm) = ([f(0), f(1), f(2)], [f(3), f(4), f(5)]);
+            // Each corner has three faces and a right angle in each: the weighted sum is the diagonal.
+            for k in 0..3 {
+                assert!((nrm[k] - p[k].signum() / 3f64.sqrt()).abs() < 1e-6, "vertex {i}: {nrm:?} at {p:?}");
+            }
+        }
+        assert_eq!(ply[ply.len() - 12 * 13..], cube_ply()[cube_ply().len() - 12 * 13..], "the triangles as they were");
+        assert!(with_normals(&ply).is_err(), "a PLY with normals already is not vint's layout");
     }
 
     #[test]
