@@ -16,6 +16,9 @@ shared with the writer:
   has them) equal to the angle-weighted sums of the incident triangles' normals computed here;
 - checks that every per-image file and folder of a scene lists the same images, and the scene ids
   against dataset.json's grasps and split;
+- decodes scene_gt_coco.json's RLE masks itself (column-major runs, as pycocotools lays them) and
+  compares each with mask_visib/, its bbox with mask/'s (COCO's pixel-counting width), its area,
+  category, image and ignore flag with scene_gt and scene_gt_info;
 - loads camera.json as `inout.load_cam_params` does and compares it with the images' cam_K, and
   enumerates the test targets by the toolkit's rules from scene_gt and scene_gt_info (BOP 19: per
   test image, each object with instances at least 10 % visible and their count; BOP 24: every test
@@ -496,6 +499,67 @@ def check_touch(
     fail.check(isinstance(touch.get("readings"), list), f"{where}: scene_touch has no readings vector")
 
 
+def rle_decode(rle: dict[str, Any]) -> npt.NDArray[np.bool_]:
+    """An uncompressed COCO RLE ({counts, size: [h, w]}) as a boolean [h, w] mask."""
+    h, w = rle["size"]
+    flat = np.zeros(h * w, bool)
+    at, value = 0, False
+    for run in rle["counts"]:
+        flat[at : at + run] = value
+        at, value = at + run, not value
+    if at != h * w:
+        raise ValueError(f"RLE runs cover {at} pixels of {h * w}")
+    return flat.reshape((w, h)).T  # column-major
+
+
+def check_coco(scene: Path, ids: list[int], ctx: dict[str, Any], fail: Failures) -> int:
+    """scene_gt_coco.json against the masks and the ground truth; returns the annotations checked."""
+    path = scene / "scene_gt_coco.json"
+    if not fail.check(path.is_file(), f"{scene}: no scene_gt_coco.json"):
+        return 0
+    coco = load_json(path)
+    fail.check(
+        [i["id"] for i in coco["images"]] == ids, f"{path}: images {[i['id'] for i in coco['images']]}"
+    )
+    fail.check(
+        {c["id"] for c in coco["categories"]} >= set(ctx["models"]), f"{path}: categories lack an object"
+    )
+    by_image = {a["image_id"]: a for a in coco["annotations"]}
+    fail.check(len(by_image) == len(coco["annotations"]), f"{path}: two annotations of one image")
+    fail.check(
+        sorted(a["id"] for a in coco["annotations"]) == list(range(1, len(coco["annotations"]) + 1)),
+        f"{path}: annotation ids are not 1..n",
+    )
+    for im in ids:
+        visib = mask_png(scene / "mask_visib" / f"{im:06d}_000000.png", fail)
+        full = mask_png(scene / "mask" / f"{im:06d}_000000.png", fail)
+        a = by_image.get(im)
+        if not fail.check(a is not None or not visib.any(), f"{path}: image {im} has no annotation"):
+            continue
+        if a is None:
+            continue
+        where = f"{path} image {im}"
+        decoded = rle_decode(a["segmentation"])
+        fail.check(
+            decoded.shape == visib.shape and bool(np.all(decoded == visib)), f"{where}: mask != mask_visib"
+        )
+        rows, cols = np.where(full)
+        box = [
+            int(cols.min()),
+            int(rows.min()),
+            int(cols.max() - cols.min() + 1),
+            int(rows.max() - rows.min() + 1),
+        ]
+        fail.check(a["bbox"] == box, f"{where}: bbox {a['bbox']} != mask's {box}")
+        fail.check(a["area"] == int(visib.sum()), f"{where}: area {a['area']} != {int(visib.sum())}")
+        fail.check(a["category_id"] == ctx["gt"][im][0]["obj_id"], f"{where}: category {a['category_id']}")
+        fail.check(a["iscrowd"] == 0, f"{where}: iscrowd")
+        fail.check(
+            a["ignore"] == (ctx["gt_info"][im][0]["visib_fract"] < 0.1), f"{where}: ignore {a['ignore']}"
+        )
+    return len(by_image)
+
+
 def check_dataset_files(
     root: Path,
     cameras: list[dict[str, Any]],
@@ -541,6 +605,7 @@ def check(root: Path) -> tuple[dict[str, Any], list[str]]:
         k: [] for k in ("iou", "iou_raw", "depth_median", "depth_all", "touch_mm")
     }
     images = 0
+    coco_annotations = 0
     cameras: list[dict[str, Any]] = []
     test_images: list[tuple[int, int, list[Any], list[Any]]] = []
     scenes = check_scene_ids(root, dataset, fail)
@@ -566,6 +631,7 @@ def check(root: Path) -> tuple[dict[str, Any], list[str]]:
             cameras.append(raw_cameras[im])
             if split == "test":
                 test_images.append((scene_id, im, ctx["gt"][im], ctx["gt_info"][im]))
+        coco_annotations += check_coco(scene, ids, ctx, fail)
     targets = check_dataset_files(root, cameras, test_images, fail) if cameras else {}
     depth_all = np.array(stats["depth_all"] or [np.nan])
     summary = {
@@ -589,6 +655,7 @@ def check(root: Path) -> tuple[dict[str, Any], list[str]]:
             "max": max(stats["touch_mm"], default=None),
         },
         "targets": targets,
+        "coco_annotations": coco_annotations,
         "failures": len(fail.messages),
     }
     return summary, fail.messages

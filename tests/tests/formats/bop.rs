@@ -111,6 +111,8 @@ fn bop_export_matches_an_independent_reprojection_of_the_models() {
     assert!(summary["mask_iou"]["min"].as_f64().is_some_and(|iou| iou >= 0.98), "{summary}");
     assert!(summary["touch_surface_mm"]["taxels"].as_u64().is_some_and(|n| n > 0), "tiny's grasps touch: {summary}");
     assert!(summary["touch_surface_mm"]["max"].as_f64().is_some_and(|d| d <= 2.0), "{summary}");
+    let coco = summary["coco_annotations"].as_u64().expect("coco_annotations");
+    assert!(coco > 0 && coco <= samples as u64, "one COCO annotation per image that sees its object: {summary}");
     // camera.json and the test targets, enumerated by the toolkit's rules in the check.
     let targets = &summary["targets"];
     assert_eq!(targets["bop24"], targets["test_images"], "one detection target per test image: {summary}");
@@ -148,6 +150,10 @@ fn the_reprojection_check_fails_on_a_pose_off_by_millimetres_and_on_a_wrong_box(
         .push(serde_json::json!({"im_id": 0, "inst_count": 1, "obj_id": 1, "scene_id": 999}));
     std::fs::write(broken.join("test_targets_bop19.json"), serde_json::to_vec(&targets).expect("json")).expect("write");
 
+    let mut coco = read_json(&dir.join("scene_gt_coco.json"));
+    let area = coco["annotations"][0]["area"].as_u64().expect("area");
+    coco["annotations"][0]["area"] = Value::from(area + 1);
+    std::fs::write(dir.join("scene_gt_coco.json"), serde_json::to_vec(&coco).expect("json")).expect("write");
     // The first vertex's normal turned inside out (each float's sign bit: little-endian, byte 3).
     let id = dataset["objects"][0]["obj_id"].as_u64().expect("obj_id");
     let model = broken.join(format!("models/obj_{id:06}.ply"));
@@ -163,6 +169,7 @@ fn the_reprojection_check_fails_on_a_pose_off_by_millimetres_and_on_a_wrong_box(
     assert_eq!(run.status.code(), Some(1), "{errors}");
     assert!(errors.contains("median depth error"), "{errors}");
     assert!(errors.contains("vertex normals differ"), "{errors}");
+    assert!(errors.contains(&format!("area {} != {area}", area + 1)), "{errors}");
     assert!(errors.contains("bbox_visib"), "{errors}");
     assert!(errors.contains("camera.json K"), "{errors}");
     assert!(errors.contains("test_targets_bop19.json"), "{errors}");

@@ -369,6 +369,8 @@ fn write_scene(
     let grasp = Grasp::of(&grasp, objects).with_context(|| format!("{}", grasp_path.display()))?;
     let mut files: BTreeMap<&str, BTreeMap<u64, Value>> = BTreeMap::new();
     let mut images = Vec::new();
+    let mut coco_images = Vec::new();
+    let mut annotations = Vec::new();
     for (&view, sample_id) in views {
         let im = u64::from(view);
         let (records, view) =
@@ -385,14 +387,41 @@ fn write_scene(
             intrinsics: [view.k[0][0], view.k[1][1], view.k[0][2], view.k[1][2]],
             size: (view.width, view.height),
         });
+        coco_images.push(json!({
+            "file_name": format!("rgb/{im:06}.png"), "height": view.height, "id": im, "width": view.width,
+        }));
         for (file, record) in records {
-            files.entry(file).or_default().insert(im, record);
+            if file == COCO {
+                annotations.push(record);
+            } else {
+                files.entry(file).or_default().insert(im, record);
+            }
         }
     }
     for (file, records) in files {
         sink.put(&format!("{dir}/{file}"), &by_id(&records)?)?;
     }
+    if files_have_masks(&annotations, &images) {
+        for (n, a) in annotations.iter_mut().enumerate() {
+            a["id"] = json!(n + 1);
+        }
+        let categories: Vec<Value> =
+            objects.by_id.keys().map(|id| json!({"id": id, "name": id.to_string(), "supercategory": "vint"})).collect();
+        let coco = json!({
+            "annotations": annotations,
+            "categories": categories,
+            "images": coco_images,
+            "info": {"contributor": "vint", "description": dir},
+            "licenses": [],
+        });
+        sink.put(&format!("{dir}/{COCO}"), &pretty(&coco)?)?;
+    }
     Ok(images)
+}
+
+/// Whether the scene's images had masks (`scene_gt_coco.json` is made from them).
+fn files_have_masks(annotations: &[Value], images: &[ImageFacts]) -> bool {
+    !annotations.is_empty() || images.iter().any(|i| i.visib_fract.is_some())
 }
 
 /// What every view of a grasp shares, read once from its `grasp.json`.
@@ -488,7 +517,11 @@ fn write_image(
         let full = read_mask(&full, &view)?.union(&visible);
         sink.put(&format!("{dir}/mask/{im:06}_{GT_ID:06}.png"), &full.encode()?)?;
         sink.put(&format!("{dir}/mask_visib/{im:06}_{GT_ID:06}.png"), &visible.encode()?)?;
-        records.push(("scene_gt_info.json", json!([gt_info(&full, &visible, depth.as_deref())])));
+        let info = gt_info(&full, &visible, depth.as_deref());
+        if let Some(annotation) = coco_annotation(im, grasp.obj_id, &full, &visible, info["visib_fract"].as_f64()) {
+            records.push((COCO, annotation));
+        }
+        records.push(("scene_gt_info.json", json!([info])));
     }
     Ok((records, view))
 }
@@ -549,6 +582,31 @@ impl View {
         }
         camera
     }
+}
+
+/// The per-image record `write_scene` gathers into `scene_gt_coco.json` rather than a file by id.
+const COCO: &str = "scene_gt_coco.json";
+
+/// The object's COCO annotation, as the toolkit's `calc_gt_coco.py` makes it (amodal box, the
+/// default): the visible mask as uncompressed RLE, its pixel count as `area`, the box of the full
+/// silhouette, `ignore` when less than a tenth is visible. `None` when either mask is empty (the
+/// toolkit writes none then); `id` is numbered by the scene.
+fn coco_annotation(im: u64, obj_id: u64, full: &Mask, visible: &Mask, visib_fract: Option<f64>) -> Option<Value> {
+    let bbox = full.coco_bbox()?;
+    let area = visible.count();
+    (area > 0).then(|| {
+        json!({
+            "area": area,
+            "bbox": bbox,
+            "category_id": obj_id,
+            "height": visible.height,
+            "ignore": visib_fract.unwrap_or(0.0) < targets::MIN_VISIB_FRACT,
+            "image_id": im,
+            "iscrowd": 0,
+            "segmentation": {"counts": visible.coco_rle(), "size": [visible.height, visible.width]},
+            "width": visible.width,
+        })
+    })
 }
 
 /// BOP's `scene_gt_info` entry, from the masks (and the depth image for `px_count_valid`: the

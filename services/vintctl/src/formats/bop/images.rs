@@ -45,6 +45,34 @@ impl Mask {
         Mask { width: self.width, height: self.height, pixels }
     }
 
+    /// COCO's uncompressed run-length encoding (`pycoco_utils.binary_mask_to_rle`): the lengths
+    /// of the alternating runs of unset and set pixels in column-major order, starting with the
+    /// unset (a leading 0 when the first pixel is set).
+    pub fn coco_rle(&self) -> Vec<u64> {
+        let mut counts = Vec::new();
+        let (mut current, mut run) = (false, 0u64);
+        for x in 0..self.width {
+            for y in 0..self.height {
+                let p = self.pixels[y * self.width + x];
+                if p == current {
+                    run += 1;
+                } else {
+                    counts.push(run);
+                    (current, run) = (p, 1);
+                }
+            }
+        }
+        counts.push(run);
+        counts
+    }
+
+    /// COCO's `[x, y, w, h]` (`pycoco_utils.bbox_from_binary_mask`: w and h count pixels, so one
+    /// pixel is 1 × 1); `None` for an empty mask.
+    pub fn coco_bbox(&self) -> Option<[i64; 4]> {
+        let [x, y, w, h] = self.bbox();
+        (x >= 0).then_some([x, y, w + 1, h + 1])
+    }
+
     /// `[x, y, w, h]` as the BOP toolkit computes it (`misc.calc_2d_bbox`): (x, y) the top-left
     /// set pixel's column and row, `w = x_max − x_min`, `h = y_max − y_min` (so a single pixel has
     /// w = h = 0); `[-1, -1, -1, -1]` for an empty mask.
@@ -128,6 +156,18 @@ mod tests {
         let decoded = decode_png(&encode_depth(3, 2, &units).expect("encode")).expect("decode");
         assert_eq!((decoded.width, decoded.height, decoded.channels), (3, 2, 1));
         assert_eq!(decoded.samples, units, "16-bit samples are big-endian in the PNG");
+    }
+
+    #[test]
+    fn coco_runs_go_down_the_columns_and_its_box_counts_pixels() {
+        // Columns, top to bottom: "#.", "##", ".#": set 1, unset 1, set 2, unset 1, set 1.
+        let m = mask(3, &["##.", ".##"]);
+        assert_eq!(m.coco_rle(), [0, 1, 1, 2, 1, 1]);
+        assert_eq!(m.coco_bbox(), Some([0, 0, 3, 2]));
+        assert_eq!(mask(2, &["..", ".."]).coco_rle(), [4], "all unset: one run");
+        assert_eq!(mask(2, &["..", ".#"]).coco_rle(), [3, 1]);
+        assert_eq!(mask(3, &["...", ".#."]).coco_bbox(), Some([1, 1, 1, 1]));
+        assert_eq!(mask(2, &["..", ".."]).coco_bbox(), None);
     }
 
     #[test]
