@@ -212,4 +212,33 @@ async fn gc_deletes_only_what_no_job_references() {
     // Everything a job references is still there: the finished job exports again, file by file.
     run(&spec, &tmp.path().join("again"), &state, &[]);
     verify_dataset(&tmp.path().join("again"));
+
+    // Deleting the job (the state's only one) leaves its objects referenced by nothing: gc takes all.
+    let jobs = jobs_work(&state).await;
+    assert_eq!(jobs.len(), 1);
+    let job = jobs[0].0.clone();
+    let delete = |extra: &[&str]| {
+        let mut args = vec!["--json", "delete", job.as_str(), "--state", s(&state)];
+        args.extend_from_slice(extra);
+        vintctl(&args)
+    };
+    let dry = delete(&["--dry-run"]);
+    assert!(dry.status.success(), "{}", stderr(&dry));
+    let counted: serde_json::Value = serde_json::from_str(&stdout(&dry)).unwrap();
+    assert!(counted["tasks"].as_u64().is_some_and(|n| n > 0) && counted["dry_run"] == true, "{counted}");
+    assert_eq!(jobs_work(&state).await.len(), 1, "a dry run deletes nothing");
+    let done = delete(&[]);
+    assert!(done.status.success(), "{}", stderr(&done));
+    let deleted: serde_json::Value = serde_json::from_str(&stdout(&done)).unwrap();
+    assert_eq!(
+        (deleted["tasks"].clone(), deleted["attempts"].clone()),
+        (counted["tasks"].clone(), counted["attempts"].clone())
+    );
+    assert!(jobs_work(&state).await.is_empty());
+    let again = delete(&[]);
+    assert_eq!(again.status.code(), Some(2), "an unknown job is bad input: {}", stderr(&again));
+    assert!(stderr(&again).contains(&format!("job {job:?}")), "{}", stderr(&again));
+    let collected = gc(&["--min-age-s", "0"]);
+    assert_eq!(collected["collected"].as_u64(), Some(before as u64), "{collected}");
+    assert_eq!(objects.count_objects().await.unwrap(), 0);
 }

@@ -177,6 +177,45 @@ impl Store {
         Ok(by_job)
     }
 
+    /// Deletes an ended job and every row of it: its tasks, their attempts, outputs, reuse keys
+    /// and edges, its submitted files' records. The objects its rows named are left for
+    /// `vintctl gc` (another job may name the same content). A running job is refused
+    /// (`StoreError::Invalid`): cancel it first. With `dry_run` the same deletions run in a
+    /// transaction that is rolled back, so the counts are what a deletion would remove.
+    pub async fn delete_job(&self, job_id: &str, dry_run: bool) -> Result<DeletedJob> {
+        let mut tx = self.pool.begin().await?;
+        let job = sqlx::query(sql(self.backend, "job_by_id")?).bind(job_id).fetch_optional(&mut *tx).await?;
+        let job =
+            job.as_ref().map(job_from_row).transpose()?.ok_or_else(|| StoreError::NotFound(format!("job {job_id}")))?;
+        if job.state == JobState::Running {
+            return Err(StoreError::Invalid(format!(
+                "job {job_id} is running: cancel it first (vintctl cancel {job_id}), then delete it"
+            )));
+        }
+        let mut removed = [0u64; 4];
+        for (statement, slot) in [
+            ("delete_job_attempts", Some(1)),
+            ("delete_job_outputs", Some(2)),
+            ("delete_job_task_keys", None),
+            ("delete_job_task_deps", None),
+            ("delete_job_tasks", Some(0)),
+            ("delete_job_assets", Some(3)),
+            ("delete_job_row", None),
+        ] {
+            let n = sqlx::query(sql(self.backend, statement)?).bind(job_id).execute(&mut *tx).await?.rows_affected();
+            if let Some(i) = slot {
+                removed[i] = n;
+            }
+        }
+        if dry_run {
+            tx.rollback().await?;
+        } else {
+            tx.commit().await?;
+        }
+        let [tasks, attempts, outputs, assets] = removed;
+        Ok(DeletedJob { tasks, attempts, outputs, assets })
+    }
+
     /// Cancels a running job: no task of it is leased again, and running attempts lose their
     /// lease (their completion is refused). Returns the job as it is afterwards.
     pub async fn cancel_job(&self, job_id: &str, now_ms: i64) -> Result<JobRecord> {
@@ -371,4 +410,14 @@ fn asset_from_row(row: &AnyRow) -> Result<JobAsset> {
         media_type: row.try_get("media_type")?,
         object_key: row.try_get("object_key")?,
     })
+}
+
+/// What deleting a job removed (or, in a dry run, would remove): rows of tasks, attempts, packed
+/// outputs (one per task that made files) and submitted files.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct DeletedJob {
+    pub tasks: u64,
+    pub attempts: u64,
+    pub outputs: u64,
+    pub assets: u64,
 }

@@ -56,6 +56,7 @@ pub use dashboard::{
 };
 pub use depth::{LIVE_TASK_STATES, QueueDepth};
 pub use failures::FailedTask;
+pub use jobs::DeletedJob;
 pub use lineage::{ASSET_TASK_KEY, grasp_records_of, samples_of};
 pub use queue::{Clock, Heartbeat};
 pub use records::*;

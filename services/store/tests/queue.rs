@@ -440,6 +440,65 @@ store_test!(job_succeeds_when_every_task_has_and_lineage_reaches_the_root, |stor
     assert_eq!(store.artifact_stats("j").await.unwrap(), (5, 4), "5 files, 4 contents (as above)");
 });
 
+store_test!(deleting_an_ended_job_removes_its_rows_and_nothing_of_another, |store: Store| async move {
+    // Two finished jobs of the same chain, one with a submitted file, and one still running.
+    let mut with_asset = job("gone");
+    with_asset.assets = vec![vint_store::JobAsset {
+        path: "assets/bowl.obj".into(),
+        sha256: "ab".repeat(32),
+        size: 42,
+        media_type: "model/obj".into(),
+        object_key: format!("sha256/ab/{}", "ab".repeat(32)),
+    }];
+    let chain = [
+        task("grasp/a", Stage::Grasp, &[]),
+        task("render/a", Stage::Render, &["grasp/a"]),
+        task(PACKAGE, Stage::Package, &["grasp/a", "render/a"]),
+    ];
+    // The test double's hash is its name's length: gone.png and kept_image.png differ.
+    for (job, at, outputs) in
+        [("gone", 0, ["grasps.json", "gone.png"]), ("kept", 10, ["grasps.json", "kept_image.png"])]
+    {
+        if job == "gone" {
+            store.submit_job(&with_asset, &chain, at).await.unwrap();
+        } else {
+            submit_chain_at(&store, job, at).await;
+        }
+        for now in at + 1..=at + 3 {
+            let leased = store.lease("w", &Stage::ALL, 1, 1_000, now).await.unwrap();
+            assert_eq!(leased[0].job_id, job);
+            store.complete(&completion(fence(&leased[0], "w"), &outputs), &[], now).await.unwrap();
+        }
+        assert_eq!(store.job(job).await.unwrap().unwrap().state, JobState::Succeeded, "{job}");
+    }
+    submit_chain_at(&store, "running", 20).await;
+    let keys_before = store.referenced_object_keys().await.unwrap();
+    assert!(keys_before.contains(&artifact("gone.png").object_key));
+
+    let dry = store.delete_job("gone", true).await.unwrap();
+    assert_eq!(dry, vint_store::DeletedJob { tasks: 3, attempts: 3, outputs: 3, assets: 1 });
+    assert!(store.job("gone").await.unwrap().is_some(), "a dry run deletes nothing");
+    assert_eq!(store.delete_job("gone", false).await.unwrap(), dry, "the dry run counted what goes");
+
+    assert!(store.job("gone").await.unwrap().is_none());
+    assert!(store.tasks_of_job("gone").await.unwrap().is_empty());
+    assert!(store.attempts("gone/grasp/a").await.unwrap().is_empty());
+    assert!(store.job_assets("gone").await.unwrap().is_empty());
+    assert_eq!(store.progress("gone").await.unwrap(), vint_store::Progress::default());
+    let keys = store.referenced_object_keys().await.unwrap();
+    assert!(!keys.contains(&artifact("gone.png").object_key), "its own objects are no longer referenced");
+    assert!(!keys.contains(&format!("sha256/ab/{}", "ab".repeat(32))), "nor its submitted file");
+    assert!(keys.contains(&artifact("grasps.json").object_key), "content another job made too stays");
+    assert_eq!(store.tasks_of_job("kept").await.unwrap().len(), 3);
+    assert_eq!(store.attempts("kept/grasp/a").await.unwrap().len(), 1);
+
+    match store.delete_job("running", false).await {
+        Err(StoreError::Invalid(why)) => assert!(why.contains("cancel it first"), "{why}"),
+        other => panic!("a running job is not deleted: {other:?}"),
+    }
+    assert!(matches!(store.delete_job("gone", false).await, Err(StoreError::NotFound(_))));
+});
+
 store_test!(a_jobs_assets_are_recorded_and_shown_as_inputs_of_the_tasks_naming_them, |store: Store| async move {
     let sha = "ab".repeat(32);
     let mut j = job("j");

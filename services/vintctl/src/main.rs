@@ -10,6 +10,7 @@ mod against;
 mod bop_objects;
 mod client;
 mod commands;
+mod delete;
 mod diff;
 mod embedded;
 mod estimate;
@@ -154,6 +155,23 @@ enum Command {
         /// completion is recorded.
         #[arg(long, default_value_t = 3_600)]
         min_age_s: u64,
+        /// Count what would be deleted, delete nothing.
+        #[arg(long)]
+        dry_run: bool,
+    },
+    /// Delete an ended job and every database row of it (tasks, attempts, output records,
+    /// submitted files' records), from a `vintctl run` state directory or a cluster's database;
+    /// `vintctl gc` then deletes the objects no job references. A running job is refused: cancel
+    /// it first.
+    Delete {
+        /// The job id (`vintctl jobs` lists them).
+        job: String,
+        /// The state directory of `vintctl run`.
+        #[arg(long, default_value = ".vint", conflicts_with = "database")]
+        state: PathBuf,
+        /// A cluster's database URL.
+        #[arg(long)]
+        database: Option<String>,
         /// Count what would be deleted, delete nothing.
         #[arg(long)]
         dry_run: bool,
@@ -397,6 +415,13 @@ async fn dispatch(command: Command, json: bool, coordinator: &vint_connect::Remo
                 _ => state_dir::Records::State(&state),
             };
             gc::gc(&records, min_age_s, dry_run, json).await
+        }
+        Command::Delete { job, state, database, dry_run } => {
+            let records = match &database {
+                Some(database) => state_dir::Records::Urls { database, store: "" },
+                None => state_dir::Records::State(&state),
+            };
+            delete::delete(&records, &job, dry_run, json).await
         }
         Command::Submit { spec, idempotency_key, timing_only } => {
             commands::submit(coordinator, &spec, idempotency_key, timing_only, json).await

@@ -130,3 +130,31 @@ ON CONFLICT DO NOTHING;
 -- name: running_jobs_submitted_by
 -- How many jobs the token named $1 submitted are still running (migration 0014's partial index).
 SELECT COUNT(*) AS n FROM jobs WHERE submitted_by = $1 AND state = 'running';
+
+-- name: delete_job_attempts
+-- Deleting job $1 (`Store::delete_job`), children first: its tasks' attempts.
+DELETE FROM attempts WHERE task_id IN (SELECT id FROM tasks WHERE job_id = $1);
+
+-- name: delete_job_outputs
+-- Its tasks' packed outputs (the objects they name stay until `vintctl gc` finds them unreferenced).
+DELETE FROM outputs WHERE task_id IN (SELECT id FROM tasks WHERE job_id = $1);
+
+-- name: delete_job_task_keys
+-- Its tasks' reuse keys: no later job reuses a deleted job's results.
+DELETE FROM task_keys WHERE task_id IN (SELECT id FROM tasks WHERE job_id = $1);
+
+-- name: delete_job_task_deps
+-- Its dependency edges (both ends are its own tasks).
+DELETE FROM task_deps WHERE task_id IN (SELECT id FROM tasks WHERE job_id = $1);
+
+-- name: delete_job_tasks
+-- Its tasks.
+DELETE FROM tasks WHERE job_id = $1;
+
+-- name: delete_job_assets
+-- Its submitted files' records.
+DELETE FROM job_assets WHERE job_id = $1;
+
+-- name: delete_job_row
+-- The job itself.
+DELETE FROM jobs WHERE id = $1;
