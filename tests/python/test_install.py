@@ -95,45 +95,26 @@ def test_every_product_import_is_pinned_in_the_runtime_lock() -> None:
     assert not unpinned, f"imported by the engines but not pinned in requirements.lock: {unpinned}"
 
 
+def run_setup(env: dict[str, str]) -> subprocess.CompletedProcess[str]:
+    """README command 1's Python half: scripts/setup-python.sh, no arguments."""
+    script = str(ROOT / "scripts" / "setup-python.sh")
+    return subprocess.run(["bash", script], env=env, capture_output=True, text=True, check=False)
+
+
 @pytest.mark.timeout(1200)
 def test_the_run_install_holds_no_test_only_package(tmp_path: Path) -> None:
     venv = tmp_path / "venv"
     env = {**os.environ, "VINT_VENV": str(venv)}
-    done = subprocess.run(
-        ["bash", str(ROOT / "scripts" / "setup-python.sh")],
-        env=env,
-        capture_output=True,
-        text=True,
-        check=False,
-    )
+    done = run_setup(env)
     assert done.returncode == 0, done.stderr[-4000:]
     assert "matplotlib" in done.stdout, "the run install imports what stats and study plot with"
-    listed = subprocess.run(
-        [
-            str(venv / "bin" / "python"),
-            "-m",
-            "pip",
-            "list",
-            "--format",
-            "json",
-            "--disable-pip-version-check",
-        ],
-        capture_output=True,
-        text=True,
-        check=True,
-    )
+    pip_list = [str(venv / "bin" / "python"), "-m", "pip", "list", "--format", "json"]
+    listed = subprocess.run(pip_list, capture_output=True, text=True, check=True)
     installed = {normalized(p["name"]) for p in json.loads(listed.stdout)}
     assert "bpy" in installed and "mujoco" in installed
     test_only = sorted(n for n in installed if TEST_ONLY.match(n))
     assert not test_only, f"the run install holds test-only packages: {test_only}"
-    assert installed - {"pip"} <= pinned(RUNTIME_LOCK), (
-        "the run install holds something the runtime lock does not pin"
-    )
-    again = subprocess.run(
-        ["bash", str(ROOT / "scripts" / "setup-python.sh")],
-        env=env,
-        capture_output=True,
-        text=True,
-        check=False,
-    )
+    unpinned = sorted(installed - {"pip"} - pinned(RUNTIME_LOCK))
+    assert not unpinned, f"the run install holds what the runtime lock does not pin: {unpinned}"
+    again = run_setup(env)
     assert again.returncode == 0 and "skipping it" in again.stderr, "a second run installs nothing"

@@ -29,16 +29,22 @@ impl ModelGeometry {
     }
 }
 
-/// The model PLY as vint writes it (binary little-endian, the `vertex` element first with float32
-/// `x y z` alone) with every vertex moved by `d` (mm): the same triangles in another frame. Any
-/// other layout is refused rather than guessed at.
-pub fn moved_ply(bytes: &[u8], d: Vec3) -> anyhow::Result<Vec<u8>> {
+/// A PLY's header: where its data starts, its comment lines and its other lines (trimmed).
+fn header(bytes: &[u8]) -> anyhow::Result<(usize, Vec<&str>, Vec<&str>)> {
     const END: &[u8] = b"end_header\n";
     let end =
         bytes.windows(END.len()).position(|w| w == END).ok_or_else(|| anyhow!("PLY has no end_header"))? + END.len();
     let header = std::str::from_utf8(&bytes[..end]).map_err(|_| anyhow!("PLY header is not text"))?;
-    let lines: Vec<&str> =
-        header.lines().map(str::trim).filter(|l| !l.is_empty() && !l.starts_with("comment")).collect();
+    let (comments, lines) =
+        header.lines().map(str::trim).filter(|l| !l.is_empty()).partition(|l| l.starts_with("comment"));
+    Ok((end, comments, lines))
+}
+
+/// The model PLY as vint writes it (binary little-endian, the `vertex` element first with float32
+/// `x y z` alone) with every vertex moved by `d` (mm): the same triangles in another frame. Any
+/// other layout is refused rather than guessed at.
+pub fn moved_ply(bytes: &[u8], d: Vec3) -> anyhow::Result<Vec<u8>> {
+    let (end, _, lines) = header(bytes)?;
     let count = match lines.as_slice() {
         [
             "ply",
@@ -73,13 +79,7 @@ pub fn moved_ply(bytes: &[u8], d: Vec3) -> anyhow::Result<Vec<u8>> {
 /// Wüthrich, "Computing vertex normals from polygonal facets", 1998). A vertex no triangle uses
 /// gets (0, 0, 0).
 pub fn with_normals(bytes: &[u8]) -> anyhow::Result<Vec<u8>> {
-    const END: &[u8] = b"end_header\n";
-    let end =
-        bytes.windows(END.len()).position(|w| w == END).ok_or_else(|| anyhow!("PLY has no end_header"))? + END.len();
-    let header = std::str::from_utf8(&bytes[..end]).map_err(|_| anyhow!("PLY header is not text"))?;
-    let comments: Vec<&str> = header.lines().map(str::trim).filter(|l| l.starts_with("comment")).collect();
-    let lines: Vec<&str> =
-        header.lines().map(str::trim).filter(|l| !l.is_empty() && !l.starts_with("comment")).collect();
+    let (end, comments, lines) = header(bytes)?;
     let counts = match lines.as_slice() {
         [
             "ply",
