@@ -175,7 +175,7 @@ fn unreachable(url: &str, e: &tonic::transport::Error) -> Failure {
         error: anyhow!(
             "no coordinator answers at {url} ({why}). This command needs a running coordinator:\n  \
              - start one: vint-coordinator --database sqlite:///ABS/PATH/vint.db --store file:///ABS/PATH/objects, \
-             and workers (README, \"On a cluster\");\n  \
+             and workers (docs/guide.md, \"On a cluster\");\n  \
              - or point vintctl at yours: --coordinator http://HOST:PORT, or VINT_COORDINATOR=http://HOST:PORT;\n  \
              - or make a dataset on this machine with no server: vintctl run SPEC --out DIR"
         ),

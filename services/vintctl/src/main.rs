@@ -49,7 +49,7 @@ On a cluster (a running vint-coordinator; --coordinator URL or VINT_COORDINATOR)
   vintctl submit SPEC, then watch / status / jobs / cancel / lineage / export JOB
   vintctl dashboard VIEW [--job JOB]                   progress, throughput, failures, workers, … (docs/dashboard.md)
 
-Specs, the cluster and every output are described in README.md.";
+Specs, the cluster and every output are described in docs/guide.md (the README is the tour).";
 
 #[derive(Parser)]
 #[command(name = "vintctl", version, about = "Generate visuo-tactile in-hand datasets", after_help = GETTING_STARTED)]

@@ -430,7 +430,7 @@ GRASPED = ("mustard_bottle", "cracker_box", "mug")
 @pytest.fixture(scope="module")
 def grasps(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[dict[str, Any], Path]]:
     """Four trx3 trials on each of three shapes that are not cylinders (acceptance on all catalog
-    objects is measured in README.md)."""
+    objects is measured in docs/physics.md)."""
     engine = GraspEngine()
     root = tmp_path_factory.mktemp("grasps")
     out = {}
@@ -464,6 +464,6 @@ def test_grasps_on_other_shapes_complete_and_ship_the_model(
 
 
 def test_some_grasps_on_other_shapes_hold(grasps: dict[str, tuple[dict[str, Any], Path]]) -> None:
-    """Acceptance varies by shape (README.md has the rates); some of these trials must hold."""
+    """Acceptance varies by shape (docs/physics.md has the rates); some of these trials must hold."""
     outcomes = {name: [t["reason"] or "accepted" for t in doc["trials"]] for name, (doc, _) in grasps.items()}
     assert sum(reason == "accepted" for reasons in outcomes.values() for reason in reasons) >= 3, outcomes
