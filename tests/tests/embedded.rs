@@ -617,13 +617,22 @@ fn a_bop_models_object_keeps_its_files_frame_in_the_bop_layout() {
     assert!(summary["images"].as_u64().unwrap_or(0) > 0, "{summary}");
 }
 
-/// The vertices of a binary little-endian PLY whose vertex element (first) is float32 x y z.
+/// The vertices of a binary little-endian PLY whose vertex element (first) is float32 x y z and
+/// then any other float32 properties (the BOP layout adds nx ny nz).
 fn ply_vertices_mm(bytes: &[u8]) -> Vec<[f64; 3]> {
     let end = bytes.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
     let header = std::str::from_utf8(&bytes[..end]).unwrap();
     let count: usize = header.lines().find_map(|l| l.strip_prefix("element vertex ")).unwrap().trim().parse().unwrap();
-    bytes[end..end + 12 * count]
-        .chunks_exact(12)
+    let properties = header
+        .lines()
+        .skip_while(|l| !l.starts_with("element vertex "))
+        .skip(1)
+        .take_while(|l| l.starts_with("property "))
+        .inspect(|l| assert!(l.starts_with("property float "), "{l}"))
+        .count();
+    let stride = 4 * properties;
+    bytes[end..end + stride * count]
+        .chunks_exact(stride)
         .map(|v| [0, 1, 2].map(|k| f64::from(f32::from_le_bytes(v[4 * k..4 * k + 4].try_into().unwrap()))))
         .collect()
 }
