@@ -401,7 +401,8 @@ fn write_scene(
     for (file, records) in files {
         sink.put(&format!("{dir}/{file}"), &by_id(&records)?)?;
     }
-    if files_have_masks(&annotations, &images) {
+    // The masks an annotation is made from: any image with a visibility had them.
+    if images.iter().any(|i| i.visib_fract.is_some()) {
         for (n, a) in annotations.iter_mut().enumerate() {
             a["id"] = json!(n + 1);
         }
@@ -417,11 +418,6 @@ fn write_scene(
         sink.put(&format!("{dir}/{COCO}"), &pretty(&coco)?)?;
     }
     Ok(images)
-}
-
-/// Whether the scene's images had masks (`scene_gt_coco.json` is made from them).
-fn files_have_masks(annotations: &[Value], images: &[ImageFacts]) -> bool {
-    !annotations.is_empty() || images.iter().any(|i| i.visib_fract.is_some())
 }
 
 /// What every view of a grasp shares, read once from its `grasp.json`.
