@@ -11,6 +11,10 @@ shared with the writer:
   (pixel centres on integer coordinates, OpenCV axes: docs/rendering.md) and compares the result
   with depth/ × depth_scale on the visible-mask pixels and with the silhouette in mask/;
 - recomputes scene_gt_info from the masks (and px_count_valid from depth/);
+- checks models_eval/: every vertex on the models/ surface, no two closer than the spacing
+  dataset.json states, every point of the surface (drawn uniformly here) within 1.25 spacings of
+  one, the triangles wound outward around nearly the model's volume, normals and models_info
+  measured on that file;
 - checks the models: watertight and consistently wound, outward, in millimetres, diameter and
   extents equal to models_info.json's and dataset.json's, and their vertex normals (every BOP model
   has them) equal to the angle-weighted sums of the incident triangles' normals computed here;
@@ -351,6 +355,100 @@ def check_models(
     return models
 
 
+def surface_samples(vertices: Array, faces: npt.NDArray[np.int64], n: int, seed: int) -> Array:
+    """n points drawn uniformly over the mesh's surface: a triangle by area, then a point uniformly in
+    it (the square-root construction of Osada et al. 2002, "Shape distributions")."""
+    rng = np.random.default_rng(seed)
+    tri = vertices[faces]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    pick = rng.choice(len(faces), size=n, p=area / area.sum())
+    r1, r2 = np.sqrt(rng.random(n))[:, None], rng.random(n)[:, None]
+    a, b, c = tri[pick, 0], tri[pick, 1], tri[pick, 2]
+    return (1 - r1) * a + r1 * (1 - r2) * b + r1 * r2 * c
+
+
+def nearest_distances(points: Array, to: Array, skip_self: bool = False) -> Array:
+    """For each of `points`, the distance to the nearest of `to` (brute force, in chunks)."""
+    out = np.empty(len(points))
+    for start in range(0, len(points), 256):
+        chunk = points[start : start + 256]
+        d2 = ((chunk[:, None, :] - to[None, :, :]) ** 2).sum(-1)
+        if skip_self:
+            d2[np.arange(len(chunk)), np.arange(start, start + len(chunk))] = np.inf
+        out[start : start + 256] = np.sqrt(d2.min(axis=1))
+    return out
+
+
+def check_models_eval(
+    root: Path,
+    dataset: dict[str, Any],
+    models: dict[int, tuple[Array, npt.NDArray[np.int64]]],
+    fail: Failures,
+) -> dict[str, Any]:
+    """models_eval/: per model, every vertex on the models/ surface, no two closer than the stated
+    spacing r, every point of the surface (20,000 drawn uniformly here) within 1.25 r of one, the
+    triangles wound outward around nearly the original volume, normals and models_info measured on
+    this file, symmetries as models/'s."""
+    folder = root / "models_eval"
+    info = load_json(folder / "models_info.json", keys_to_int=True)
+    info_models = load_json(root / "models" / "models_info.json", keys_to_int=True)
+    stated = {o["obj_id"]: o for o in dataset.get("bop", {}).get("models_eval", {}).get("objects", [])}
+    fail.check(set(info) == set(models), f"models_eval ids {sorted(info)} != models/ {sorted(models)}")
+    fail.check(set(stated) == set(models), f"dataset.json states models_eval for {sorted(stated)}")
+    worst: dict[str, Any] = {"on_surface_mm": 0.0, "min_spacing_over_r": np.inf, "max_gap_over_r": 0.0}
+    worst["volume_ratio"] = []
+    for obj_id, (model_v, model_f) in sorted(models.items()):
+        path = folder / f"obj_{obj_id:06d}.ply"
+        if not fail.check(path.is_file() and obj_id in stated and obj_id in info, f"{path}: missing"):
+            continue
+        vertices, faces = load_ply(path)
+        r = float(stated[obj_id]["spacing_mm"])
+        fail.check(
+            len(vertices) == stated[obj_id]["points"],
+            f"{path.name}: {len(vertices)} vertices, dataset.json states {stated[obj_id]['points']}",
+        )
+        tris = model_v[model_f]
+        off = max(float(point_triangle_distance(p, tris).min()) for p in vertices)
+        fail.check(off <= 1e-3, f"{path.name}: a vertex lies {off:.4f} mm off the model's surface")
+        spacing = float(nearest_distances(vertices, vertices, skip_self=True).min())
+        fail.check(spacing >= r - 1e-4, f"{path.name}: two vertices {spacing:.4f} mm apart, spacing {r}")
+        gap = float(nearest_distances(surface_samples(model_v, model_f, 20_000, obj_id), vertices).max())
+        fail.check(gap <= 1.25 * r + 1e-4, f"{path.name}: a surface point is {gap:.3f} mm from every vertex")
+        tri = vertices[faces]
+        volume = float(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6.0)
+        original = float(np.einsum("ij,ij->i", tris[:, 0], np.cross(tris[:, 1], tris[:, 2])).sum() / 6.0)
+        fail.check(
+            abs(volume / original - 1) < 0.1,
+            f"{path.name}: the triangles enclose {volume:.0f} mm³, the model {original:.0f} mm³",
+        )
+        normals = ply_normals(path)
+        if fail.check(normals is not None, f"{path.name}: no vertex normals (nx, ny, nz)"):
+            assert normals is not None
+            used = np.unique(faces)
+            dots = np.einsum("ij,ij->i", normals[used], angle_weighted_normals(vertices, faces)[used])
+            fail.check(
+                float(dots.min()) >= 0.9999, f"{path.name}: vertex normals are not the angle-weighted ones"
+            )
+        entry = info[obj_id]
+        fail.check(
+            abs(diameter(vertices) - entry["diameter"]) <= MODEL_MM,
+            f"{path.name}: diameter != models_eval/models_info {entry['diameter']}",
+        )
+        size = vertices.max(0) - vertices.min(0)
+        written = np.array([entry[f"size_{a}"] for a in "xyz"])
+        fail.check(bool(np.all(np.abs(written - size) <= MODEL_MM)), f"{path.name}: size {written} != {size}")
+        for key in ("symmetries_continuous", "symmetries_discrete"):
+            fail.check(
+                entry.get(key) == info_models[obj_id].get(key),
+                f"{path.name}: {key} differs from models/models_info.json's",
+            )
+        worst["on_surface_mm"] = max(worst["on_surface_mm"], off)
+        worst["min_spacing_over_r"] = min(worst["min_spacing_over_r"], spacing / r)
+        worst["max_gap_over_r"] = max(worst["max_gap_over_r"], gap / r)
+        worst["volume_ratio"].append(round(volume / original, 4))
+    return worst
+
+
 def check_scene_ids(root: Path, dataset: dict[str, Any], fail: Failures) -> list[tuple[str, int, str]]:
     """(split, scene_id, grasp_id) of every scene: ids are the grasps' ordinals in sorted order."""
     grasps = sorted(dataset["split"]["grasps"])
@@ -601,6 +699,7 @@ def check(root: Path) -> tuple[dict[str, Any], list[str]]:
     dataset = load_json(root / "dataset.json")
     fail.check(dataset.get("format") == "vint-bop", f"dataset.json format {dataset.get('format')!r}")
     models = check_models(root, dataset, fail)
+    models_eval = check_models_eval(root, dataset, models, fail)
     stats: dict[str, list[float]] = {
         k: [] for k in ("iou", "iou_raw", "depth_median", "depth_all", "touch_mm")
     }
@@ -638,6 +737,7 @@ def check(root: Path) -> tuple[dict[str, Any], list[str]]:
         "scenes": len(scenes),
         "images": images,
         "models": len(models),
+        "models_eval": models_eval,
         "depth_error_mm": {
             "median": float(np.median(depth_all)),
             "p95": float(np.percentile(depth_all, 95)),

@@ -44,7 +44,7 @@ def rotation(axis: np.ndarray, angle: float) -> np.ndarray:
 
 def symmetry_axis(root: Path, obj_id: int) -> tuple[np.ndarray, np.ndarray]:
     """The object's continuous symmetry axis and offset (mm), else the model's z through its origin."""
-    entry = json.loads((root / "models" / "models_info.json").read_text())[str(obj_id)]
+    entry = json.loads((ind.models_folder(root) / "models_info.json").read_text())[str(obj_id)]
     for sym in entry.get("symmetries_continuous") or []:
         return np.array(sym["axis"], dtype=np.float64), np.array(sym["offset"], dtype=np.float64)
     return np.array([0.0, 0.0, 1.0]), np.zeros(3)
@@ -181,10 +181,14 @@ def main() -> int:
     for key, value in expected.items():
         if counted[key] != value:
             failures.append(f"estimates.{key}: vintctl {counted[key]}, expected {value}")
+    models = ind.models_folder(args.dataset).name
+    if vint["models"] != models:
+        failures.append(f"vintctl scored on {vint['models']}/, the dataset's evaluation models are {models}/")
     if failures:
         print(f"{len(failures)} mismatches:", *failures[:50], sep="\n  ", file=sys.stderr)
         return 1
-    json.dump({"tally": tally, "worst_abs_diff_mm": worst, "overall": vint["overall"]}, sys.stdout, indent=1)
+    summary = {"tally": tally, "worst_abs_diff_mm": worst, "overall": vint["overall"], "models": models}
+    json.dump(summary, sys.stdout, indent=1)
     print()
     return 0
 

@@ -7,7 +7,7 @@ against every estimated posed point), and the AUC in its closed form rather than
 sorted errors. Definitions (docs/metrics.md; PoseCNN's, as the BOP toolkit's `add` and `adi`):
 
     ADD   = mean_x ‖(R̂x + t̂) - (Rx + t)‖
-    ADD-S = mean_x min_y ‖(Rx + t) - (R̂y + t̂)‖        x, y over the model's vertices
+    ADD-S = mean_x min_y ‖(Rx + t) - (R̂y + t̂)‖        x, y over the vertices of models_eval/ (else models/)
     AUC   = 100/T · [ Σ_i max(0, T - e_i)/n + d_max/n ],  T = 100 mm
 
 where d_max is the largest error ≤ T (0 when none): the YCB-Video toolbox's VOCap equals the exact
@@ -120,12 +120,18 @@ class Instance:
     visib_fract: float
 
 
+def models_folder(root: Path) -> Path:
+    """models_eval/ (the uniformly resampled models BOP scores on) when the dataset has it, else models/."""
+    resampled = root / "models_eval"
+    return resampled if (resampled / "models_info.json").is_file() else root / "models"
+
+
 def load_dataset(root: Path, splits: list[str]) -> tuple[dict[int, Model], list[Instance]]:
     if not splits:
         splits = sorted(
             p.name
             for p in root.iterdir()
-            if p.is_dir() and p.name != "models" and any(p.glob("*/scene_gt.json"))
+            if p.is_dir() and p.name not in ("models", "models_eval") and any(p.glob("*/scene_gt.json"))
         )
     instances: list[Instance] = []
     for split in splits:
@@ -147,12 +153,13 @@ def load_dataset(root: Path, splits: list[str]) -> tuple[dict[int, Model], list[
                             visib_fract=float(i["visib_fract"]),
                         )
                     )
-    info = json.loads((root / "models" / "models_info.json").read_text())
+    folder = models_folder(root)
+    info = json.loads((folder / "models_info.json").read_text())
     models: dict[int, Model] = {}
     for obj_id in sorted({i.obj_id for i in instances}):
         entry = info[str(obj_id)]
         symmetric = bool(entry.get("symmetries_continuous")) or bool(entry.get("symmetries_discrete"))
-        points = ply_vertices(root / "models" / f"obj_{obj_id:06d}.ply")
+        points = ply_vertices(folder / f"obj_{obj_id:06d}.ply")
         models[obj_id] = Model(obj_id, float(entry["diameter"]), symmetric, points)
     instances.sort(key=lambda i: (i.scene_id, i.im_id, i.gt_index))
     return models, instances

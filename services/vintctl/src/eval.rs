@@ -29,8 +29,9 @@ use metrics::AUC_MAX_MM;
 /// What to score against what.
 #[derive(clap::Args, Debug)]
 pub struct EvalArgs {
-    /// The BOP dataset (`vintctl run … --format bop`): models/ with models_info.json and
-    /// obj_NNNNNN.ply, and <split>/<scene_id>/scene_gt.json and scene_gt_info.json.
+    /// The BOP dataset (`vintctl run … --format bop`): models_eval/ (else models/) with
+    /// models_info.json and obj_NNNNNN.ply, and <split>/<scene_id>/scene_gt.json and
+    /// scene_gt_info.json.
     #[arg(long)]
     pub dataset: PathBuf,
     /// The estimates: a BOP results CSV (`scene_id,im_id,obj_id,score,R,t,time`; R row-major, t in
@@ -252,6 +253,7 @@ impl Report<'_> {
         json!({
             "dataset": self.args.dataset, "estimates_file": self.args.estimates, "splits": self.dataset.splits,
             "auc_max_mm": AUC_MAX_MM,
+            "models": self.dataset.models_dir,
             "estimates": {"rows": self.rows, "used": self.scoring.scored.iter().filter(|s| s.estimate.is_some()).count(),
                           "duplicates": self.scoring.duplicates, "unmatched": self.scoring.unmatched},
             "overall": self.overall().json(),
@@ -282,6 +284,7 @@ impl Report<'_> {
              without ground truth.",
             self.rows, s.duplicates, s.unmatched
         );
+        let _ = writeln!(out, "{}", points_note(self.dataset.models_dir));
         let _ = writeln!(
             out,
             "AUC: area under accuracy over thresholds 0–{AUC_MAX_MM} mm, ×100 (YCB-Video toolbox, as PoseCNN and PVN3D). \
@@ -340,6 +343,20 @@ impl Report<'_> {
             let _ = writeln!(out);
         }
         out
+    }
+}
+
+/// What the errors were measured on.
+fn points_note(models_dir: &str) -> String {
+    if models_dir == "models_eval" {
+        "Points: the vertices of models_eval/ (each model resampled uniformly over its surface, what the BOP \
+         toolkit scores on)."
+            .to_string()
+    } else {
+        format!(
+            "Points: the vertices of {models_dir}/ — this dataset has no models_eval/, and a model's vertices need not \
+             lie uniformly over its surface, so these numbers are not comparable with published ones."
+        )
     }
 }
 

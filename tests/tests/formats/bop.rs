@@ -118,6 +118,12 @@ fn bop_export_matches_an_independent_reprojection_of_the_models() {
     assert_eq!(targets["bop24"], targets["test_images"], "one detection target per test image: {summary}");
     assert!(targets["bop19"].as_u64() <= targets["test_images"].as_u64(), "{summary}");
     assert!(bop().join("camera.json").is_file() && bop().join("test_targets_bop24.json").is_file());
+    // models_eval: on the surface, at least the spacing apart, covering it within 1.25 spacings.
+    let eval = &summary["models_eval"];
+    assert!(eval["on_surface_mm"].as_f64().is_some_and(|d| d <= 1e-3), "{summary}");
+    assert!(eval["min_spacing_over_r"].as_f64().is_some_and(|s| s >= 0.99999), "{summary}");
+    assert!(eval["max_gap_over_r"].as_f64().is_some_and(|g| g <= 1.25), "{summary}");
+    assert_eq!(eval["volume_ratio"].as_array().map(Vec::len), Some(3), "{summary}");
 }
 
 #[test]
@@ -163,6 +169,22 @@ fn the_reprojection_check_fails_on_a_pose_off_by_millimetres_and_on_a_wrong_box(
         ply[end + 4 * k + 3] ^= 0x80;
     }
     std::fs::write(&model, ply).expect("write");
+    // models_eval: the first object's first vertex moved out to 1.5 times its distance from the
+    // model's centre (off the surface of a model around its centre); the second object's
+    // spacing stated as half what it is, so the surface has points farther than 1.25 of it from all.
+    let model_eval = broken.join(format!("models_eval/obj_{id:06}.ply"));
+    let mut ply = std::fs::read(&model_eval).expect("models_eval model");
+    let end = ply.windows(11).position(|w| w == b"end_header\n").expect("PLY header") + 11;
+    for k in 0..3 {
+        let at = end + 4 * k;
+        let v = f32::from_le_bytes(ply[at..at + 4].try_into().expect("4 bytes"));
+        ply[at..at + 4].copy_from_slice(&(v * 1.5).to_le_bytes());
+    }
+    std::fs::write(&model_eval, ply).expect("write");
+    let mut described = dataset.clone();
+    let spacing = described["bop"]["models_eval"]["objects"][1]["spacing_mm"].as_f64().expect("spacing_mm");
+    described["bop"]["models_eval"]["objects"][1]["spacing_mm"] = Value::from(spacing / 2.0);
+    std::fs::write(broken.join("dataset.json"), serde_json::to_vec(&described).expect("json")).expect("write");
 
     let run = check_bop(&broken);
     let errors = String::from_utf8_lossy(&run.stderr);
@@ -173,6 +195,8 @@ fn the_reprojection_check_fails_on_a_pose_off_by_millimetres_and_on_a_wrong_box(
     assert!(errors.contains("bbox_visib"), "{errors}");
     assert!(errors.contains("camera.json K"), "{errors}");
     assert!(errors.contains("test_targets_bop19.json"), "{errors}");
+    assert!(errors.contains("off the model's surface"), "{errors}");
+    assert!(errors.contains("from every vertex"), "{errors}");
 }
 
 #[test]

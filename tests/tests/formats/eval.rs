@@ -56,7 +56,9 @@ fn assert_exercised(summary: &Value) {
 #[test]
 fn eval_agrees_with_an_independent_add_on_perturbed_ground_truth() {
     for seed in [1, 2] {
-        assert_exercised(&check_eval(bop(), seed));
+        let summary = check_eval(bop(), seed);
+        assert_exercised(&summary);
+        assert_eq!(summary["models"], "models_eval", "a BOP export is scored on its uniformly resampled models");
     }
 }
 
@@ -67,7 +69,9 @@ fn eval_agrees_on_symmetric_objects_and_two_objects_an_image() {
     let out = Command::new(python()).arg(script("synthetic_bop.py")).arg(&dataset).output().expect("synthetic_bop.py");
     assert!(out.status.success(), "synthetic_bop.py: {}", stderr(&out));
     for seed in [1, 2, 3] {
-        assert_exercised(&check_eval(&dataset, seed));
+        let summary = check_eval(&dataset, seed);
+        assert_exercised(&summary);
+        assert_eq!(summary["models"], "models", "without models_eval/, the models' vertices");
     }
     // A turn about the cylinder's axis is nearly free for ADD-S and not for ADD: the symmetric
     // objects' ADD-S AUC must beat their ADD AUC, and ADD(S) must be ADD-S for them.

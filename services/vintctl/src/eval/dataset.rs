@@ -1,8 +1,10 @@
 //! The parts of a BOP dataset that scoring reads (the BOP toolkit's docs/bop_datasets_format.md):
-//! `models/models_info.json` (diameter, symmetries), `models/obj_NNNNNN.ply` (the points ADD is
-//! measured on, millimetres), and per split and scene `scene_gt.json` (poses) and
+//! the models folder's `models_info.json` (diameter, symmetries) and `obj_NNNNNN.ply` (the points
+//! ADD is measured on, millimetres), and per split and scene `scene_gt.json` (poses) and
 //! `scene_gt_info.json` (`visib_fract`); object names from `dataset.json` when it has them.
-//! Reads only; any problem is an error naming the file.
+//! The models folder is `models_eval/` — the uniformly resampled models the toolkit scores on —
+//! when the dataset has one, else `models/` (whose vertices may be anything but uniform: the
+//! report says which it used). Reads only; any problem is an error naming the file.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -39,6 +41,8 @@ pub struct Instance {
 
 pub struct Dataset {
     pub models: BTreeMap<u32, Model>,
+    /// The folder the models were read from: `models_eval` or `models`.
+    pub models_dir: &'static str,
     /// Sorted by (scene_id, im_id, gt_index).
     pub instances: Vec<Instance>,
     pub splits: Vec<String>,
@@ -74,8 +78,9 @@ pub fn read(dir: &Path, splits: &[String]) -> anyhow::Result<Dataset> {
         }
     }
     instances.sort_by_key(|i| (i.scene_id, i.im_id, i.gt_index));
-    let models = read_models(dir, &instances)?;
-    Ok(Dataset { models, instances, splits })
+    let models_dir = if dir.join("models_eval/models_info.json").is_file() { "models_eval" } else { "models" };
+    let models = read_models(dir, models_dir, &instances)?;
+    Ok(Dataset { models, models_dir, instances, splits })
 }
 
 /// Directories directly under `dir` (but models/) that hold at least one scene.
@@ -83,7 +88,7 @@ fn splits_in(dir: &Path) -> anyhow::Result<Vec<String>> {
     let mut splits = Vec::new();
     for entry in read_dir_sorted(dir)? {
         let name = entry.file_name().and_then(|n| n.to_str()).unwrap_or_default().to_string();
-        if entry.is_dir() && name != "models" && !scenes(&entry)?.is_empty() {
+        if entry.is_dir() && name != "models" && name != "models_eval" && !scenes(&entry)?.is_empty() {
             splits.push(name);
         }
     }
@@ -176,8 +181,8 @@ fn numbers(v: &Value, count: usize) -> anyhow::Result<Vec<f64>> {
 }
 
 /// The models of the objects the instances show (others are not read).
-fn read_models(dir: &Path, instances: &[Instance]) -> anyhow::Result<BTreeMap<u32, Model>> {
-    let info_path = dir.join("models/models_info.json");
+fn read_models(dir: &Path, models_dir: &str, instances: &[Instance]) -> anyhow::Result<BTreeMap<u32, Model>> {
+    let info_path = dir.join(models_dir).join("models_info.json");
     let info = read_json(&info_path)?;
     let names = object_names(dir)?;
     let mut models = BTreeMap::new();
@@ -194,7 +199,7 @@ fn read_models(dir: &Path, instances: &[Instance]) -> anyhow::Result<BTreeMap<u3
             .ok_or_else(|| anyhow!("{}: object {obj_id}: diameter is no positive number", info_path.display()))?;
         let listed = |key: &str| entry.get(key).and_then(Value::as_array).is_some_and(|a| !a.is_empty());
         let symmetric = listed("symmetries_continuous") || listed("symmetries_discrete");
-        let ply_path = dir.join(format!("models/obj_{obj_id:06}.ply"));
+        let ply_path = dir.join(models_dir).join(format!("obj_{obj_id:06}.ply"));
         let bytes = std::fs::read(&ply_path).with_context(|| format!("reading {}", ply_path.display()))?;
         let points = ply::vertices(&bytes).with_context(|| format!("reading {}", ply_path.display()))?;
         if points.is_empty() {

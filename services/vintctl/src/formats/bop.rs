@@ -15,6 +15,7 @@
 mod frames;
 mod images;
 mod model;
+mod model_eval;
 mod targets;
 
 use std::collections::BTreeMap;
@@ -31,7 +32,7 @@ pub use frames::moved_symmetries;
 use frames::{Mat3, Rigid, Vec3, row_major};
 pub use images::DEPTH_SCALE_MM;
 use images::{Mask, depth_units, encode_depth};
-use model::{ModelGeometry, moved_ply, with_normals};
+use model::{Mesh, ModelGeometry, moved_ply};
 use targets::ImageFacts;
 
 /// Lengths are written in mm to 1 nm and unitless numbers (rotations, normals) to 1e-9: far below
@@ -53,7 +54,7 @@ pub fn write(native: &Path, out: &Path) -> anyhow::Result<Converted> {
     let split = &dataset["split"]["grasps"];
     let mut sink = Sink { root: out.to_path_buf(), files: 0, bytes: 0 };
 
-    write_models(native, &objects, &mut sink)?;
+    let models_eval = write_models(native, &objects, &mut sink)?;
     let mut scenes = Vec::new();
     let mut work = Vec::new();
     for (scene_id, (grasp_id, views)) in grasps.iter().enumerate() {
@@ -121,6 +122,7 @@ pub fn write(native: &Path, out: &Path) -> anyhow::Result<Converted> {
     }
     described["bop"] = json!({
         "scenes": scenes,
+        "models_eval": models_eval,
         "depth_scale": DEPTH_SCALE_MM,
         "conventions": {
             "scene": "one scene per grasp: scene_id is the grasp's position in the sorted list of all grasp ids; im_id is the view index",
@@ -246,9 +248,11 @@ fn views_by_grasp(native: &Path) -> anyhow::Result<BTreeMap<String, BTreeMap<u32
 
 /// `models/obj_NNNNNN.ply` (the native model's vertices and triangles, with BOP's vertex normals
 /// added) and `models/models_info.json`, whose geometry is measured on those bytes and checked
-/// against what `dataset.json` declares.
-fn write_models(native: &Path, objects: &Objects, sink: &mut Sink) -> anyhow::Result<()> {
-    let mut info = BTreeMap::new();
+/// against what `dataset.json` declares; and `models_eval/`, the same models resampled uniformly
+/// (`model_eval`) with their own `models_info.json`. Returns what `dataset.json` says of
+/// `models_eval` (the sampling, and each model's spacing and point count).
+fn write_models(native: &Path, objects: &Objects, sink: &mut Sink) -> anyhow::Result<Value> {
+    let (mut info, mut info_eval, mut sampled) = (BTreeMap::new(), BTreeMap::new(), Vec::new());
     for (&id, o) in &objects.by_id {
         let name = o["name"].as_str().unwrap_or_default();
         let file = o["model"].as_str().ok_or_else(|| anyhow!("dataset.json: object {name} has no model file"))?;
@@ -260,20 +264,22 @@ fn write_models(native: &Path, objects: &Objects, sink: &mut Sink) -> anyhow::Re
         } else {
             moved_ply(&bytes, c.map(|v| v * 1000.0)).with_context(|| format!("{}", path.display()))?
         };
-        let bytes = with_normals(&bytes).with_context(|| format!("{}", path.display()))?;
-        let vertices = crate::eval::ply::vertices(&bytes).with_context(|| format!("{}", path.display()))?;
+        let mesh = Mesh::parse(&bytes).with_context(|| format!("{}", path.display()))?;
+        let written = mesh.ply_with_normals();
+        let vertices = crate::eval::ply::vertices(&written).with_context(|| format!("{}", path.display()))?;
         let geometry = ModelGeometry::of(&vertices).with_context(|| format!("{}", path.display()))?;
         check_declared(name, &geometry, o)?;
-        sink.put(&format!("models/obj_{id:06}.ply"), &bytes)?;
-        let mut entry = json!({
-            "diameter": round(geometry.diameter, MM_DECIMALS),
-            "min_x": round(geometry.min[0], MM_DECIMALS),
-            "min_y": round(geometry.min[1], MM_DECIMALS),
-            "min_z": round(geometry.min[2], MM_DECIMALS),
-            "size_x": round(geometry.size[0], MM_DECIMALS),
-            "size_y": round(geometry.size[1], MM_DECIMALS),
-            "size_z": round(geometry.size[2], MM_DECIMALS),
-        });
+        sink.put(&format!("models/obj_{id:06}.ply"), &written)?;
+
+        let resampled = model_eval::resample(&mesh, &bytes);
+        let written_eval = resampled.mesh.ply_with_normals();
+        let eval_vertices = crate::eval::ply::vertices(&written_eval)?;
+        let eval_geometry = ModelGeometry::of(&eval_vertices).with_context(|| format!("{name}'s models_eval"))?;
+        sink.put(&format!("models_eval/obj_{id:06}.ply"), &written_eval)?;
+        sampled.push(json!({"obj_id": id, "spacing_mm": round(resampled.spacing_mm, MM_DECIMALS),
+                            "points": eval_vertices.len(), "triangles": resampled.mesh.triangles.len()}));
+
+        let mut symmetries = serde_json::Map::new();
         // BOP lists symmetry keys only for symmetric objects.
         for key in ["symmetries_continuous", "symmetries_discrete"] {
             if o[key].as_array().is_some_and(|s| !s.is_empty()) {
@@ -283,12 +289,39 @@ fn write_models(native: &Path, objects: &Objects, sink: &mut Sink) -> anyhow::Re
                     moved_symmetries(key, &o[key], c)
                         .ok_or_else(|| anyhow!("dataset.json: object {name}'s {key} is not in BOP's form"))?
                 };
-                entry[key] = symmetries_in_mm(key, &in_file, name)?;
+                symmetries.insert(key.to_string(), symmetries_in_mm(key, &in_file, name)?);
             }
         }
-        info.insert(id, entry);
+        info.insert(id, info_entry(&geometry, &symmetries));
+        info_eval.insert(id, info_entry(&eval_geometry, &symmetries));
     }
-    sink.put("models/models_info.json", &by_id(&info)?)
+    sink.put("models/models_info.json", &by_id(&info)?)?;
+    sink.put("models_eval/models_info.json", &by_id(&info_eval)?)?;
+    Ok(json!({
+        "sampling": format!(
+            "Poisson-disk resampling of models/: candidates are the model's vertices, then the corners of every triangle's pieces cut by longest-edge bisection to edges <= spacing/3, visited in an order keyed by the model file's hash; a candidate is kept when no kept one is closer than the spacing ({} mm, or sqrt(area / {}) if larger); triangles join the kept points nearest each piece's corners",
+            model_eval::SPACING_MM,
+            model_eval::MAX_AREA_PER_R2
+        ),
+        "objects": sampled,
+    }))
+}
+
+/// One `models_info.json` entry: the geometry measured on the written PLY, then the symmetries.
+fn info_entry(geometry: &ModelGeometry, symmetries: &serde_json::Map<String, Value>) -> Value {
+    let mut entry = json!({
+        "diameter": round(geometry.diameter, MM_DECIMALS),
+        "min_x": round(geometry.min[0], MM_DECIMALS),
+        "min_y": round(geometry.min[1], MM_DECIMALS),
+        "min_z": round(geometry.min[2], MM_DECIMALS),
+        "size_x": round(geometry.size[0], MM_DECIMALS),
+        "size_y": round(geometry.size[1], MM_DECIMALS),
+        "size_z": round(geometry.size[2], MM_DECIMALS),
+    });
+    for (key, value) in symmetries {
+        entry[key] = value.clone();
+    }
+    entry
 }
 
 /// The model PLY's geometry against what `dataset.json` declares. An object none of whose grasps

@@ -73,87 +73,114 @@ pub fn moved_ply(bytes: &[u8], d: Vec3) -> anyhow::Result<Vec<u8>> {
     Ok(out)
 }
 
-/// The model PLY in vint's layout (`moved_ply`'s), its triangles as they are, with BOP's vertex
-/// normals added (`nx ny nz` after `x y z`): each vertex's the angle-weighted sum of the normals of
-/// the triangles around it, normalized, as MeshLab computes the BOP datasets' (Thürrner and
-/// Wüthrich, "Computing vertex normals from polygonal facets", 1998). A vertex no triangle uses
-/// gets (0, 0, 0).
-pub fn with_normals(bytes: &[u8]) -> anyhow::Result<Vec<u8>> {
-    let (end, comments, lines) = header(bytes)?;
-    let counts = match lines.as_slice() {
-        [
-            "ply",
-            "format binary_little_endian 1.0",
-            vertex,
-            "property float x",
-            "property float y",
-            "property float z",
-            face,
-            "property list uchar int vertex_indices",
-            "end_header",
-        ] => vertex
-            .strip_prefix("element vertex ")
-            .and_then(|n| n.parse::<usize>().ok())
-            .zip(face.strip_prefix("element face ").and_then(|n| n.parse::<usize>().ok())),
-        _ => None,
-    };
-    let Some((n, m)) = counts else {
-        bail!("the model PLY is not vint's layout (binary little-endian, float x y z, then triangles)");
-    };
-    let body = &bytes[end..];
-    let (vertex_bytes, face_bytes) = (n * 12, m * 13);
-    if body.len() != vertex_bytes + face_bytes {
-        bail!("the model PLY holds {} data bytes, its header {}", body.len(), vertex_bytes + face_bytes);
-    }
-    let float = |at: usize| f64::from(f32::from_le_bytes([body[at], body[at + 1], body[at + 2], body[at + 3]]));
-    let vertices: Vec<Vec3> = (0..n).map(|i| [0, 1, 2].map(|k| float(i * 12 + k * 4))).collect();
-    let mut normals = vec![[0.0f64; 3]; n];
-    for f in body[vertex_bytes..].chunks_exact(13) {
-        if f[0] != 3 {
-            bail!("the model PLY has a face of {} vertices; only triangles are written", f[0]);
-        }
-        let index = |k: usize| {
-            let i = i32::from_le_bytes([f[1 + 4 * k], f[2 + 4 * k], f[3 + 4 * k], f[4 + 4 * k]]);
-            usize::try_from(i).ok().filter(|&i| i < n).ok_or_else(|| anyhow!("the model PLY names vertex {i} of {n}"))
-        };
-        let ids = [index(0)?, index(1)?, index(2)?];
-        let p = ids.map(|i| vertices[i]);
-        let face_normal = unit(cross(sub(p[1], p[0]), sub(p[2], p[0])));
-        for k in 0..3 {
-            let (a, b) = (sub(p[(k + 1) % 3], p[k]), sub(p[(k + 2) % 3], p[k]));
-            let angle = angle_between(a, b);
-            for c in 0..3 {
-                normals[ids[k]][c] += angle * face_normal[c];
-            }
-        }
-    }
-    let mut out = String::from("ply\nformat binary_little_endian 1.0\n");
-    for c in &comments {
-        out.push_str(c);
-        out.push('\n');
-    }
-    out.push_str("comment nx ny nz: angle-weighted vertex normals (as the BOP datasets' models)\n");
-    out.push_str(&format!(
-        "element vertex {n}\nproperty float x\nproperty float y\nproperty float z\n\
-         property float nx\nproperty float ny\nproperty float nz\n\
-         element face {m}\nproperty list uchar int vertex_indices\nend_header\n"
-    ));
-    let mut out = out.into_bytes();
-    for (i, normal) in normals.iter().enumerate() {
-        out.extend_from_slice(&body[i * 12..i * 12 + 12]);
-        for v in unit(*normal) {
-            out.extend_from_slice(&(v as f32).to_le_bytes());
-        }
-    }
-    out.extend_from_slice(&body[vertex_bytes..]);
-    Ok(out)
+/// A triangle mesh as vint writes model PLYs (millimetres), with the header's comment lines.
+pub struct Mesh {
+    pub comments: Vec<String>,
+    pub vertices: Vec<Vec3>,
+    pub triangles: Vec<[usize; 3]>,
 }
 
-fn sub(a: Vec3, b: Vec3) -> Vec3 {
+impl Mesh {
+    /// The model PLY in vint's layout (`moved_ply`'s: binary little-endian, float `x y z`, then
+    /// triangles); any other layout is refused rather than guessed at.
+    pub fn parse(bytes: &[u8]) -> anyhow::Result<Mesh> {
+        let (end, comments, lines) = header(bytes)?;
+        let counts = match lines.as_slice() {
+            [
+                "ply",
+                "format binary_little_endian 1.0",
+                vertex,
+                "property float x",
+                "property float y",
+                "property float z",
+                face,
+                "property list uchar int vertex_indices",
+                "end_header",
+            ] => vertex
+                .strip_prefix("element vertex ")
+                .and_then(|n| n.parse::<usize>().ok())
+                .zip(face.strip_prefix("element face ").and_then(|n| n.parse::<usize>().ok())),
+            _ => None,
+        };
+        let Some((n, m)) = counts else {
+            bail!("the model PLY is not vint's layout (binary little-endian, float x y z, then triangles)");
+        };
+        let body = &bytes[end..];
+        let vertex_bytes = n * 12;
+        if Some(body.len()) != m.checked_mul(13).and_then(|f| f.checked_add(vertex_bytes)) {
+            bail!("the model PLY holds {} data bytes, its header {n} vertices and {m} triangles", body.len());
+        }
+        let float = |at: usize| f64::from(f32::from_le_bytes([body[at], body[at + 1], body[at + 2], body[at + 3]]));
+        let vertices: Vec<Vec3> = (0..n).map(|i| [0, 1, 2].map(|k| float(i * 12 + k * 4))).collect();
+        let mut triangles = Vec::with_capacity(m);
+        for f in body[vertex_bytes..].chunks_exact(13) {
+            if f[0] != 3 {
+                bail!("the model PLY has a face of {} vertices; only triangles are written", f[0]);
+            }
+            let index = |k: usize| {
+                let i = i32::from_le_bytes([f[1 + 4 * k], f[2 + 4 * k], f[3 + 4 * k], f[4 + 4 * k]]);
+                usize::try_from(i)
+                    .ok()
+                    .filter(|&i| i < n)
+                    .ok_or_else(|| anyhow!("the model PLY names vertex {i} of {n}"))
+            };
+            triangles.push([index(0)?, index(1)?, index(2)?]);
+        }
+        Ok(Mesh { comments: comments.into_iter().map(str::to_string).collect(), vertices, triangles })
+    }
+
+    /// The mesh as a PLY in vint's layout plus BOP's vertex normals (`nx ny nz` after `x y z`):
+    /// each vertex's the angle-weighted sum of the normals of the triangles around it, normalized,
+    /// as MeshLab computes the BOP datasets' (Thürrner and Wüthrich, "Computing vertex normals from
+    /// polygonal facets", 1998). A vertex no triangle uses gets (0, 0, 0). Coordinates are written
+    /// as float32, which every vertex read by `parse` already is.
+    pub fn ply_with_normals(&self) -> Vec<u8> {
+        let (n, m) = (self.vertices.len(), self.triangles.len());
+        let mut normals = vec![[0.0f64; 3]; n];
+        for ids in &self.triangles {
+            let p = ids.map(|i| self.vertices[i]);
+            let face_normal = unit(cross(sub(p[1], p[0]), sub(p[2], p[0])));
+            for k in 0..3 {
+                let (a, b) = (sub(p[(k + 1) % 3], p[k]), sub(p[(k + 2) % 3], p[k]));
+                let angle = angle_between(a, b);
+                for c in 0..3 {
+                    normals[ids[k]][c] += angle * face_normal[c];
+                }
+            }
+        }
+        let mut out = String::from("ply\nformat binary_little_endian 1.0\n");
+        for c in &self.comments {
+            out.push_str(c);
+            out.push('\n');
+        }
+        out.push_str("comment nx ny nz: angle-weighted vertex normals (as the BOP datasets' models)\n");
+        out.push_str(&format!(
+            "element vertex {n}\nproperty float x\nproperty float y\nproperty float z\n\
+             property float nx\nproperty float ny\nproperty float nz\n\
+             element face {m}\nproperty list uchar int vertex_indices\nend_header\n"
+        ));
+        let mut out = out.into_bytes();
+        for (v, normal) in self.vertices.iter().zip(&normals) {
+            for x in v.iter().chain(&unit(*normal)) {
+                out.extend_from_slice(&(*x as f32).to_le_bytes());
+            }
+        }
+        for t in &self.triangles {
+            out.push(3);
+            for &i in t {
+                // Indices come from `parse` (below n ≤ i32::MAX) or a resampling of one.
+                out.extend_from_slice(&(i as i32).to_le_bytes());
+            }
+        }
+        out
+    }
+}
+
+pub fn sub(a: Vec3, b: Vec3) -> Vec3 {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
 
-fn cross(a: Vec3, b: Vec3) -> Vec3 {
+pub fn cross(a: Vec3, b: Vec3) -> Vec3 {
     [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 }
 
@@ -193,7 +220,7 @@ pub fn diameter(vertices: &[Vec3]) -> f64 {
     best
 }
 
-fn distance(a: &Vec3, b: &Vec3) -> f64 {
+pub fn distance(a: &Vec3, b: &Vec3) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
 
@@ -280,7 +307,7 @@ mod tests {
 
     #[test]
     fn a_cube_s_corner_normals_point_along_its_diagonals() {
-        let ply = with_normals(&cube_ply()).expect("vint's layout");
+        let ply = Mesh::parse(&cube_ply()).expect("vint's layout").ply_with_normals();
         let vertices = crate::eval::ply::vertices(&ply).expect("still a PLY");
         assert_eq!(vertices.len(), 8);
         let end = ply.windows(11).position(|w| w == b"end_header\n").expect("header") + 11;
@@ -298,7 +325,7 @@ mod tests {
             }
         }
         assert_eq!(ply[ply.len() - 12 * 13..], cube_ply()[cube_ply().len() - 12 * 13..], "the triangles as they were");
-        assert!(with_normals(&ply).is_err(), "a PLY with normals already is not vint's layout");
+        assert!(Mesh::parse(&ply).is_err(), "a PLY with normals already is not vint's layout");
     }
 
     #[test]
