@@ -14,11 +14,11 @@
 #    vint-store: migrations/, vint-core: catalog/).
 #
 # --verify also lets cargo build each crate from its unpacked tarball alone, as `cargo install`
-# from a registry would. That rebuilds most dependencies, some once per crate: each crate alone
-# unifies other features of its dependencies than the workspace's build does, so little of target/
-# is reused (on the shared 2-core machine where the workspace's build took 39 minutes, the first of
-# the ten crates was still compiling syn after 7). The test command, and so CI, runs the check
-# without it; cutting a release runs it with (docs/operations.md, "Cutting a release").
+# from a registry would. Each crate alone enables other features of its dependencies than the
+# workspace's build does, so cargo compiles them again, per crate: on the shared 2-core machine where
+# the workspace's build took 39 minutes, the first crate's verification began by rebuilding syn and
+# serde and was stopped after about 3 minutes; it has not been run to the end. The test command, and
+# so CI, runs the check without it; cutting a release runs it with (docs/operations.md).
 #
 # Uncommitted changes are packaged too (--allow-dirty): the check runs on a working tree in
 # scripts/test.sh, and a release is cut from a commit that passed it.
