@@ -6,10 +6,12 @@
 # Sets up the engines' Python environment with the test tools (scripts/setup-python.sh --dev), finds
 # a Postgres, then runs cargo fmt, ruff, the deploy manifests' checks, the run-only install's check
 # (tests/python/test_install.py), clippy, cargo build (the end-to-end tests start the
-# built binaries), cargo test, pytest and every bench's smoke (tests/python/test_bench_smoke.py),
+# built binaries), the release check (scripts/release_check.sh: one version in Cargo.toml,
+# CHANGELOG.md and CITATION.cff; the `cargo package` tarballs of the binaries' crates hold what they
+# compile in), cargo test, pytest and every bench's smoke (tests/python/test_bench_smoke.py),
 # stopping at the first failure. Nothing is skipped: a missing Postgres, Rust tool, kustomize
-# (kubectl), Chromium, jq or engine library is a failure (Postgres, Chromium and jq are apt-installed
-# when absent, as root).
+# (kubectl), Chromium, jq or engine library is a failure (Postgres, Chromium and jq are
+# apt-installed when absent, as root).
 #
 # Postgres, first that applies:
 #   1. $VINT_TEST_POSTGRES_URL, if set (an admin URL: the tests create databases through it);
@@ -256,7 +258,7 @@ deploy_checks() {
 }
 
 STEP=0
-STEPS=10
+STEPS=11
 
 # Runs one check with a banner and its elapsed time; the first failure ends the script.
 step() {
@@ -295,9 +297,12 @@ step "ruff check" .venv/bin/ruff check workers/engines benches scripts examples 
 step "ruff format --check" .venv/bin/ruff format --check workers/engines benches scripts examples tests/python
 step "deploy manifests" deploy_checks
 # README command 1 installs what a run needs and no test-only package (a fresh venv, from pip's cache).
-step "install and release files" .venv/bin/python -m pytest tests/python/test_install.py tests/python/test_release.py -q
+step "install" .venv/bin/python -m pytest tests/python/test_install.py -q
 step "cargo clippy" cargo clippy --workspace --all-targets -- -D warnings
 step "cargo build --bins" cargo build --workspace --bins
+# After the build, so that the crates.io index cargo package reads is at hand; without --verify,
+# which would build every crate again from its tarball (scripts/release_check.sh says why not here).
+step "release check" bash scripts/release_check.sh
 step "cargo test" cargo test --workspace "$@"
 step "pytest (engines)" .venv/bin/python -m pytest workers/engines/tests -q --durations=15
 step "bench smokes" .venv/bin/python -m pytest tests/python/test_bench_smoke.py tests/python/test_packed_outputs.py tests/python/test_dispatch_report.py -q --durations=0

@@ -75,6 +75,11 @@ fn files(dir: &str, out: &mut Vec<String>) {
         if ["__pycache__", "target", "node_modules", "tests"].contains(&name.as_str()) || name.starts_with('.') {
             continue;
         }
+        // The crates' links to the repository's proto/, migrations/ and catalog/ (there for
+        // `cargo package`) show files that are counted where they live.
+        if entry.file_type().is_ok_and(|t| t.is_symlink()) {
+            continue;
+        }
         if entry.path().is_dir() {
             files(&rel, out);
         } else {

@@ -12,12 +12,14 @@ use std::sync::LazyLock;
 
 use serde::{Deserialize, Serialize};
 
-const OBJECTS_TOML: &str = include_str!("../../../catalog/objects.toml");
-const HANDS_TOML: &str = include_str!("../../../catalog/hands.toml");
+// `catalog` in this crate is a symbolic link to the repository's `catalog/`, so the files are
+// inside the crate and `cargo package` puts them in its tarball.
+const OBJECTS_TOML: &str = include_str!("../catalog/objects.toml");
+const HANDS_TOML: &str = include_str!("../catalog/hands.toml");
 /// Taxel layouts of the built-in hands, by the path `catalog/hands.toml` gives them.
 const TAXEL_LAYOUTS: &[(&str, &str)] = &[
-    ("hands/trx3/taxels.csv", include_str!("../../../catalog/hands/trx3/taxels.csv")),
-    ("hands/allegro/taxels.csv", include_str!("../../../catalog/hands/allegro/taxels.csv")),
+    ("hands/trx3/taxels.csv", include_str!("../catalog/hands/trx3/taxels.csv")),
+    ("hands/allegro/taxels.csv", include_str!("../catalog/hands/allegro/taxels.csv")),
 ];
 
 /// A graspable object, exactly as `catalog/objects.toml` describes it: the grasp stage's object

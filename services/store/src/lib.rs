@@ -265,10 +265,12 @@ impl Store {
         rows.iter().map(|row| Ok(row.try_get::<i64, _>("version")?)).collect()
     }
 
+    /// The migrations compiled in. The path is relative to this crate: `migrations` is a symbolic
+    /// link to the repository's `migrations/`, so a packaged crate holds them too (build.rs).
     fn migrator(&self) -> sqlx::migrate::Migrator {
         match self.backend {
-            Backend::Postgres => sqlx::migrate!("../../migrations/postgres"),
-            Backend::Sqlite => sqlx::migrate!("../../migrations/sqlite"),
+            Backend::Postgres => sqlx::migrate!("migrations/postgres"),
+            Backend::Sqlite => sqlx::migrate!("migrations/sqlite"),
         }
     }
 

@@ -15,7 +15,7 @@ async fn empty_sqlite() -> (String, tempfile::TempDir) {
 
 /// The versions of the migrations this build carries, from the migrations directory.
 fn shipped_versions(backend: &str) -> Vec<i64> {
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../migrations").join(backend);
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("migrations").join(backend);
     let mut versions: Vec<i64> = std::fs::read_dir(dir)
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().split('_').next().unwrap().parse().unwrap())

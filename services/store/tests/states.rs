@@ -29,7 +29,7 @@ fn checks() -> [(&'static str, Vec<&'static str>); 4] {
 }
 
 fn migrations(backend: &str) -> Vec<(PathBuf, String)> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../migrations").join(backend);
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("migrations").join(backend);
     let mut files: Vec<PathBuf> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().path()).collect();
     files.sort();
     files.into_iter().map(|f| (f.clone(), std::fs::read_to_string(f).unwrap())).collect()

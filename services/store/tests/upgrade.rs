@@ -14,7 +14,7 @@ const SAMPLE: &str = "can.trx3.g000000.v00";
 async fn migrate_to_0012(url: &str, postgres: bool) {
     sqlx::any::install_default_drivers();
     let mut migrator =
-        if postgres { sqlx::migrate!("../../migrations/postgres") } else { sqlx::migrate!("../../migrations/sqlite") };
+        if postgres { sqlx::migrate!("migrations/postgres") } else { sqlx::migrate!("migrations/sqlite") };
     let before: Vec<_> = migrator.migrations.iter().filter(|m| m.version < 13).cloned().collect();
     assert_eq!(before.len(), 12);
     migrator.migrations = before.into();

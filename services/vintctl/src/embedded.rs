@@ -243,6 +243,11 @@ fn worker_binary() -> Result<PathBuf, Failure> {
     if bin.exists() {
         Ok(bin)
     } else {
-        Err(anyhow!("vint-worker not found next to {} (build the workspace: scripts/setup.sh)", exe.display()).into())
+        Err(anyhow!(
+            "vint-worker not found next to {} (build the workspace: scripts/setup.sh; or install it beside \
+             vintctl: cargo install --path workers/runtime; or set VINT_WORKER_BIN)",
+            exe.display()
+        )
+        .into())
     }
 }
