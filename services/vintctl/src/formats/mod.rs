@@ -6,6 +6,7 @@
 //! place.
 
 pub mod bop;
+mod ustar;
 pub mod webdataset;
 
 use std::io::Read;
