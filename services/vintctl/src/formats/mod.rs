@@ -65,6 +65,34 @@ pub fn convert(target: Target, native: &Path, out: &Path) -> anyhow::Result<Conv
     }
 }
 
+/// Runs `task` on every item on all cores (each thread takes every n-th item) and returns the
+/// results in item order. The tasks must be independent — each writes only its own files — so
+/// which thread runs one changes nothing in the bytes it writes.
+pub(crate) fn on_all_cores<T: Sync, R: Send>(
+    items: &[T],
+    task: impl Fn(&T) -> anyhow::Result<R> + Sync,
+) -> anyhow::Result<Vec<R>> {
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get()).clamp(1, items.len().max(1));
+    let task = &task;
+    let done = std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..threads)
+            .map(|t| {
+                scope.spawn(move || {
+                    let mine = items.iter().enumerate().skip(t).step_by(threads);
+                    mine.map(|(i, item)| Ok((i, task(item)?))).collect::<anyhow::Result<Vec<_>>>()
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| h.join().map_err(|_| anyhow::anyhow!("a writer thread panicked"))?)
+            .collect::<anyhow::Result<Vec<_>>>()
+    })?;
+    let mut results: Vec<(usize, R)> = done.into_iter().flatten().collect();
+    results.sort_by_key(|(i, _)| *i);
+    Ok(results.into_iter().map(|(_, r)| r).collect())
+}
+
 #[derive(Serialize)]
 struct ManifestLine<'a> {
     path: &'a str,
