@@ -1,11 +1,13 @@
 //! The dataset formats an export can write. The native layout (`export`) is the source; the
 //! others are converted from a native directory: BOP's layout (`bop`), for the BOP toolkit and the
-//! pose-estimation loaders built on it, and WebDataset tar shards (`webdataset`), for streaming
-//! training. A converter reads only the native directory and writes only its output directory;
-//! the caller stages, writes the output's `manifest.jsonl` (`write_manifest`) and renames it into
-//! place.
+//! pose-estimation loaders built on it, WebDataset tar shards (`webdataset`), for streaming
+//! training, and BOP's training-set shards (`bop_webdataset`), for the loaders of the BOP 2023
+//! training sets (MegaPose's). A converter reads only the native directory and writes only its
+//! output directory; the caller stages, writes the output's `manifest.jsonl` (`write_manifest`)
+//! and renames it into place.
 
 pub mod bop;
+pub mod bop_webdataset;
 mod ustar;
 pub mod webdataset;
 
@@ -25,6 +27,8 @@ pub enum Format {
     Bop,
     /// WebDataset tar shards per split, one sample per key.
     Webdataset,
+    /// BOP-webdataset: BOP's per-image members in shards per split, in a seeded order.
+    BopWebdataset,
 }
 
 impl Format {
@@ -33,6 +37,7 @@ impl Format {
             Format::Native => "native",
             Format::Bop => "bop",
             Format::Webdataset => "webdataset",
+            Format::BopWebdataset => "bop-webdataset",
         }
     }
 }
@@ -62,6 +67,7 @@ pub fn convert(target: Target, native: &Path, out: &Path) -> anyhow::Result<Conv
         Format::Native => anyhow::bail!("a native dataset is exported, not converted"),
         Format::Bop => bop::write(native, out),
         Format::Webdataset => webdataset::write(native, out, target.shard_samples),
+        Format::BopWebdataset => bop_webdataset::write(native, out, target.shard_samples),
     }
 }
 
