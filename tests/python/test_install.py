@@ -29,7 +29,7 @@ DEV_LOCK = ENGINES / "requirements-dev.lock"
 
 # Packages only the tests, lint, the deploy check and the loader example's test use.
 TEST_ONLY = re.compile(
-    r"^(torch|triton|nvidia-.*|cuda-.*|pytest|ruff|moto|boto3|botocore|flask|webdataset|kubernetes-validate)$"
+    r"^(torch|triton|nvidia-.*|cuda-.*|pytest|ruff|moto|boto3|botocore|flask|webdataset|wids|kubernetes-validate)$"
 )
 
 
@@ -65,7 +65,7 @@ def pinned(lock: Path) -> set[str]:
 def test_the_locks_split_run_from_test_and_pin_each_package_once() -> None:
     runtime, dev = pinned(RUNTIME_LOCK), pinned(DEV_LOCK)
     assert not {n for n in runtime if TEST_ONLY.match(n)}, "a test-only package is in the runtime lock"
-    assert {"torch", "pytest", "webdataset"} <= dev
+    assert {"torch", "pytest", "webdataset", "wids"} <= dev
     assert {"bpy", "mujoco", "matplotlib"} <= runtime
     assert not runtime & dev, f"pinned in both locks: {sorted(runtime & dev)}"
 

@@ -17,6 +17,7 @@ pub enum Stream {
     NoiseView,
     TaxelGain,
     Split,
+    ShardOrder,
 }
 
 impl Stream {
@@ -27,6 +28,7 @@ impl Stream {
             Stream::NoiseView => "noise-view",
             Stream::TaxelGain => "taxel-gain",
             Stream::Split => "split",
+            Stream::ShardOrder => "shard-order",
         }
     }
 }
@@ -72,6 +74,13 @@ pub fn taxel_gains(job_seed: u64, hand: &str) -> u64 {
 /// A grasp's place in the order that deals grasps into train/val/test (`split`).
 pub fn split_rank(job_seed: u64, object: &str, hand: &str, grasp_index: u32) -> u64 {
     derive(job_seed, Stream::Split, &[object, hand, &grasp_index.to_string()])
+}
+
+/// A view's place in the seeded order a shard writer shuffles its samples into (BOP-webdataset):
+/// samples are written by increasing rank, so that reading the shards in sequence reads the views
+/// of a grasp apart.
+pub fn shard_rank(job_seed: u64, object: &str, hand: &str, grasp_index: u32, view_index: u32) -> u64 {
+    derive(job_seed, Stream::ShardOrder, &[object, hand, &grasp_index.to_string(), &view_index.to_string()])
 }
 
 #[cfg(test)]
@@ -130,6 +139,7 @@ mod tests {
         assert_eq!(render_view(7, "cracker_box", "allegro", 12, 3), 7_100_772_011_125_240);
         assert_eq!(noise_view(7, "cracker_box", "allegro", 12, 3), 506_004_834_922_793);
         assert_eq!(taxel_gains(u64::MAX, "allegro"), 8_780_227_652_606_152);
+        assert_eq!(shard_rank(7, "cracker_box", "allegro", 12, 3), 7_682_493_199_990_467);
         assert_eq!(derive(42, Stream::GraspTrial, &["x"]), 7_314_213_043_975_032);
         assert_eq!(derive(1, Stream::GraspTrial, &["ab", "c"]), 3_934_435_888_197_408);
         assert_eq!(derive(1, Stream::GraspTrial, &["a", "bc"]), 7_847_422_263_727_695);

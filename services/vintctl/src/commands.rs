@@ -190,7 +190,9 @@ pub async fn export(
 /// `vintctl convert`: a native dataset directory to another layout.
 pub fn convert(dataset: &Path, out: &Path, target: Target, json: bool) -> CliResult {
     if target.format == crate::formats::Format::Native {
-        return Err(bad_input(anyhow!("--format native: the dataset is native already; choose bop or webdataset")));
+        return Err(bad_input(anyhow!(
+            "--format native: the dataset is native already; choose bop, webdataset or bop-webdataset"
+        )));
     }
     let summary = export::convert_dir(dataset, out, target)?;
     if json {

@@ -333,10 +333,11 @@ enum Command {
 #[derive(clap::Args)]
 struct FormatArgs {
     /// Layout of the dataset: native (a directory per sample and per grasp), bop (the BOP
-    /// toolkit's layout, one scene per grasp) or webdataset (tar shards).
+    /// toolkit's layout, one scene per grasp), webdataset (tar shards) or bop-webdataset (BOP's
+    /// training-set shards, one key per image, in a seeded order).
     #[arg(long, value_enum, default_value = "native")]
     format: formats::Format,
-    /// Samples per WebDataset shard (at most).
+    /// Samples per shard (at most), for webdataset and bop-webdataset.
     #[arg(long, default_value_t = formats::SHARD_SAMPLES, value_parser = clap::value_parser!(u64).range(1..))]
     shard_samples: u64,
 }

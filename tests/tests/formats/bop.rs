@@ -212,7 +212,8 @@ fn converting_twice_writes_the_same_bytes() {
     }
 }
 
-fn files_of(root: &Path) -> BTreeMap<String, Vec<u8>> {
+/// Every file under `root` by its path relative to it.
+pub(crate) fn files_of(root: &Path) -> BTreeMap<String, Vec<u8>> {
     let mut files = BTreeMap::new();
     let mut stack = vec![root.to_path_buf()];
     while let Some(dir) = stack.pop() {
@@ -229,7 +230,7 @@ fn files_of(root: &Path) -> BTreeMap<String, Vec<u8>> {
     files
 }
 
-fn copy_dir(from: &Path, to: &Path) {
+pub(crate) fn copy_dir(from: &Path, to: &Path) {
     for (name, bytes) in files_of(from) {
         let path = to.join(name);
         std::fs::create_dir_all(path.parent().expect("parent")).expect("mkdir");

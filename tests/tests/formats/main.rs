@@ -1,9 +1,11 @@
 //! The dataset formats end to end: examples/tiny.toml is run once per test process in the native
-//! layout, converted to BOP's layout and to WebDataset shards with `vintctl convert`, and each
-//! module checks one format or one consumer of them (an independent re-projection of the BOP
-//! export, the PyTorch loader example, `vintctl eval`, `vintctl stats`, `vintctl preview`).
+//! layout, converted to BOP's layout, to WebDataset shards and to BOP-webdataset shards with
+//! `vintctl convert`, and each module checks one format or one consumer of them (an independent
+//! re-projection of the BOP export, the PyTorch loader example, the `webdataset` and `wids` readers,
+//! `vintctl eval`, `vintctl stats`, `vintctl preview`).
 
 mod bop;
+mod bop_webdataset;
 mod eval;
 mod images;
 mod preview;

@@ -31,7 +31,8 @@ use super::Converted;
 pub use frames::moved_symmetries;
 use frames::{Mat3, Rigid, Vec3, row_major};
 pub use images::DEPTH_SCALE_MM;
-use images::{Mask, depth_units, encode_depth};
+pub(super) use images::Mask;
+use images::{depth_units, encode_depth};
 use model::{Mesh, ModelGeometry, moved_ply};
 use targets::ImageFacts;
 
@@ -44,69 +45,106 @@ const UNIT_DECIMALS: i32 = 9;
 /// 0.01 mm leaves room for float32 and still catches a unit or model mix-up.
 const MODEL_TOLERANCE_MM: f64 = 0.01;
 /// The one object instance of every image.
-const GT_ID: usize = 0;
+pub(super) const GT_ID: usize = 0;
 
 /// Convert the native dataset at `native` into BOP's layout under `out` (an empty directory).
 pub fn write(native: &Path, out: &Path) -> anyhow::Result<Converted> {
     let dataset = read_json(&native.join("dataset.json"))?;
     let objects = Objects::of(&dataset)?;
     let grasps = views_by_grasp(native)?;
-    let split = &dataset["split"]["grasps"];
-    let mut sink = Sink { root: out.to_path_buf(), files: 0, bytes: 0 };
+    let scenes = scenes(&dataset, &grasps)?;
+    let samples = grasps.values().map(BTreeMap::len).sum();
+    let mut sink = Sink::new(out);
 
     let models_eval = write_models(native, &objects, &mut sink)?;
-    let mut scenes = Vec::new();
-    let mut work = Vec::new();
-    for (scene_id, (grasp_id, views)) in grasps.iter().enumerate() {
-        let split = split[grasp_id.as_str()]
-            .as_str()
-            .filter(|s| vint_core::split::Split::NAMES.contains(s))
-            .ok_or_else(|| anyhow!("dataset.json: split.grasps has no train/val/test entry for grasp {grasp_id}"))?;
-        work.push((scene_id as u64, split, format!("{split}/{scene_id:06}"), grasp_id, views));
-        scenes.push(json!({
-            "scene_id": scene_id,
-            "split": split,
-            "grasp_id": grasp_id,
-            "im_ids": views.keys().collect::<Vec<_>>(),
-        }));
-    }
-    let samples = grasps.values().map(BTreeMap::len).sum();
-    // Scenes are independent (each writes only its own folder), so they are written on every core;
-    // which thread writes a scene changes nothing in its bytes.
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get()).clamp(1, work.len().max(1));
-    let written = std::thread::scope(|scope| {
-        let handles: Vec<_> = (0..threads)
-            .map(|t| {
-                let (work, objects) = (&work, &objects);
-                scope.spawn(move || -> anyhow::Result<Written<'_>> {
-                    let mut sink = Sink { root: out.to_path_buf(), files: 0, bytes: 0 };
-                    let mut facts = Vec::new();
-                    for (scene_id, split, dir, grasp_id, views) in work.iter().skip(t).step_by(threads) {
-                        let images = write_scene(native, *scene_id, dir, grasp_id, views, objects, &mut sink)
-                            .with_context(|| format!("grasp {grasp_id}"))?;
-                        facts.extend(images.into_iter().map(|i| (*split, i)));
-                    }
-                    Ok((sink.files, sink.bytes, facts))
-                })
-            })
-            .collect();
-        handles
-            .into_iter()
-            .map(|h| h.join().map_err(|_| anyhow!("a BOP writer thread panicked"))?)
-            .collect::<anyhow::Result<Vec<_>>>()
+    // Scenes are independent (each writes only its own folder).
+    let written = super::on_all_cores(&scenes, |scene| {
+        let mut sink = Sink::new(out);
+        let dir = format!("{}/{:06}", scene.split, scene.scene_id);
+        let images = write_scene(native, scene.scene_id, &dir, scene.grasp_id, scene.views, &objects, &mut sink)
+            .with_context(|| format!("grasp {}", scene.grasp_id))?;
+        Ok((sink, scene.split, images))
     })?;
     let mut images = Vec::new();
-    for (files, bytes, facts) in written {
-        sink.files += files;
-        sink.bytes += bytes;
-        images.extend(facts);
+    for (scene_sink, split, facts) in written {
+        sink.add(&scene_sink);
+        images.extend(facts.into_iter().map(|i| (split, i)));
     }
     images.sort_by_key(|(_, i)| (i.scene_id, i.im_id));
     let camera = write_dataset_files(&images, &mut sink)?;
 
-    let mut described = dataset.clone();
+    let mut described = described(&dataset, &objects)?;
     described["format"] = json!("vint-bop");
-    // Each object's model is where this layout keeps it, in the frame it is written in.
+    described["bop"] = json!({
+        "scenes": scenes.iter().map(Scene::record).collect::<Vec<_>>(),
+        "models_eval": models_eval,
+        "depth_scale": DEPTH_SCALE_MM,
+        "conventions": {
+            "scene": SCENE_CONVENTION,
+            "units": UNITS_CONVENTION,
+            "camera": CAMERA_CONVENTION,
+            "camera.json": camera,
+            "test_targets": format!(
+                "test_targets_bop19.json: per test image, the objects at least {} visible (BOP 19's rule; absent without masks); test_targets_bop24.json: every test image",
+                targets::MIN_VISIB_FRACT
+            ),
+        },
+    });
+    sink.put("dataset.json", &pretty(&described)?)?;
+    Ok(Converted { samples, files: sink.files, bytes: sink.bytes })
+}
+
+/// What `dataset.json` says of scene and image ids, of units and of the camera frame; the
+/// BOP-webdataset export says the same.
+pub(super) const SCENE_CONVENTION: &str = "one scene per grasp: scene_id is the grasp's position in the sorted list of all grasp ids; im_id is the view index";
+pub(super) const UNITS_CONVENTION: &str = "mm (models, cam_t_*, depth × depth_scale, touch *_mm); rotations row-major";
+pub(super) const CAMERA_CONVENTION: &str = "OpenCV: x right, y down, z forward; pixel centres at integer coordinates";
+
+/// One grasp as a BOP scene: its id (the grasp's position among all grasp ids, sorted), its split
+/// and its views' sample ids by view index (`im_id`).
+pub(super) struct Scene<'a> {
+    pub scene_id: u64,
+    pub split: &'static str,
+    pub grasp_id: &'a str,
+    pub views: &'a BTreeMap<u32, String>,
+}
+
+impl Scene<'_> {
+    /// Its entry in `dataset.json`'s list of scenes.
+    pub fn record(&self) -> Value {
+        json!({
+            "scene_id": self.scene_id,
+            "split": self.split,
+            "grasp_id": self.grasp_id,
+            "im_ids": self.views.keys().collect::<Vec<_>>(),
+        })
+    }
+}
+
+/// Every grasp of `grasps` (`views_by_grasp`) as a scene, in scene id order, with its split from
+/// `dataset.json`'s `split.grasps`.
+pub(super) fn scenes<'a>(
+    dataset: &Value,
+    grasps: &'a BTreeMap<String, BTreeMap<u32, String>>,
+) -> anyhow::Result<Vec<Scene<'a>>> {
+    let assigned = &dataset["split"]["grasps"];
+    grasps
+        .iter()
+        .enumerate()
+        .map(|(scene_id, (grasp_id, views))| {
+            let name = assigned[grasp_id.as_str()].as_str().unwrap_or_default();
+            let split = vint_core::split::Split::NAMES.into_iter().find(|s| *s == name).ok_or_else(|| {
+                anyhow!("dataset.json: split.grasps has no train/val/test entry for grasp {grasp_id}")
+            })?;
+            Ok(Scene { scene_id: scene_id as u64, split, grasp_id, views })
+        })
+        .collect()
+}
+
+/// The native `dataset.json` with each object's model where BOP's layout keeps it
+/// (`models/obj_NNNNNN.ply`) and its symmetries in the frame that model is written in.
+pub(super) fn described(dataset: &Value, objects: &Objects) -> anyhow::Result<Value> {
+    let mut described = dataset.clone();
     for o in described["objects"].as_array_mut().into_iter().flatten() {
         if let Some(id) = o["obj_id"].as_u64() {
             o["model"] = json!(format!("models/obj_{id:06}.ply"));
@@ -120,27 +158,8 @@ pub fn write(native: &Path, out: &Path) -> anyhow::Result<Converted> {
             }
         }
     }
-    described["bop"] = json!({
-        "scenes": scenes,
-        "models_eval": models_eval,
-        "depth_scale": DEPTH_SCALE_MM,
-        "conventions": {
-            "scene": "one scene per grasp: scene_id is the grasp's position in the sorted list of all grasp ids; im_id is the view index",
-            "units": "mm (models, cam_t_*, depth × depth_scale, touch *_mm); rotations row-major",
-            "camera": "OpenCV: x right, y down, z forward; pixel centres at integer coordinates",
-            "camera.json": camera,
-            "test_targets": format!(
-                "test_targets_bop19.json: per test image, the objects at least {} visible (BOP 19's rule; absent without masks); test_targets_bop24.json: every test image",
-                targets::MIN_VISIB_FRACT
-            ),
-        },
-    });
-    sink.put("dataset.json", &pretty(&described)?)?;
-    Ok(Converted { samples, files: sink.files, bytes: sink.bytes })
+    Ok(described)
 }
-
-/// What one writer thread wrote: files, bytes, and each image's split and facts.
-type Written<'a> = (usize, u64, Vec<(&'a str, ImageFacts)>);
 
 /// `camera.json` and the test targets; returns what `camera.json` is (`dataset.json` says so).
 fn write_dataset_files(images: &[(&str, ImageFacts)], sink: &mut Sink) -> anyhow::Result<&'static str> {
@@ -165,14 +184,24 @@ fn write_dataset_files(images: &[(&str, ImageFacts)], sink: &mut Sink) -> anyhow
 }
 
 /// Files written, counted as they go.
-struct Sink {
+pub(super) struct Sink {
     root: PathBuf,
-    files: usize,
-    bytes: u64,
+    pub files: usize,
+    pub bytes: u64,
 }
 
 impl Sink {
-    fn put(&mut self, name: &str, bytes: &[u8]) -> anyhow::Result<()> {
+    pub fn new(root: &Path) -> Sink {
+        Sink { root: root.to_path_buf(), files: 0, bytes: 0 }
+    }
+
+    /// Counts what another sink wrote.
+    pub fn add(&mut self, other: &Sink) {
+        self.files += other.files;
+        self.bytes += other.bytes;
+    }
+
+    pub fn put(&mut self, name: &str, bytes: &[u8]) -> anyhow::Result<()> {
         let path = self.root.join(name);
         if let Some(parent) = path.parent() {
             fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
@@ -182,21 +211,16 @@ impl Sink {
         self.bytes += bytes.len() as u64;
         Ok(())
     }
-
-    fn copy(&mut self, from: &Path, name: &str) -> anyhow::Result<()> {
-        let bytes = fs::read(from).with_context(|| format!("reading {}", from.display()))?;
-        self.put(name, &bytes)
-    }
 }
 
 /// The dataset's objects by BOP id, from `dataset.json`.
-struct Objects {
+pub(super) struct Objects {
     by_id: BTreeMap<u64, Value>,
     ids: BTreeMap<String, u64>,
 }
 
 impl Objects {
-    fn of(dataset: &Value) -> anyhow::Result<Objects> {
+    pub fn of(dataset: &Value) -> anyhow::Result<Objects> {
         let list = dataset["objects"].as_array().ok_or_else(|| anyhow!("dataset.json has no objects list"))?;
         let (mut by_id, mut ids) = (BTreeMap::new(), BTreeMap::new());
         for o in list {
@@ -224,7 +248,7 @@ impl Objects {
 }
 
 /// Every grasp (sorted by id) with its views' sample ids by view index, from `manifest.jsonl`.
-fn views_by_grasp(native: &Path) -> anyhow::Result<BTreeMap<String, BTreeMap<u32, String>>> {
+pub(super) fn views_by_grasp(native: &Path) -> anyhow::Result<BTreeMap<String, BTreeMap<u32, String>>> {
     let path = native.join("manifest.jsonl");
     let file = fs::File::open(&path).with_context(|| format!("opening {}", path.display()))?;
     let mut grasps: BTreeMap<String, BTreeMap<u32, String>> = BTreeMap::new();
@@ -251,7 +275,7 @@ fn views_by_grasp(native: &Path) -> anyhow::Result<BTreeMap<String, BTreeMap<u32
 /// against what `dataset.json` declares; and `models_eval/`, the same models resampled uniformly
 /// (`model_eval`) with their own `models_info.json`. Returns what `dataset.json` says of
 /// `models_eval` (the sampling, and each model's spacing and point count).
-fn write_models(native: &Path, objects: &Objects, sink: &mut Sink) -> anyhow::Result<Value> {
+pub(super) fn write_models(native: &Path, objects: &Objects, sink: &mut Sink) -> anyhow::Result<Value> {
     let (mut info, mut info_eval, mut sampled) = (BTreeMap::new(), BTreeMap::new(), Vec::new());
     for (&id, o) in &objects.by_id {
         let name = o["name"].as_str().unwrap_or_default();
@@ -408,10 +432,7 @@ fn write_scene(
         let im = u64::from(view);
         let (records, view) =
             write_image(native, dir, im, sample_id, &grasp, sink).with_context(|| format!("sample {sample_id}"))?;
-        let visib_fract = records
-            .iter()
-            .find(|(file, _)| *file == "scene_gt_info.json")
-            .and_then(|(_, r)| r[GT_ID]["visib_fract"].as_f64());
+        let visib_fract = visib_fract(&records);
         images.push(ImageFacts {
             scene_id,
             im_id: im,
@@ -454,7 +475,7 @@ fn write_scene(
 }
 
 /// What every view of a grasp shares, read once from its `grasp.json`.
-struct Grasp<'a> {
+pub(super) struct Grasp<'a> {
     record: &'a Value,
     obj_id: u64,
     /// The model's file frame in the native object frame (`Objects::file_offset_m`).
@@ -466,7 +487,7 @@ struct Grasp<'a> {
 }
 
 impl<'a> Grasp<'a> {
-    fn of(record: &'a Value, objects: &Objects) -> anyhow::Result<Grasp<'a>> {
+    pub fn of(record: &'a Value, objects: &Objects) -> anyhow::Result<Grasp<'a>> {
         let object = record["object"]["name"].as_str().ok_or_else(|| anyhow!("no object.name"))?;
         let trial = &record["trial"];
         let poses = trial["link_poses"].as_object().ok_or_else(|| anyhow!("no trial.link_poses"))?;
@@ -487,7 +508,31 @@ impl<'a> Grasp<'a> {
     }
 }
 
-/// One view: its images, and its record for each per-image JSON file.
+/// One view as BOP has it, in memory: its images, its masks and its record for each per-image
+/// file. The BOP export lays these out in scene folders, BOP-webdataset as one key's members.
+pub(super) struct Image {
+    pub view: View,
+    /// PNG bytes by BOP's folder name: `rgb`, `segmentation`, `depth`, `depth_noisy` (each when
+    /// the sample has it).
+    pub pngs: Vec<(&'static str, Vec<u8>)>,
+    /// The object's full silhouette and its visible part, when the sample has both masks.
+    pub masks: Option<(Mask, Mask)>,
+    /// Each per-image record by the scene file that gathers it (`scene_gt.json`, …).
+    pub records: Vec<(&'static str, Value)>,
+}
+
+impl Image {
+    /// `scene_gt_info.json`'s visible fraction of the object (none without masks).
+    pub fn visib_fract(&self) -> Option<f64> {
+        visib_fract(&self.records)
+    }
+}
+
+fn visib_fract(records: &[(&str, Value)]) -> Option<f64> {
+    records.iter().find(|(file, _)| *file == "scene_gt_info.json").and_then(|(_, r)| r[GT_ID]["visib_fract"].as_f64())
+}
+
+/// One view: its images into the scene's folders, and its record for each per-image JSON file.
 fn write_image(
     native: &Path,
     dir: &str,
@@ -496,6 +541,25 @@ fn write_image(
     grasp: &Grasp<'_>,
     sink: &mut Sink,
 ) -> anyhow::Result<(Vec<(&'static str, Value)>, View)> {
+    let image = image(native, sample_id, grasp)?;
+    let visib_fract = image.visib_fract();
+    let Image { view, pngs, masks, mut records } = image;
+    for (folder, bytes) in &pngs {
+        sink.put(&format!("{dir}/{folder}/{im:06}.png"), bytes)?;
+    }
+    if let Some((full, visible)) = &masks {
+        sink.put(&format!("{dir}/mask/{im:06}_{GT_ID:06}.png"), &full.encode()?)?;
+        sink.put(&format!("{dir}/mask_visib/{im:06}_{GT_ID:06}.png"), &visible.encode()?)?;
+        if let Some(annotation) = coco_annotation(im, grasp.obj_id, full, visible, visib_fract) {
+            records.push((COCO, annotation));
+        }
+    }
+    Ok((records, view))
+}
+
+/// One native sample in BOP's terms (`Image`): its images re-encoded as BOP has them, its masks,
+/// and its records. The one place a sample's files are read for both BOP layouts.
+pub(super) fn image(native: &Path, sample_id: &str, grasp: &Grasp<'_>) -> anyhow::Result<Image> {
     let sample = native.join(sample_id);
     let meta_path = sample.join("meta.json");
     let meta = read_json(&meta_path)?;
@@ -504,20 +568,20 @@ fn write_image(
     // The model's pose in its file's frame: x_cam = R·x + t = R·x_file + (t − R·c).
     let model_to_camera =
         Rigid { r: view.model_to_camera.r, t: view.model_to_camera.point(grasp.file_offset_m.map(|v| -v)) };
-    let name = |folder: &str| format!("{dir}/{folder}/{im:06}.png");
 
-    if sample.join("rgb.png").is_file() {
-        sink.copy(&sample.join("rgb.png"), &name("rgb"))?;
-    }
-    if sample.join("segmentation.png").is_file() {
-        sink.copy(&sample.join("segmentation.png"), &name("segmentation"))?;
+    let mut pngs = Vec::new();
+    for (file, folder) in [("rgb.png", "rgb"), ("segmentation.png", "segmentation")] {
+        let path = sample.join(file);
+        if path.is_file() {
+            pngs.push((folder, fs::read(&path).with_context(|| format!("reading {}", path.display()))?));
+        }
     }
     let mut depth = None;
     for (file, folder) in [("depth.npy", "depth"), ("depth_noisy.npy", "depth_noisy")] {
         let path = sample.join(file);
         if path.is_file() {
             let units = read_depth(&path, &view)?;
-            sink.put(&name(folder), &encode_depth(view.width, view.height, &units)?)?;
+            pngs.push((folder, encode_depth(view.width, view.height, &units)?));
             if folder == "depth" {
                 depth = Some(units);
             }
@@ -539,24 +603,20 @@ fn write_image(
         ("scene_meta.json", meta_record(&meta, sample_id, grasp.obj_id)),
     ];
     let (visible, full) = (sample.join("mask.png"), sample.join("mask_full.png"));
+    let mut masks = None;
     if visible.is_file() && full.is_file() {
         let visible = read_mask(&visible, &view)?;
         // The renderer counts full_px over the full mask joined with the visible one; writing that
         // union keeps mask_visib ⊆ mask and px_count_all = full_px.
         let full = read_mask(&full, &view)?.union(&visible);
-        sink.put(&format!("{dir}/mask/{im:06}_{GT_ID:06}.png"), &full.encode()?)?;
-        sink.put(&format!("{dir}/mask_visib/{im:06}_{GT_ID:06}.png"), &visible.encode()?)?;
-        let info = gt_info(&full, &visible, depth.as_deref());
-        if let Some(annotation) = coco_annotation(im, grasp.obj_id, &full, &visible, info["visib_fract"].as_f64()) {
-            records.push((COCO, annotation));
-        }
-        records.push(("scene_gt_info.json", json!([info])));
+        records.push(("scene_gt_info.json", json!([gt_info(&full, &visible, depth.as_deref())])));
+        masks = Some((full, visible));
     }
-    Ok((records, view))
+    Ok(Image { view, pngs, masks, records })
 }
 
 /// The camera of one view, from `meta.json`'s `camera` (metres, OpenCV).
-struct View {
+pub(super) struct View {
     k: Mat3,
     /// OpenCV's lens distortion [k1, k2, p1, p2, k3] of a distorted view (the record's `dist`);
     /// `None` for a pinhole (no `dist`, or all zero).
@@ -568,7 +628,7 @@ struct View {
 }
 
 impl View {
-    fn of(camera: &Value) -> anyhow::Result<View> {
+    pub fn of(camera: &Value) -> anyhow::Result<View> {
         let size =
             |key: &str| camera[key].as_u64().and_then(|v| usize::try_from(v).ok()).ok_or_else(|| anyhow!("no {key}"));
         let dist = match camera.get("dist") {
@@ -732,6 +792,8 @@ fn meta_record(meta: &Value, sample_id: &str, obj_id: u64) -> Value {
     })
 }
 
+/// A native depth file in BOP's units (`depth_units`), checked against the view's size: the one
+/// reader of native depth for both BOP layouts.
 fn read_depth(path: &Path, view: &View) -> anyhow::Result<Vec<u16>> {
     let bytes = fs::read(path).with_context(|| format!("reading {}", path.display()))?;
     let array = crate::diff::npy::parse(&bytes).with_context(|| format!("{}", path.display()))?;
@@ -764,7 +826,7 @@ fn read_mask(path: &Path, view: &View) -> anyhow::Result<Mask> {
     Ok(mask)
 }
 
-fn read_json(path: &Path) -> anyhow::Result<Value> {
+pub(super) fn read_json(path: &Path) -> anyhow::Result<Value> {
     let bytes = fs::read(path).with_context(|| format!("reading {}", path.display()))?;
     serde_json::from_slice(&bytes).with_context(|| format!("{} is not JSON", path.display()))
 }
@@ -781,7 +843,7 @@ fn by_id(records: &BTreeMap<u64, Value>) -> anyhow::Result<Vec<u8>> {
     Ok(text.into_bytes())
 }
 
-fn pretty(value: &Value) -> anyhow::Result<Vec<u8>> {
+pub(super) fn pretty(value: &Value) -> anyhow::Result<Vec<u8>> {
     let mut bytes = serde_json::to_vec_pretty(value)?;
     bytes.push(b'\n');
     Ok(bytes)

@@ -1,11 +1,14 @@
 //! The dataset formats an export can write. The native layout (`export`) is the source; the
 //! others are converted from a native directory: BOP's layout (`bop`), for the BOP toolkit and the
-//! pose-estimation loaders built on it, and WebDataset tar shards (`webdataset`), for streaming
-//! training. A converter reads only the native directory and writes only its output directory;
-//! the caller stages, writes the output's `manifest.jsonl` (`write_manifest`) and renames it into
-//! place.
+//! pose-estimation loaders built on it, WebDataset tar shards (`webdataset`), for streaming
+//! training, and BOP's training-set shards (`bop_webdataset`), for the loaders of the BOP 2023
+//! training sets (MegaPose's). A converter reads only the native directory and writes only its
+//! output directory; the caller stages, writes the output's `manifest.jsonl` (`write_manifest`)
+//! and renames it into place.
 
 pub mod bop;
+pub mod bop_webdataset;
+mod ustar;
 pub mod webdataset;
 
 use std::io::Read;
@@ -24,6 +27,8 @@ pub enum Format {
     Bop,
     /// WebDataset tar shards per split, one sample per key.
     Webdataset,
+    /// BOP-webdataset: BOP's per-image members in shards per split, in a seeded order.
+    BopWebdataset,
 }
 
 impl Format {
@@ -32,6 +37,7 @@ impl Format {
             Format::Native => "native",
             Format::Bop => "bop",
             Format::Webdataset => "webdataset",
+            Format::BopWebdataset => "bop-webdataset",
         }
     }
 }
@@ -61,7 +67,36 @@ pub fn convert(target: Target, native: &Path, out: &Path) -> anyhow::Result<Conv
         Format::Native => anyhow::bail!("a native dataset is exported, not converted"),
         Format::Bop => bop::write(native, out),
         Format::Webdataset => webdataset::write(native, out, target.shard_samples),
+        Format::BopWebdataset => bop_webdataset::write(native, out, target.shard_samples),
     }
+}
+
+/// Runs `task` on every item on all cores (each thread takes every n-th item) and returns the
+/// results in item order. The tasks must be independent — each writes only its own files — so
+/// which thread runs one changes nothing in the bytes it writes.
+pub(crate) fn on_all_cores<T: Sync, R: Send>(
+    items: &[T],
+    task: impl Fn(&T) -> anyhow::Result<R> + Sync,
+) -> anyhow::Result<Vec<R>> {
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get()).clamp(1, items.len().max(1));
+    let task = &task;
+    let done = std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..threads)
+            .map(|t| {
+                scope.spawn(move || {
+                    let mine = items.iter().enumerate().skip(t).step_by(threads);
+                    mine.map(|(i, item)| Ok((i, task(item)?))).collect::<anyhow::Result<Vec<_>>>()
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| h.join().map_err(|_| anyhow::anyhow!("a writer thread panicked"))?)
+            .collect::<anyhow::Result<Vec<_>>>()
+    })?;
+    let mut results: Vec<(usize, R)> = done.into_iter().flatten().collect();
+    results.sort_by_key(|(i, _)| *i);
+    Ok(results.into_iter().map(|(_, r)| r).collect())
 }
 
 #[derive(Serialize)]
