@@ -13,7 +13,11 @@ use vint_coordinator::tls::TlsIdentity;
 use vint_store::{RetryPolicy, Store, StoreError};
 
 #[derive(Parser)]
-#[command(version, about = "vint coordinator: schedules grasp, render, noise and package tasks over gRPC")]
+#[command(
+    name = "vint-coordinator",
+    version,
+    about = "vint coordinator: schedules grasp, render, noise and package tasks over gRPC"
+)]
 struct Args {
     /// Database URL: postgres://… (cluster) or sqlite://… (single machine).
     #[arg(long, env = "VINT_DATABASE_URL", hide_env_values = true)]

@@ -14,7 +14,7 @@ use vint_runtime::timing_only::{self, TimingOnlyConfig};
 use vint_runtime::worker::{Worker, WorkerConfig};
 
 #[derive(Parser)]
-#[command(version, about = "vint worker: runs grasp, render, noise and package tasks")]
+#[command(name = "vint-worker", version, about = "vint worker: runs grasp, render, noise and package tasks")]
 struct Args {
     /// Coordinator URL (`https://` for a coordinator serving TLS).
     #[arg(long, env = "VINT_COORDINATOR", default_value = "http://127.0.0.1:7700")]
