@@ -480,9 +480,8 @@ fn write_image(
         sink.copy(&sample.join("segmentation.png"), &name("segmentation"))?;
     }
     let mut depth = None;
-    for (file, folder) in [("depth.npy", "depth"), ("depth_noisy.npy", "depth_noisy")] {
-        let path = sample.join(file);
-        if path.is_file() {
+    for folder in ["depth", "depth_noisy"] {
+        if let Some(path) = crate::depth::find(&sample, folder) {
             let units = read_depth(&path, &view)?;
             sink.put(&name(folder), &encode_depth(view.width, view.height, &units)?)?;
             if folder == "depth" {
@@ -700,17 +699,9 @@ fn meta_record(meta: &Value, sample_id: &str, obj_id: u64) -> Value {
 }
 
 fn read_depth(path: &Path, view: &View) -> anyhow::Result<Vec<u16>> {
-    let bytes = fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    let array = crate::diff::npy::parse(&bytes).with_context(|| format!("{}", path.display()))?;
-    if !array.is_float() || array.shape != [view.height, view.width] {
-        bail!(
-            "{}: expected float32 {}×{} metres, found {} {:?}",
-            path.display(),
-            view.height,
-            view.width,
-            array.dtype,
-            array.shape
-        );
+    let array = crate::depth::read(path)?;
+    if array.shape != [view.height, view.width] {
+        bail!("{}: expected {}×{} depth, found {:?}", path.display(), view.height, view.width, array.shape);
     }
     Ok(array.values.iter().map(|&m| depth_units(m)).collect())
 }
