@@ -6,9 +6,11 @@
 Each sample of a shard is one view of one grasp: the `webdataset` package groups a shard's members
 by key (`mug/allegro/g000001/v00`: the sample id with its dots as slashes) and decodes them by
 extension; `to_tensors` turns one into the tensors a pose or touch model trains on, and a PyTorch
-`DataLoader` batches them. Members (docs/formats.md, "WebDataset"): rgb.png, depth.npy,
-depth_noisy.npy, mask.png, mask_full.png, segmentation.png (those the dataset was made with),
-meta.json (camera and poses), grasp.json (the grasp: hand, joints, touch) and sample.json (the id).
+`DataLoader` batches them. Members (docs/formats.md, "WebDataset"): rgb.png, depth.png and
+depth_noisy.png (16-bit, 0.1 mm per step; depth.npy and depth_noisy.npy, float32 metres, in a
+dataset made with `depth_format = "npy"`), mask.png, mask_full.png, segmentation.png (those the
+dataset was made with), meta.json (camera and poses), grasp.json (the grasp: hand, joints, touch)
+and sample.json (the id). Depth comes out in metres either way, 0 where there is no reading.
 
 The script prints one line per batch and a summary; with --json, one JSON object per sample and a
 summary line, for tests.
@@ -30,6 +32,8 @@ from PIL import Image
 from torch.utils.data import DataLoader
 
 SPLITS = ("train", "val", "test")
+# Metres per step of a depth PNG (docs/formats.md, "Depth"): 0.1 mm, BOP's depth_scale 0.1.
+DEPTH_PNG_UNIT_M = 1e-4
 
 
 def shard_paths(root: Path, splits: list[str]) -> list[str]:
@@ -39,9 +43,20 @@ def shard_paths(root: Path, splits: list[str]) -> list[str]:
 
 
 def decode_png(data: bytes) -> np.ndarray:
-    """A PNG as stored: H×W×3 uint8 for rgb, H×W uint8 for masks, uint8 or uint16 for segmentation."""
+    """A PNG as stored: H×W×3 uint8 for rgb, H×W uint8 for masks, uint8 or uint16 for segmentation,
+    uint16 for depth."""
     with Image.open(io.BytesIO(data)) as image:
         return np.array(image)
+
+
+def depth_metres(sample: dict[str, Any], stem: str) -> np.ndarray | None:
+    """The member `stem` (`depth`, `depth_noisy`) as float32 metres, whichever format it has; None
+    when the sample has neither."""
+    if f"{stem}.png" in sample:
+        return (sample[f"{stem}.png"].astype(np.float64) * DEPTH_PNG_UNIT_M).astype(np.float32)
+    if f"{stem}.npy" in sample:
+        return sample[f"{stem}.npy"].astype(np.float32, copy=False)
+    return None
 
 
 def quaternion_matrix(q: list[float]) -> np.ndarray:
@@ -81,7 +96,7 @@ def to_tensors(sample: dict[str, Any]) -> dict[str, Any]:
         "sample_id": sample["sample.json"]["sample_id"],
         "split": sample["sample.json"]["split"],
         "rgb": torch.from_numpy(sample["rgb.png"]).permute(2, 0, 1).contiguous(),
-        "depth": torch.from_numpy(sample["depth.npy"]),
+        "depth": torch.from_numpy(depth_metres(sample, "depth")),
         "mask": torch.from_numpy(sample["mask.png"] > 0),
         "K": torch.tensor(camera["K"], dtype=torch.float32),
         # OpenCV's lens distortion [k1, k2, p1, p2, k3]; a record without it is a pinhole's.
@@ -91,8 +106,9 @@ def to_tensors(sample: dict[str, Any]) -> dict[str, Any]:
         "touch": torch.from_numpy(touch),
         "touch_force": torch.from_numpy(force),
     }
-    if "depth_noisy.npy" in sample:
-        out["depth_noisy"] = torch.from_numpy(sample["depth_noisy.npy"])
+    noisy = depth_metres(sample, "depth_noisy")
+    if noisy is not None:
+        out["depth_noisy"] = torch.from_numpy(noisy)
     return out
 
 

@@ -5,8 +5,9 @@
 //! MuJoCo) and render set-ups, datasets agree within tolerances (docs/reproducibility.md). Every
 //! file both manifests list is compared, by type rather than by name, so files the package stage
 //! adds later are compared too: `.png` colour images as RGB (`pixels::compare_rgb`),
-//! single-channel ones as labels (masks, segmentation), `.npy` float arrays as depth in metres and
-//! integer ones as labels, `.json` documents number by number (`json`); other files must be
+//! single-channel ones as labels (masks, segmentation) but for a depth file (`depth.png`,
+//! `depth_noisy.png`: read as metres by `crate::depth`, the one rule for native depth), `.npy`
+//! float arrays as depth in metres and integer ones as labels, `.json` documents number by number (`json`); other files must be
 //! identical. Files with the same SHA-256 in both manifests are not read.
 //!
 //! Owns no dataset layout beyond the manifest's: a line has a `sample_id` (or another `*_id`) and
@@ -267,6 +268,7 @@ enum Kind {
 fn compare_files(name: &str, a: &[u8], b: &[u8], tolerances: &Tolerances) -> (Kind, Finding) {
     let extension = Path::new(name).extension().and_then(|e| e.to_str()).unwrap_or("");
     let outcome = match extension {
+        "png" if crate::depth::is_depth_file(name) => compare_depth_files(name, a, b, tolerances),
         "png" => compare_pngs(a, b, tolerances),
         "npy" => compare_arrays(a, b, tolerances),
         "json" => compare_json(a, b, tolerances),
@@ -283,6 +285,19 @@ fn compare_pngs(a: &[u8], b: &[u8], tolerances: &Tolerances) -> anyhow::Result<(
     } else {
         (Kind::Labels, pixels::compare_labels(&ia, &ib, tolerances))
     })
+}
+
+/// Depth PNGs hold whole 0.1 mm steps, so their difference is whole steps too: it is reported as
+/// such, not with the rounding of two metre values (one step apart, a pixel that rounded the
+/// other way on another CPU, reads 1e-4 m exactly, the default tolerance).
+fn compare_depth_files(name: &str, a: &[u8], b: &[u8], tolerances: &Tolerances) -> anyhow::Result<(Kind, Finding)> {
+    let da = crate::depth::decode(name, a).context("A")?;
+    let db = crate::depth::decode(name, b).context("B")?;
+    let mut finding = pixels::compare_depth(&da, &db, tolerances);
+    for measure in finding.measures.iter_mut().filter(|m| m.unit == "m") {
+        measure.value = crate::depth::whole_steps(measure.value);
+    }
+    Ok((Kind::Depth, finding))
 }
 
 fn compare_arrays(a: &[u8], b: &[u8], tolerances: &Tolerances) -> anyhow::Result<(Kind, Finding)> {
@@ -671,6 +686,36 @@ mod tests {
         assert_eq!(report.modalities[0].modality, "grasps/*.json");
         assert_eq!((report.modalities[0].compared, report.modalities[0].over_tolerance), (1, 1));
         assert_eq!(report.differences.len(), 1);
+    }
+
+    /// A 16-bit depth PNG of 16×16 pixels, each `units` tenths of a millimetre.
+    fn depth_png(units: u16) -> Vec<u8> {
+        let mut out = Vec::new();
+        let mut encoder = png::Encoder::new(&mut out, 16, 16);
+        encoder.set_color(png::ColorType::Grayscale);
+        encoder.set_depth(png::BitDepth::Sixteen);
+        let mut writer = encoder.write_header().expect("png header");
+        writer.write_image_data(&units.to_be_bytes().repeat(256)).expect("png data");
+        writer.finish().expect("png end");
+        out
+    }
+
+    #[test]
+    fn a_depth_png_is_compared_as_depth_in_metres_not_as_labels() {
+        let mut a = Dataset::new();
+        // 5002 and 5003 steps as metres differ by a hair more than 1e-4 m: whole steps do not.
+        a.file("s1", "depth.png", &depth_png(5002));
+        let mut b = Dataset::new();
+        b.file("s1", "depth.png", &depth_png(5003));
+        let report = compare(&a.manifest(), &b.manifest(), &Tolerances::default());
+        assert!(report.within_tolerance(), "one step is 0.1 mm, the default tolerance: {report:#?}");
+        assert_eq!(report.modalities[0].kind, Some(Kind::Depth));
+        let mut far = Dataset::new();
+        far.file("s1", "depth.png", &depth_png(5020));
+        let report = compare(&a.manifest(), &far.manifest(), &Tolerances::default());
+        assert!(!report.within_tolerance());
+        let worst = report.modalities[0].worst.as_ref().expect("a worst difference");
+        assert!((worst.measure.value - 0.0018).abs() < 1e-12, "{worst:?}");
     }
 
     #[test]

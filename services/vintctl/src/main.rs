@@ -11,6 +11,7 @@ mod bop_objects;
 mod client;
 mod commands;
 mod delete;
+mod depth;
 mod diff;
 mod embedded;
 mod estimate;

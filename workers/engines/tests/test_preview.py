@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from conftest import ENGINES_DIR
 
+from vint_engines import depth_file
 from vint_engines.preview import dataset, sheet, taxels, tiles
 
 WIDTH, HEIGHT = 320, 240  # one image pixel per tile pixel (tiles are 320 wide)
@@ -71,11 +72,12 @@ def write_sample(
     noisy: bool = False,
     dist: list[float] | None = None,
     t_w2c: np.ndarray = T_W2C,
+    depth_format: str = "png",
 ) -> str:
     """A grasp record and one view of it: rgb, depth (`surface_z` everywhere but a background
     corner and a strip 10 cm farther along the bottom), segmentation, and depth_noisy (the depth
-    20 cm farther) only when `noisy`; the camera at `t_w2c`, with the lens distortion `dist` when
-    given."""
+    20 cm farther) only when `noisy`, both in `depth_format`; the camera at `t_w2c`, with the lens
+    distortion `dist` when given."""
     grasp_id = f"{obj}.{hand}.g000001"
     sample_id = f"{grasp_id}.v00"
     (root / grasp_id).mkdir(parents=True)
@@ -120,9 +122,10 @@ def write_sample(
     depth = np.full((HEIGHT, WIDTH), surface_z, dtype=np.float32)
     depth[:20, :20] = 0.0  # no return
     depth[-FAR_ROWS:] = surface_z + 0.1
-    np.save(directory / "depth.npy", depth)
+    depth_file.write(directory / "depth", depth, depth_format)
     if noisy:
-        np.save(directory / "depth_noisy.npy", np.where(depth > 0, depth + 0.2, 0.0).astype(np.float32))
+        noisy_depth = np.where(depth > 0, depth + 0.2, 0.0).astype(np.float32)
+        depth_file.write(directory / "depth_noisy", noisy_depth, depth_format)
     cv2.imwrite(str(directory / "segmentation.png"), segmentation_image())
     return sample_id
 
@@ -244,8 +247,11 @@ def test_every_hand_link_and_other_label_has_its_own_colour() -> None:
     assert tiles.segment_colours(trx3)[5] == colours[21], "a table is the same colour beside any hand"
 
 
-def test_a_missing_modality_is_a_grey_tile_and_depth_shares_one_range(tmp_path: Path) -> None:
-    write_sample(tmp_path / "clean", "mug", "trx3", surface_z=0.5)
+@pytest.mark.parametrize("depth_format", ["png", "npy"])
+def test_a_missing_modality_is_a_grey_tile_and_depth_shares_one_range(
+    tmp_path: Path, depth_format: str
+) -> None:
+    write_sample(tmp_path / "clean", "mug", "trx3", surface_z=0.5, depth_format=depth_format)
     image = one_sheet(tmp_path / "clean")
     missing = tile(image, 0, "depth_noisy")
     grey = np.all(missing == tiles.MISSING_GREY, axis=2)
@@ -255,7 +261,7 @@ def test_a_missing_modality_is_a_grey_tile_and_depth_shares_one_range(tmp_path: 
     assert np.all(depth[:20, :20] == 0), "no return is black"
     assert not np.all(depth[100:, 100:] == tiles.MISSING_GREY)
 
-    write_sample(tmp_path / "noisy", "mug", "trx3", surface_z=0.5, noisy=True)
+    write_sample(tmp_path / "noisy", "mug", "trx3", surface_z=0.5, noisy=True, depth_format=depth_format)
     image = one_sheet(tmp_path / "noisy")
     clean, noisy = tile(image, 0, "depth"), tile(image, 0, "depth_noisy")
     assert np.all(noisy[:20, :20] == 0), "holes are black"

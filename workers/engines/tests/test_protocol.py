@@ -21,6 +21,7 @@ from conftest import ENGINES_DIR, new_dir
 from vint_engines.protocol import (
     MAX_FRAME_BYTES,
     BadInput,
+    InputRef,
     ProtocolError,
     TaskRequest,
     TaskResult,
@@ -75,6 +76,24 @@ def test_engine_says_hello_runs_a_task_and_exits_zero_on_shutdown(spawn_engine, 
     assert Path(reply["outputs"][0]["path"]).parent == out_dir
     assert reply["metrics"]["engine_ms"] > 0
     assert engine.shutdown() == 0
+
+
+def test_the_noise_engine_reads_a_png_depth_as_the_float_depth_it_holds(tmp_path: Path) -> None:
+    """0.6 m is a whole number of 0.1 mm steps: the PNG holds it exactly, so the noise is the same."""
+    from vint_engines import depth_file
+    from vint_engines.noise.engine import NoiseEngine
+
+    floats = write_depth(new_dir(tmp_path, "npy"))
+    pngs = new_dir(tmp_path, "png")
+    depth_file.write(pngs / "v00_depth", np.full((8, 8), 0.6, np.float32), "png")
+    (pngs / "v00_camera.json").write_text(floats[1].read_text())
+    noisy = {}
+    for name, files in (("npy", floats), ("png", [pngs / "v00_depth.png", pngs / "v00_camera.json"])):
+        inputs = tuple(InputRef(path.name, "render/x", path) for path in files)
+        out = new_dir(tmp_path, f"out_{name}")
+        NoiseEngine().run(TaskRequest(name, NOISE_PARAMS, inputs, out))
+        noisy[name] = np.load(out / "v00_depth_noisy.npy")
+    assert np.array_equal(noisy["npy"], noisy["png"])
 
 
 def test_engine_exits_zero_on_eof(spawn_engine) -> None:

@@ -17,6 +17,7 @@
 //! engine package with its PROTOCOL.md section; ARCHITECTURE.md lists every file, and a test holds
 //! the list.
 
+pub mod depth;
 pub mod grasp;
 pub mod noise;
 pub mod object;
@@ -263,6 +264,7 @@ pub fn schema() -> Value {
                         `VINT_BLESS=1 cargo test -p vint-core committed_schema`.",
         "stages": stages,
         "depth_modes": noise::modes_table(),
+        "depth_png": json!({"unit_m": depth::PNG_UNIT_M, "max_m": depth::PNG_MAX_M}),
         "$defs": defs,
     })
 }

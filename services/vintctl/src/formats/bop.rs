@@ -577,9 +577,8 @@ pub(super) fn image(native: &Path, sample_id: &str, grasp: &Grasp<'_>) -> anyhow
         }
     }
     let mut depth = None;
-    for (file, folder) in [("depth.npy", "depth"), ("depth_noisy.npy", "depth_noisy")] {
-        let path = sample.join(file);
-        if path.is_file() {
+    for folder in ["depth", "depth_noisy"] {
+        if let Some(path) = crate::depth::find(&sample, folder) {
             let units = read_depth(&path, &view)?;
             pngs.push((folder, encode_depth(view.width, view.height, &units)?));
             if folder == "depth" {
@@ -795,17 +794,9 @@ fn meta_record(meta: &Value, sample_id: &str, obj_id: u64) -> Value {
 /// A native depth file in BOP's units (`depth_units`), checked against the view's size: the one
 /// reader of native depth for both BOP layouts.
 fn read_depth(path: &Path, view: &View) -> anyhow::Result<Vec<u16>> {
-    let bytes = fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    let array = crate::diff::npy::parse(&bytes).with_context(|| format!("{}", path.display()))?;
-    if !array.is_float() || array.shape != [view.height, view.width] {
-        bail!(
-            "{}: expected float32 {}×{} metres, found {} {:?}",
-            path.display(),
-            view.height,
-            view.width,
-            array.dtype,
-            array.shape
-        );
+    let array = crate::depth::read(path)?;
+    if array.shape != [view.height, view.width] {
+        bail!("{}: expected {}×{} depth, found {:?}", path.display(), view.height, view.width, array.shape);
     }
     Ok(array.values.iter().map(|&m| depth_units(m)).collect())
 }

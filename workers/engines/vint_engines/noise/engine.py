@@ -1,5 +1,6 @@
-"""The noise engine: for each view, read `vNN_depth.npy`, `vNN_segmentation.png` and
-`vNN_camera.json` (intrinsics; the material of each segment), write `vNN_depth_noisy.npy`."""
+"""The noise engine: for each view, read `vNN_depth.png` or `.npy` (`vint_engines.depth_file`),
+`vNN_segmentation.png` and `vNN_camera.json` (intrinsics; the material of each segment), write
+`vNN_depth_noisy.npy`."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from vint_engines import __version__, contract
+from vint_engines import __version__, contract, depth_file
 from vint_engines.noise.geometry import Intrinsics
 from vint_engines.noise.model import NoiseModel, Surfaces
 from vint_engines.protocol import BadInput, Json, TaskRequest, TaskResult
@@ -35,7 +36,7 @@ class NoiseEngine:
         result = TaskResult()
         for index, seed in views:
             prefix = f"v{index:02d}"
-            depth = load_depth(task.input_path(f"{prefix}_depth.npy"))
+            depth = depth_file.read(depth_input(task, prefix))
             camera = load_camera(task.input_path(f"{prefix}_camera.json"))
             surfaces = None
             if model.materials:
@@ -62,15 +63,14 @@ def parse_params(params: Mapping[str, Any]) -> tuple[NoiseModel, list[tuple[int,
     return NoiseModel.parse(checked["noise"]), views
 
 
-def load_depth(path: Path) -> np.ndarray:
-    """The depth map at `path`. I/O errors propagate (retryable); a malformed file is BadInput."""
-    try:
-        depth = np.load(path, allow_pickle=False)
-    except ValueError as exc:
-        raise BadInput(f"cannot read depth map {path}: {exc}") from exc
-    if not np.issubdtype(depth.dtype, np.floating):
-        raise BadInput(f"depth map {path} has dtype {depth.dtype}, expected float")
-    return depth
+def depth_input(task: TaskRequest, prefix: str) -> Path:
+    """The view's clean depth, in whichever format its render task wrote it; BadInput when the
+    worker staged neither."""
+    names = [f"{prefix}_depth.{fmt}" for fmt in depth_file.FORMATS]
+    for ref in task.inputs:
+        if ref.name in names:
+            return ref.path
+    raise BadInput(f"input {' or '.join(map(repr, names))} is missing (have {[r.name for r in task.inputs]})")
 
 
 def load_camera(path: Path) -> Json:

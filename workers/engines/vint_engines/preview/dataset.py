@@ -12,13 +12,14 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from vint_engines import depth_file
 from vint_engines.preview.taxels import Camera
 from vint_engines.stats.dataset import DatasetError, read_json
 
 META_FILE = "meta.json"
 RGB_FILE = "rgb.png"
-DEPTH_FILE = "depth.npy"
-NOISY_DEPTH_FILE = "depth_noisy.npy"
+DEPTH_FILE = "depth"  # .png or .npy: `vint_engines.depth_file`
+NOISY_DEPTH_FILE = "depth_noisy"
 SEGMENTATION_FILE = "segmentation.png"
 
 
@@ -54,6 +55,10 @@ class Sample:
     def file(self, name: str) -> Path | None:
         path = self.directory / name
         return path if path.is_file() else None
+
+    def depth_file(self, stem: str) -> Path | None:
+        """The depth file `stem` (`depth`, `depth_noisy`) in whichever format the sample has."""
+        return depth_file.find(self.directory, stem)
 
 
 def list_samples(root: Path) -> list[SampleRef]:

@@ -13,6 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from vint_engines import depth_file
 from vint_engines.preview import tiles
 from vint_engines.preview.dataset import (
     DEPTH_FILE,
@@ -220,17 +221,14 @@ def read_image(sample: Sample, name: str, flags: int) -> np.ndarray | None:
     return image
 
 
-def read_depth(sample: Sample, name: str) -> tiles.Depth | None:
-    path = sample.file(name)
+def read_depth(sample: Sample, stem: str) -> tiles.Depth | None:
+    path = sample.depth_file(stem)
     if path is None:
         return None
     try:
-        depth = np.load(path, allow_pickle=False)
+        return depth_file.read(path)
     except (OSError, ValueError) as exc:
         raise PreviewError(f"{path}: not a readable depth image ({exc})") from exc
-    if depth.ndim != 2:
-        raise PreviewError(f"{path}: expected an H×W depth image, got shape {depth.shape}")
-    return depth.astype(np.float32, copy=False)
 
 
 def encode_png(image: Image) -> bytes:

@@ -40,6 +40,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from vint_engines import depth_file
 from vint_engines.protocol import TaskRequest
 from vint_engines.render.fireflies import spike_mask
 from vint_engines.study.grasped import GraspedScene, grasp
@@ -133,10 +134,13 @@ def read_view(out_dir: Path, view: int) -> ViewImages:
     rgb = cv2.imread(f"{prefix}_rgb.png", cv2.IMREAD_COLOR)
     if rgb is None:
         raise RuntimeError(f"no RGB image at {prefix}_rgb.png")
-    exact = {"depth": np.load(f"{prefix}_depth.npy")}
+    depth = depth_file.find(out_dir, f"v{view:02d}_depth")
+    if depth is None:
+        raise RuntimeError(f"no depth image at {prefix}_depth.png or .npy")
+    exact = {"depth": depth_file.read(depth)}
     for png in sorted(out_dir.glob(f"v{view:02d}_*.png")):
         kind = png.stem.split("_", 1)[1]
-        if kind != "rgb":
+        if kind not in ("rgb", "depth"):
             exact[kind] = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
     labels = json.loads(Path(f"{prefix}_camera.json").read_text())["segmentation"]
     ids = [int(k) for k, name in labels.items() if name.startswith(FOREGROUND)]

@@ -2,8 +2,9 @@
 depth of the object's visible pixels and the active taxels, both in the camera frame (mm), plus
 the ground truth it is scored against.
 
-Reads only the dataset's files (`<sample>/meta.json`, `depth_noisy.npy`/`depth.npy`, `mask.png`,
-`<grasp>/grasp.json`, `models/<object>.ply`, `dataset.json`); knows nothing of how they were made.
+Reads only the dataset's files (`<sample>/meta.json`, `depth_noisy`/`depth` as `.png` or `.npy`,
+`mask.png`, `<grasp>/grasp.json`, `models/<object>.ply`, `dataset.json`); knows nothing of how they
+were made.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from vint_engines import depth_file
 from vint_engines.objects import meshio
 from vint_engines.poses import quat_to_matrix
 from vint_engines.render import lens
@@ -79,6 +81,14 @@ def read_mask(path: Path) -> npt.NDArray[np.bool_]:
     return np.asarray(image > 0 if image.ndim == 2 else image[..., 0] > 0)
 
 
+def read_depth(sample: Path, stem: str) -> npt.NDArray[np.float32]:
+    """The sample's depth file `stem` in whichever format it has (metres, 0 = no reading)."""
+    path = depth_file.find(sample, stem)
+    if path is None:
+        raise FileNotFoundError(f"{sample}: no {stem}.png or {stem}.npy")
+    return depth_file.read(path)
+
+
 def read_view(data: Path, sample_id: str, noisy: bool, grasps: dict[str, dict[str, Any]]) -> View:
     sample = data / sample_id
     meta = json.loads((sample / "meta.json").read_text(encoding="utf-8"))
@@ -88,7 +98,7 @@ def read_view(data: Path, sample_id: str, noisy: bool, grasps: dict[str, dict[st
         np.asarray(camera["R_w2c"], dtype=np.float64),
         np.asarray(camera["t_w2c"], dtype=np.float64),
     )
-    depth = np.load(sample / ("depth_noisy.npy" if noisy else "depth.npy"))
+    depth = read_depth(sample, "depth_noisy" if noisy else "depth")
     grasp_id = meta["grasp_id"]
     if grasp_id not in grasps:
         grasps[grasp_id] = json.loads((data / grasp_id / "grasp.json").read_text(encoding="utf-8"))
