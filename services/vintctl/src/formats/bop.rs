@@ -33,7 +33,7 @@ use frames::{Mat3, Rigid, Vec3, row_major};
 pub use images::DEPTH_SCALE_MM;
 pub(super) use images::Mask;
 use images::{depth_units, encode_depth};
-use model::{Mesh, ModelGeometry, moved_ply};
+use model::{Mesh, ModelGeometry};
 use targets::ImageFacts;
 
 /// Lengths are written in mm to 1 nm and unitless numbers (rotations, normals) to 1e-9: far below
@@ -283,23 +283,17 @@ pub(super) fn write_models(native: &Path, objects: &Objects, sink: &mut Sink) ->
         let path = native.join(file);
         let bytes = fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
         let c = objects.file_offset_m(id);
-        let bytes = if c == [0.0; 3] {
-            bytes
-        } else {
-            moved_ply(&bytes, c.map(|v| v * 1000.0)).with_context(|| format!("{}", path.display()))?
-        };
-        let mesh = Mesh::parse(&bytes).with_context(|| format!("{}", path.display()))?;
+        let mesh = Mesh::parse(&bytes).with_context(|| format!("{}", path.display()))?.moved(c.map(|v| v * 1000.0));
+        // Both meshes' geometry is measured on their vertices as written (float32).
         let written = mesh.ply_with_normals();
-        let vertices = crate::eval::ply::vertices(&written).with_context(|| format!("{}", path.display()))?;
-        let geometry = ModelGeometry::of(&vertices).with_context(|| format!("{}", path.display()))?;
+        let geometry = ModelGeometry::of(&mesh.vertices).with_context(|| format!("{}", path.display()))?;
         check_declared(name, &geometry, o)?;
         sink.put(&format!("models/obj_{id:06}.ply"), &written)?;
 
-        let resampled = model_eval::resample(&mesh, &bytes);
-        let written_eval = resampled.mesh.ply_with_normals();
-        let eval_vertices = crate::eval::ply::vertices(&written_eval)?;
+        let resampled = model_eval::resample(&mesh, &written);
+        let eval_vertices: Vec<_> = resampled.mesh.vertices.iter().map(|&v| model::as_float32(v)).collect();
         let eval_geometry = ModelGeometry::of(&eval_vertices).with_context(|| format!("{name}'s models_eval"))?;
-        sink.put(&format!("models_eval/obj_{id:06}.ply"), &written_eval)?;
+        sink.put(&format!("models_eval/obj_{id:06}.ply"), &resampled.mesh.ply_with_normals())?;
         sampled.push(json!({"obj_id": id, "spacing_mm": round(resampled.spacing_mm, MM_DECIMALS),
                             "points": eval_vertices.len(), "triangles": resampled.mesh.triangles.len()}));
 
@@ -323,7 +317,7 @@ pub(super) fn write_models(native: &Path, objects: &Objects, sink: &mut Sink) ->
     sink.put("models_eval/models_info.json", &by_id(&info_eval)?)?;
     Ok(json!({
         "sampling": format!(
-            "Poisson-disk resampling of models/: candidates are the model's vertices, then the corners of every triangle's pieces cut by longest-edge bisection to edges <= spacing/3, visited in an order keyed by the model file's hash; a candidate is kept when no kept one is closer than the spacing ({} mm, or sqrt(area / {}) if larger); triangles join the kept points nearest each piece's corners",
+            "Poisson-disk resampling of models/: candidates are the model's vertices, then the corners of every triangle's pieces cut by longest-edge bisection to edges <= spacing/3, visited in an order keyed by the hash of the model's file in models/; a candidate is kept when no kept one is closer than the spacing ({} mm, or sqrt(area / {}) if larger); triangles join the kept points nearest each piece's corners",
             model_eval::SPACING_MM,
             model_eval::MAX_AREA_PER_R2
         ),

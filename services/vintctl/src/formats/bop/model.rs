@@ -1,6 +1,6 @@
-//! The object models' `models_info.json` entries: extents and diameter measured on the model PLY
-//! itself (millimetres, read with `eval::ply`, the one PLY reader), so they describe exactly the file
-//! the export ships.
+//! The object models: vint's model PLY parsed (`Mesh`), moved into BOP's frame and written with
+//! vertex normals, and their `models_info.json` entries: extents and diameter measured on the
+//! vertices as the shipped file holds them (float32 millimetres).
 
 use anyhow::{anyhow, bail};
 
@@ -40,37 +40,9 @@ fn header(bytes: &[u8]) -> anyhow::Result<(usize, Vec<&str>, Vec<&str>)> {
     Ok((end, comments, lines))
 }
 
-/// The model PLY as vint writes it (binary little-endian, the `vertex` element first with float32
-/// `x y z` alone) with every vertex moved by `d` (mm): the same triangles in another frame. Any
-/// other layout is refused rather than guessed at.
-pub fn moved_ply(bytes: &[u8], d: Vec3) -> anyhow::Result<Vec<u8>> {
-    let (end, _, lines) = header(bytes)?;
-    let count = match lines.as_slice() {
-        [
-            "ply",
-            "format binary_little_endian 1.0",
-            vertex,
-            "property float x",
-            "property float y",
-            "property float z",
-            rest @ ..,
-        ] if rest.first().is_none_or(|l| l.starts_with("element ")) => {
-            vertex.strip_prefix("element vertex ").and_then(|n| n.parse::<usize>().ok())
-        }
-        _ => None,
-    };
-    let Some(count) = count else {
-        bail!("the model PLY is not vint's layout (binary little-endian, vertex element of float x y z first)");
-    };
-    let mut out = bytes.to_vec();
-    let body = out.get_mut(end..end + count * 12).ok_or_else(|| anyhow!("PLY vertex data ends early"))?;
-    for vertex in body.chunks_exact_mut(12) {
-        for (k, value) in vertex.chunks_exact_mut(4).enumerate() {
-            let v = f32::from_le_bytes([value[0], value[1], value[2], value[3]]);
-            value.copy_from_slice(&((f64::from(v) + d[k]) as f32).to_le_bytes());
-        }
-    }
-    Ok(out)
+/// `v` as a PLY of float32 coordinates holds it.
+pub fn as_float32(v: Vec3) -> Vec3 {
+    v.map(|x| f64::from(x as f32))
 }
 
 /// A triangle mesh as vint writes model PLYs (millimetres), with the header's comment lines.
@@ -81,8 +53,8 @@ pub struct Mesh {
 }
 
 impl Mesh {
-    /// The model PLY in vint's layout (`moved_ply`'s: binary little-endian, float `x y z`, then
-    /// triangles); any other layout is refused rather than guessed at.
+    /// The model PLY in vint's layout (binary little-endian, float `x y z`, then triangles); any
+    /// other layout is refused rather than guessed at.
     pub fn parse(bytes: &[u8]) -> anyhow::Result<Mesh> {
         let (end, comments, lines) = header(bytes)?;
         let counts = match lines.as_slice() {
@@ -127,6 +99,16 @@ impl Mesh {
             triangles.push([index(0)?, index(1)?, index(2)?]);
         }
         Ok(Mesh { comments: comments.into_iter().map(str::to_string).collect(), vertices, triangles })
+    }
+
+    /// The same triangles in another frame: every vertex moved by `d` (mm), rounded to float32 as
+    /// a PLY holds it.
+    pub fn moved(self, d: Vec3) -> Mesh {
+        if d == [0.0; 3] {
+            return self;
+        }
+        let vertices = self.vertices.iter().map(|v| as_float32([v[0] + d[0], v[1] + d[1], v[2] + d[2]])).collect();
+        Mesh { vertices, ..self }
     }
 
     /// The mesh as a PLY in vint's layout plus BOP's vertex normals (`nx ny nz` after `x y z`):
@@ -330,19 +312,20 @@ mod tests {
 
     #[test]
     fn a_moved_model_keeps_its_triangles_and_moves_each_vertex() {
-        let mut ply = b"ply\nformat binary_little_endian 1.0\ncomment vint object model, units: mm\nelement vertex 2\n\
+        let mut ply = b"ply\nformat binary_little_endian 1.0\ncomment vint object model, units: mm\nelement vertex 3\n\
             property float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
             .to_vec();
-        for v in [1.0f32, 2.0, 3.0, -4.0, 5.5, 0.0] {
+        for v in [1.0f32, 2.0, 3.0, -4.0, 5.5, 0.0, 0.1, 0.0, 0.0] {
             ply.extend_from_slice(&v.to_le_bytes());
         }
-        ply.extend_from_slice(&[3, 0, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0]);
-        let moved = moved_ply(&ply, [40.0, 35.0, 15.0]).expect("vint's layout");
-        let vertices = crate::eval::ply::vertices(&moved).expect("still a PLY");
-        assert_eq!(vertices, vec![[41.0, 37.0, 18.0], [36.0, 40.5, 15.0]]);
-        assert_eq!(moved.len(), ply.len());
-        assert_eq!(moved[moved.len() - 13..], ply[ply.len() - 13..]);
-        let ascii = b"ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\nend_header\n";
-        assert!(moved_ply(ascii, [1.0; 3]).is_err());
+        ply.extend_from_slice(&[3, 0, 0, 0, 0, 1, 0, 0, 0, 2, 0, 0, 0]);
+        let mesh = Mesh::parse(&ply).expect("vint's layout");
+        let moved = Mesh::parse(&ply).expect("vint's layout").moved([40.0, 35.0, 15.0]);
+        assert_eq!(moved.triangles, mesh.triangles);
+        assert_eq!(moved.vertices[..2], [[41.0, 37.0, 18.0], [36.0, 40.5, 15.0]]);
+        // Rounded as the written file holds it: what a reader of models/ gets back.
+        let written = crate::eval::ply::vertices(&moved.ply_with_normals()).expect("still a PLY");
+        assert_eq!(written, moved.vertices);
+        assert_eq!(moved.vertices[2][0], f64::from((0.1f32 as f64 + 40.0) as f32));
     }
 }

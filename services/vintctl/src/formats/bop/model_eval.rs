@@ -13,8 +13,8 @@
 //!    triangle's pieces, cut by longest-edge bisection until no edge exceeds r/3, so every surface
 //!    point is within r/(3√3) of a candidate (Jung's theorem).
 //! 3. Poisson-disk thinning: candidates in a fixed pseudo-random order (the model's vertices
-//!    before the pieces' corners; keyed by a hash of the model's bytes, so a model gets the same points
-//!    in every dataset) are kept when no kept point is closer than r. Kept points are thus at
+//!    before the pieces' corners; keyed by a hash of the model's file in `models/`, so a model gets
+//!    the same points in every dataset) are kept when no kept point is closer than r. Kept points are thus at
 //!    least r apart, and every candidate lies within r of one (every surface point within 1.2 r).
 //!    Keeping vertices first keeps a box's corners and a cylinder's rims, and so the diameter.
 //! 4. Triangles: each piece whose corners' nearest kept points are three different points gives
@@ -48,8 +48,8 @@ pub struct EvalModel {
     pub spacing_mm: f64,
 }
 
-/// `model` (mm) resampled as the module documentation says; `seed_bytes` (the model's PLY bytes)
-/// key the order candidates are visited in.
+/// `model` (mm) resampled as the module documentation says; `seed_bytes` (the model's PLY in
+/// `models/`) key the order candidates are visited in.
 pub fn resample(model: &Mesh, seed_bytes: &[u8]) -> EvalModel {
     let area: f64 = model.triangles.iter().map(|t| triangle_area(&model.vertices, t)).sum();
     let spacing = SPACING_MM.max((area / MAX_AREA_PER_R2).sqrt());
