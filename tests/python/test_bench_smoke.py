@@ -63,6 +63,7 @@ SMOKES: dict[str, Smoke] = {
         '"case":"sqlite/batch64"',
         {"VINT_BENCH_TASKS": "64", "VINT_BENCH_REPEATS": "1"},
     ),
+    "depth_png.py": python_smoke("depth_png.py", "largest decode error: "),
     # dispatch.sh ends with dispatch_report.py on its run, which prints the lineage line.
     "dispatch.sh": shell_smoke(
         "dispatch.sh", "lineage: all 5 sampled samples verified end to end", ("dispatch_report.py",)

@@ -128,7 +128,7 @@ fn a_copy_is_within_tolerance_without_a_byte_read() {
     let names: Vec<&str> =
         report["modalities"].as_array().unwrap().iter().map(|m| m["modality"].as_str().unwrap()).collect();
     assert!(
-        ["rgb.png", "depth.npy", "depth_noisy.npy", "mask.png", "segmentation.png"].iter().all(|n| names.contains(n)),
+        ["rgb.png", "depth.png", "depth_noisy.png", "mask.png", "segmentation.png"].iter().all(|n| names.contains(n)),
         "{names:?}"
     );
 }
@@ -163,11 +163,11 @@ fn depth_and_a_camera_pose_a_millimetre_off_are_named_by_sample_file_and_place()
     let copy = Copy::new();
     let samples = copy.samples();
     let (depth_sample, pose_sample) = (&samples[1], &samples[2]);
-    // One pixel with a return, 1 mm further; and a micrometre everywhere else (within tolerance).
+    // One pixel with a return, 1 mm further: ten 0.1 mm steps of the 16-bit PNG.
     copy.edit(
         depth_sample,
-        "depth.npy",
-        "d = np.load(path); v, u = np.argwhere(d > 0)[0]; d[d > 0] += np.float32(1e-6); d[v, u] += np.float32(1e-3); np.save(path, d)",
+        "depth.png",
+        "d = cv2.imread(path, cv2.IMREAD_UNCHANGED); d[tuple(np.argwhere(d > 0)[0])] += 10; cv2.imwrite(path, d)",
     );
     copy.edit_json(pose_sample, "meta.json", |meta| {
         let x = meta["camera"]["t_w2c"][0].as_f64().unwrap();
@@ -178,7 +178,7 @@ fn depth_and_a_camera_pose_a_millimetre_off_are_named_by_sample_file_and_place()
     let mut found = differing_files(&report);
     found.sort();
     let mut expected =
-        vec![(depth_sample.clone(), "depth.npy".to_string()), (pose_sample.clone(), "meta.json".to_string())];
+        vec![(depth_sample.clone(), "depth.png".to_string()), (pose_sample.clone(), "meta.json".to_string())];
     expected.sort();
     assert_eq!(found, expected);
     for difference in report["differences"].as_array().unwrap() {

@@ -23,8 +23,8 @@ fn tiny_spec_produces_verified_samples_identical_for_any_worker_count_and_engine
             assert_eq!(
                 files,
                 [
-                    "depth.npy",
-                    "depth_noisy.npy",
+                    "depth.png",
+                    "depth_noisy.png",
                     "mask.png",
                     "mask_full.png",
                     "meta.json",

@@ -118,7 +118,10 @@ async fn a_timing_only_worker_drains_a_job_with_full_lineage_and_marks_its_outpu
         .find(|a| a["name"].as_str().unwrap().ends_with("/rgb.png"))
         .expect("a packaged rgb.png");
     assert!(render.contains(&packaged_rgb["sha256"].as_str().unwrap().to_string()));
-    // Sizes follow the resolution: a 64×48 float32 depth image with its .npy header.
-    let depth = tasks[2]["outputs"].as_array().unwrap().iter().find(|a| a["name"] == "v00_depth.npy").unwrap();
-    assert_eq!(depth["size"], 64 * 48 * 4 + 128);
+    // Sizes follow the resolution: a 64×48 16-bit PNG depth image, as large as the engines' files
+    // of that many pixels (the model of measured sizes; > 0.37 B/px, the 128×128 figure).
+    let depth = tasks[2]["outputs"].as_array().unwrap().iter().find(|a| a["name"] == "v00_depth.png").unwrap();
+    let expected = vint_core::contract::render::ViewFile::Depth(Default::default()).bytes(64 * 48);
+    assert_eq!(depth["size"], expected);
+    assert!(expected as f64 > 0.368 * 64.0 * 48.0, "{expected}");
 }

@@ -17,6 +17,7 @@ use serde_json::Value;
 use crate::asset::Asset;
 pub use crate::budget::PairBudget;
 use crate::catalog;
+use crate::contract::depth::DepthFormat;
 use crate::contract::object::{ObjectEntry, Shape, Texture};
 use crate::contract::package::{self, Modality, SampleRef};
 use crate::contract::render::{self, RenderOutput};
@@ -119,6 +120,9 @@ pub struct JobPlan {
     pub object_assets: BTreeMap<String, Vec<Asset>>,
     /// Only what the requested modalities need.
     pub render_outputs: Vec<RenderOutput>,
+    /// How depth images are stored (`.npy` in plans stored before 16-bit PNG depth, which wrote it).
+    #[serde(default = "stored_before_png_depth")]
+    pub depth_format: DepthFormat,
     /// The noise model, when noisy depth is requested (no noise tasks otherwise).
     pub noise: Option<noise::NoiseModel>,
     pub modalities: Vec<Modality>,
@@ -210,6 +214,7 @@ impl JobPlan {
             render_assets,
             object_assets,
             render_outputs,
+            depth_format: spec.outputs.depth_format,
             noise: wants(Modality::DepthNoisy).then(|| spec.noise.model.clone()),
             modalities: spec.outputs.modalities.clone(),
             dataset_objects: if r.scene.distractors > 0 { spec.objects.clone() } else { Vec::new() },
@@ -401,7 +406,7 @@ pub fn after_grasp(plan: &JobPlan, chunk: &GraspChunk, accepted: &[u32]) -> Resu
         }
     }
     if !accepted.is_empty() {
-        let params = package::Params { samples, modalities: plan.modalities.clone() };
+        let params = package::Params { samples, modalities: plan.modalities.clone(), depth_format: plan.depth_format };
         tasks.push(NewTask::new(chunk.package_key(), Stage::Package, &params, package_deps)?);
     }
     Ok(tasks)
@@ -428,6 +433,7 @@ fn render_params(plan: &JobPlan, object: &str, hand: &str, g: u32) -> render::Pa
             .collect(),
         views,
         outputs: plan.render_outputs.clone(),
+        depth_format: plan.depth_format,
         dataset_objects: plan.dataset_objects.clone(),
     }
 }
@@ -436,7 +442,11 @@ fn noise_params(plan: &JobPlan, model: &noise::NoiseModel, object: &str, hand: &
     let views = (0..plan.views_per_grasp())
         .map(|v| noise::View { view_index: v, seed: seed::noise_view(plan.seed, object, hand, g, v) })
         .collect();
-    noise::Params { noise: model.clone(), views }
+    noise::Params { noise: model.clone(), views, depth_format: plan.depth_format }
+}
+
+fn stored_before_png_depth() -> DepthFormat {
+    DepthFormat::Npy
 }
 
 #[cfg(test)]

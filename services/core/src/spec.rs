@@ -19,6 +19,7 @@ use toml::{Table, Value};
 use crate::asset::{self, AssetUse};
 use crate::budget::PairBudget;
 use crate::catalog;
+use crate::contract::depth::{self, DepthFormat};
 use crate::contract::package::Modality;
 use crate::contract::render::{self as render_contract, Bounces};
 use crate::contract::{Bound, grasp, noise, object};
@@ -271,6 +272,9 @@ pub const HDRI_EXTENSIONS: &[&str] = &["hdr", "exr"];
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Outputs {
     pub modalities: Vec<Modality>,
+    /// How depth and noisy depth are stored: 16-bit PNG of 0.1 mm steps (the default) or float32
+    /// `.npy` (`contract::depth`).
+    pub depth_format: DepthFormat,
 }
 
 impl Outputs {
@@ -778,9 +782,11 @@ fn read_spec(r: &mut Reader, root: &mut Table) -> DatasetSpec {
             .iter()
             .filter_map(|m| Modality::parse(m))
             .collect(),
+        depth_format: r.tag(&mut o, "outputs", "depth_format", &DepthFormat::ALL, Some(DepthFormat::default())),
     };
-    r.finish(o, "outputs", &["modalities"]);
+    r.finish(o, "outputs", &["modalities", "depth_format"]);
     check_min_range(r, &render, &noise, &outputs);
+    check_png_depth_range(r, &render, &outputs);
     let split = read_split(r, root, &objects, &hands);
 
     r.finish(
@@ -836,6 +842,23 @@ fn check_min_range(r: &mut Reader, render: &RenderSettings, noise: &NoiseSetting
                  move the camera out, choose a mode with a shorter range (wfov_2x2binned, wfov_unbinned: 0.25 m), \
                  or set noise.ignore_min_range = true",
                 mode.as_str()
+            ),
+        );
+    }
+}
+
+/// With depth stored as 16-bit PNG, the farthest camera must stand within what a PNG holds
+/// (`depth::PNG_MAX_M`, 6.5535 m): farther, the object itself would store as no reading.
+fn check_png_depth_range(r: &mut Reader, render: &RenderSettings, outputs: &Outputs) {
+    let depth_wanted = outputs.wants(Modality::Depth) || outputs.wants(Modality::DepthNoisy);
+    if depth_wanted && outputs.depth_format == DepthFormat::Png && render.radius_m[1] > depth::PNG_MAX_M {
+        r.error(
+            "render.radius_m[1]",
+            Value::Float(render.radius_m[1]),
+            format!(
+                "must be at most {} m with outputs.depth_format = \"png\" (16-bit steps of 0.1 mm hold no \
+                 farther depth): move the camera in, or set outputs.depth_format = \"npy\"",
+                depth::PNG_MAX_M
             ),
         );
     }

@@ -250,6 +250,34 @@ fn cameras_nearer_than_the_modes_minimum_range_are_refused_when_noisy_depth_is_r
 }
 
 #[test]
+fn depth_is_png_by_default_npy_on_request_and_png_refuses_a_camera_beyond_what_it_holds() {
+    use vint_core::contract::depth::DepthFormat;
+    let default = DatasetSpec::parse(&TINY.replace("depth_format = \"png\"", "")).unwrap();
+    assert_eq!(default.outputs.depth_format, DepthFormat::Png);
+    let npy = tiny_with("depth_format = \"png\"", "depth_format = \"npy\"");
+    assert_eq!(DatasetSpec::parse(&npy).unwrap().outputs.depth_format, DepthFormat::Npy);
+    let errs = errors(&tiny_with("depth_format = \"png\"", "depth_format = \"exr\""));
+    assert_eq!(errs.len(), 1, "{errs:#?}");
+    assert!(
+        errs[0].starts_with("outputs.depth_format: ") && errs[0].contains("png") && errs[0].contains("npy"),
+        "{errs:#?}"
+    );
+    assert!(errs[0].ends_with("got \"exr\""), "{errs:#?}");
+
+    // A camera up to 7 m away: the farthest views' depth would not fit 16 bits of 0.1 mm.
+    let far = tiny_with("radius_m = [0.35, 0.5]", "radius_m = [0.5, 7.0]");
+    assert_single_error(
+        &far,
+        "render.radius_m[1]: must be at most 6.5535 m with outputs.depth_format = \"png\" (16-bit steps of 0.1 mm \
+         hold no farther depth): move the camera in, or set outputs.depth_format = \"npy\", got 7.0",
+    );
+    DatasetSpec::parse(&far.replace("depth_format = \"png\"", "depth_format = \"npy\"")).expect("npy holds any depth");
+    let no_depth = far.replace("\"depth\", \"depth_noisy\", ", "");
+    DatasetSpec::parse(&no_depth).expect("no depth requested, no range rule");
+    DatasetSpec::parse(&tiny_with("radius_m = [0.35, 0.5]", "radius_m = [0.5, 6.5535]")).expect("6.5535 m fits");
+}
+
+#[test]
 fn names_must_be_known_identifiers() {
     assert_single_error(
         &tiny_with("objects = [\"tomato_soup_can\", \"mustard_bottle\", \"mug\"]", "objects = [\"unobtainium\"]"),

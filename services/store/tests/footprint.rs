@@ -38,10 +38,10 @@ fn outputs_of(plan: &JobPlan, t: &LeasedTask) -> (Vec<String>, Vec<String>) {
     match t.stage {
         Stage::Grasp => (vec![grasp::GRASPS_FILE.into(), grasp::TOUCH_FILE.into(), grasp::MODEL_FILE.into()], vec![]),
         Stage::Render => {
-            let files = render::view_files(&plan.render_outputs);
+            let files = render::view_files(&plan.render_outputs, plan.depth_format);
             (views.flat_map(|v| files.iter().map(move |f| f.name(v))).collect(), vec![])
         }
-        Stage::Noise => (views.map(noise::noisy_depth_file).collect(), vec![]),
+        Stage::Noise => (views.map(|v| noise::noisy_depth_file(v, plan.depth_format)).collect(), vec![]),
         Stage::Package => {
             let p: package::Params = serde_json::from_value(params).unwrap();
             let mut files = Vec::new();
@@ -49,7 +49,7 @@ fn outputs_of(plan: &JobPlan, t: &LeasedTask) -> (Vec<String>, Vec<String>) {
             for s in &p.samples {
                 files.push(format!("{}/{}", s.sample_id, package::META_FILE));
                 for m in &p.modalities {
-                    files.extend(m.sample_files().iter().map(|f| format!("{}/{}", s.sample_id, f.name)));
+                    files.extend(m.sample_files(p.depth_format).iter().map(|f| format!("{}/{}", s.sample_id, f.name)));
                 }
                 let id: SampleId = s.sample_id.parse().unwrap();
                 grasps.insert(id.grasp().to_string());

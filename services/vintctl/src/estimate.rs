@@ -47,14 +47,17 @@ pub struct Estimate {
 }
 
 /// Bytes per pixel of the image files one view of `spec` carries in a sample: each modality's
-/// images are the size of the render outputs it is made from (noisy depth, of the depth it
-/// perturbs).
-fn sample_bytes_per_pixel(spec: &DatasetSpec) -> f64 {
+/// images are the size of the render outputs it is made from, and noisy depth its own (as PNG,
+/// noise compresses worse than a clean surface).
+fn sample_bytes_per_pixel(spec: &DatasetSpec, pixels: f64) -> f64 {
+    let depth = spec.outputs.depth_format;
     Modality::ALL
         .into_iter()
         .filter(|m| spec.outputs.wants(*m))
-        .flat_map(|m| m.render_outputs())
-        .map(|o| o.bytes_per_pixel())
+        .map(|m| match m {
+            Modality::DepthNoisy => vint_core::contract::render::noisy_depth_bytes_per_pixel(depth, pixels),
+            _ => m.render_outputs().iter().map(|o| o.bytes_per_pixel(depth, pixels)).sum(),
+        })
         .sum()
 }
 
@@ -62,7 +65,7 @@ fn sample_bytes_per_pixel(spec: &DatasetSpec) -> f64 {
 /// record per grasp.
 pub fn dataset_bytes(spec: &DatasetSpec, w: &Workload) -> f64 {
     let views = w.samples as f64;
-    views * (sample_bytes_per_pixel(spec) * w.pixels + META_JSON_BYTES) + w.grasps as f64 * GRASP_RECORD_BYTES
+    views * (sample_bytes_per_pixel(spec, w.pixels) * w.pixels + META_JSON_BYTES) + w.grasps as f64 * GRASP_RECORD_BYTES
 }
 
 impl Estimate {
@@ -169,28 +172,28 @@ mod tests {
     /// examples/tiny.toml --workers 1` took 53.6 CPU-s (user + system, every process, engine
     /// start-ups included) for its 60 samples on 2026-11-27 beside a render study (43.9 CPU-s with
     /// `denoise = false`), ~64 s for tiny's bound of 72 (grasp type `any` then); with the spec's
-    /// power grasp (5 of 12 trials accepted, 30 samples) 28.5 CPU-s alone, ~68 s for 72 at that rate;
-    /// 12.83 MB written since each grasp's record is stored once rather than in every view's
-    /// meta.json (docs/benchmarks.md).
+    /// power grasp (5 of 12 trials accepted, 30 samples) 28.5 CPU-s alone, ~68 s for 72 at that rate.
+    /// Written with 16-bit PNG depth (2026-11-29): 2.42 MB for those 30 samples and 5 grasps, ~5.8 MB
+    /// for 72 and 12 (docs/benchmarks.md, "Depth as PNG").
     #[test]
     fn tiny_costs_what_was_measured_within_a_quarter() {
         let e = Estimate::of(&DatasetSpec::parse(TINY).unwrap()).unwrap();
         assert_eq!(tasks(&e), [("grasp", 6), ("render", 12), ("noise", 12), ("package", 6)]);
         assert_eq!(e.samples_max, 72);
         assert!((48.0..80.0).contains(&e.cpu_seconds), "{:?}", e.stages);
-        assert!((9.6e6..16e6).contains(&e.output_bytes), "{}", e.output_bytes);
+        assert!((4.4e6..7.3e6).contains(&e.output_bytes), "{}", e.output_bytes);
         assert!(e.warnings.is_empty(), "{:?}", e.warnings);
     }
 
-    /// The object store of a real `vintctl run examples/tiny.toml` (2026-11-25, commit `687edb3`:
-    /// 12 trials, 10 accepted grasps, 60 samples), distinct objects' bytes by the stage that first
-    /// wrote them (`scripts/measure_db_bytes.py`'s run): grasp 233 747, render 5 861 717, noise
-    /// 3 939 840, package 597 582. Each stage's own `cost` model, on the run's counts.
+    /// The object store of a real `vintctl run examples/tiny.toml` (2026-11-29, on `4c46d1c` with
+    /// 16-bit PNG depth: 12 trials, 5 accepted grasps, 30 samples), distinct objects' bytes by the
+    /// stage that first wrote them (from the job's `outputs` rows): grasp 275 549, render 1 330 151,
+    /// noise 533 318, package 593 152. Each stage's own `cost` model, on the run's counts.
     #[test]
     fn object_store_bytes_reproduce_a_real_tiny_run_per_stage() {
         let spec = DatasetSpec::parse(TINY).unwrap();
         let c = cost::of(&spec).unwrap();
-        let w = Workload { grasps: 10, samples: 60, ..c.work };
+        let w = Workload { grasps: 5, samples: 30, ..c.work };
         let tasks = |stage| {
             let mut tasks = vint_core::plan::initial_tasks(&spec, &[]).unwrap();
             let chunk = vint_core::plan::GraspChunk::from_key(&tasks[0].key).unwrap();
@@ -198,10 +201,10 @@ mod tests {
             tasks.into_iter().find(|t| t.stage == stage).unwrap().params
         };
         for (stage, measured) in [
-            (vint_core::Stage::Grasp, 233_747.0),
-            (vint_core::Stage::Render, 5_861_717.0),
-            (vint_core::Stage::Noise, 3_939_840.0),
-            (vint_core::Stage::Package, 597_582.0),
+            (vint_core::Stage::Grasp, 275_549.0),
+            (vint_core::Stage::Render, 1_330_151.0),
+            (vint_core::Stage::Noise, 533_318.0),
+            (vint_core::Stage::Package, 593_152.0),
         ] {
             let model = vint_core::contract::cost(stage, &w, &tasks(stage)).unwrap().bytes;
             assert!((model / measured - 1.0).abs() < 0.1, "{stage}: {model} against {measured} measured");

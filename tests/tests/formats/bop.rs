@@ -76,8 +76,8 @@ fn bop_export_has_every_file_of_the_layout_for_every_sample() {
             let mut required: Vec<PathBuf> = Vec::new();
             for (native, folder) in [
                 ("rgb.png", "rgb"),
-                ("depth.npy", "depth"),
-                ("depth_noisy.npy", "depth_noisy"),
+                ("depth.png", "depth"),
+                ("depth_noisy.png", "depth_noisy"),
                 ("segmentation.png", "segmentation"),
             ] {
                 if has(native) {
@@ -85,7 +85,7 @@ fn bop_export_has_every_file_of_the_layout_for_every_sample() {
                 }
             }
             assert!(
-                has("depth.npy") && has("mask.png") && has("mask_full.png"),
+                has("depth.png") && has("mask.png") && has("mask_full.png"),
                 "tiny asks for depth and masks: {sample}"
             );
             required.push(scene.join(format!("mask/{view:06}_000000.png")));

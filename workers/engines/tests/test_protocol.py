@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 import pytest
 from conftest import ENGINES_DIR, new_dir
@@ -72,7 +73,8 @@ def test_engine_says_hello_runs_a_task_and_exits_zero_on_shutdown(spawn_engine, 
     out_dir = new_dir(tmp_path, "out")
     reply = engine.task("t-1", NOISE_PARAMS, out_dir, write_depth(new_dir(tmp_path, "in")))
     assert reply["ok"] is True, reply
-    assert [o["name"] for o in reply["outputs"]] == ["v00_depth_noisy.npy"]
+    assert [o["name"] for o in reply["outputs"]] == ["v00_depth_noisy.png"]
+    assert reply["outputs"][0]["media_type"] == "image/png"
     assert Path(reply["outputs"][0]["path"]).parent == out_dir
     assert reply["metrics"]["engine_ms"] > 0
     assert engine.shutdown() == 0
@@ -92,8 +94,26 @@ def test_the_noise_engine_reads_a_png_depth_as_the_float_depth_it_holds(tmp_path
         inputs = tuple(InputRef(path.name, "render/x", path) for path in files)
         out = new_dir(tmp_path, f"out_{name}")
         NoiseEngine().run(TaskRequest(name, NOISE_PARAMS, inputs, out))
-        noisy[name] = np.load(out / "v00_depth_noisy.npy")
+        noisy[name] = depth_file.read(out / "v00_depth_noisy.png")
     assert np.array_equal(noisy["npy"], noisy["png"])
+
+
+def test_the_noise_engine_stores_noisy_depth_as_the_task_says(tmp_path: Path) -> None:
+    """`depth_format = "npy"` gives float32 metres; the default 16-bit PNG holds the same noisy
+    depth to the nearest 0.1 mm step (read back here with OpenCV, not the engine's reader), with
+    the same holes."""
+    from vint_engines.noise.engine import NoiseEngine
+
+    inputs = tuple(InputRef(path.name, "render/x", path) for path in write_depth(new_dir(tmp_path, "in")))
+    npy, png = new_dir(tmp_path, "as_npy"), new_dir(tmp_path, "as_png")
+    NoiseEngine().run(TaskRequest("npy", {**NOISE_PARAMS, "depth_format": "npy"}, inputs, npy))
+    NoiseEngine().run(TaskRequest("png", NOISE_PARAMS, inputs, png))
+    assert [p.name for p in npy.iterdir()] == ["v00_depth_noisy.npy"]
+    assert [p.name for p in png.iterdir()] == ["v00_depth_noisy.png"]
+    exact = np.load(npy / "v00_depth_noisy.npy").astype(np.float64)
+    units = cv2.imread(str(png / "v00_depth_noisy.png"), cv2.IMREAD_UNCHANGED)
+    assert units.dtype == np.uint16 and np.array_equal(units > 0, exact > 0)
+    assert np.abs(units * 1e-4 - exact)[exact > 0].max() <= 0.5e-4 + 1e-9
 
 
 def test_engine_exits_zero_on_eof(spawn_engine) -> None:

@@ -16,6 +16,7 @@ from conftest import EngineProcess, new_dir, trx3_grasps
 from geometry import distance_to_mesh
 from hdri_files import write_opencv_exr
 
+from vint_engines import depth_file
 from vint_engines.grasp.engine import GraspEngine
 from vint_engines.objects import load_catalog
 from vint_engines.objects.meshio import read_ply_m
@@ -87,8 +88,8 @@ def view(engine: EngineProcess, grasps: tuple[Path, int], workdir: Path) -> tupl
     return reply, out
 
 
-def load_view(out: Path) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
-    depth = np.load(out / "v00_depth.npy")
+def load_view(out: Path, depth_format: str = "png") -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    depth = depth_file.read(out / f"v00_depth.{depth_format}")
     mask = cv2.imread(str(out / "v00_mask.png"), cv2.IMREAD_UNCHANGED)
     camera = json.loads((out / "v00_camera.json").read_text())
     return depth, mask, camera
@@ -97,7 +98,7 @@ def load_view(out: Path) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
 def test_view_writes_the_protocol_outputs(view: tuple[dict[str, Any], Path]) -> None:
     reply, out = view
     names = {o["name"] for o in reply["outputs"]}
-    assert names == {"v00_rgb.png", "v00_depth.npy", "v00_mask.png", "v00_mask_full.png", "v00_camera.json"}
+    assert names == {"v00_rgb.png", "v00_depth.png", "v00_mask.png", "v00_mask_full.png", "v00_camera.json"}
     rgb = cv2.imread(str(out / "v00_rgb.png"), cv2.IMREAD_UNCHANGED)
     depth, mask, camera = load_view(out)
     assert rgb.shape == (64, 64, 3) and rgb.dtype == np.uint8
@@ -106,6 +107,28 @@ def test_view_writes_the_protocol_outputs(view: tuple[dict[str, Any], Path]) -> 
     assert camera["visible_px"] == np.count_nonzero(mask) > 20
     assert (depth[mask > 0] > 0).all()  # the object is hit wherever the mask says so
     assert (depth == 0).any()  # and the background reads 0
+
+
+def test_png_depth_is_the_float_depth_within_half_a_step(
+    engine: EngineProcess, grasps: tuple[Path, int], view: tuple[dict[str, Any], Path], workdir: Path
+) -> None:
+    """The same view with `depth_format = "npy"`: the default 16-bit PNG decodes within 0.05 mm
+    (half a 0.1 mm step) of the float32 depth on every pixel in range, with the same holes. The
+    decoding here is OpenCV's and numpy's, not the engine's."""
+    out = new_dir(workdir, "npy")
+    reply = render(engine, grasps, out, ["rgb", "depth", "mask"], depth_format="npy")
+    assert reply["ok"] is True, reply
+    assert {o["name"] for o in reply["outputs"]} >= {"v00_depth.npy"}
+    exact = np.load(out / "v00_depth.npy")
+    units = cv2.imread(str(view[1] / "v00_depth.png"), cv2.IMREAD_UNCHANGED)
+    assert units.dtype == np.uint16 and units.shape == exact.shape
+    in_range = (exact > 0) & (exact <= 6.5535)
+    assert in_range.sum() > 20 and np.array_equal(units > 0, in_range)
+    error = np.abs(units[in_range].astype(np.float64) * 1e-4 - exact[in_range].astype(np.float64))
+    assert error.max() <= 0.5e-4 + 1e-9, error.max()
+    # The other files do not depend on how depth is stored.
+    for name in ("v00_rgb.png", "v00_mask.png", "v00_camera.json"):
+        assert (out / name).read_bytes() == (view[1] / name).read_bytes(), name
 
 
 def test_camera_is_a_proper_opencv_camera(view: tuple[dict[str, Any], Path]) -> None:
@@ -152,7 +175,7 @@ def test_rgb_is_skipped_unless_requested(
     assert reply["ok"] is True
     assert sorted(p.name for p in out.iterdir()) == [
         "v00_camera.json",
-        "v00_depth.npy",
+        "v00_depth.png",
         "v00_mask.png",
         "v00_mask_full.png",
     ]
@@ -192,7 +215,7 @@ def test_each_view_renders_under_its_own_environment(
     for index, environment in ((0, "studio"), (1, "forest")):
         camera = json.loads((mixed / f"v{index:02d}_camera.json").read_text())
         assert camera["environment"] == {"name": environment, "rotation_deg": 0.0, "strength": 1.0}
-    assert np.array_equal(np.load(mixed / "v00_depth.npy"), np.load(mixed / "v01_depth.npy"))
+    assert (mixed / "v00_depth.png").read_bytes() == (mixed / "v01_depth.png").read_bytes()
     assert (mixed / "v00_rgb.png").read_bytes() != (mixed / "v01_rgb.png").read_bytes()
 
     alone = new_dir(workdir, "forest_alone")
@@ -211,7 +234,7 @@ def test_another_engine_process_renders_the_same_bytes(
     assert fresh.receive() is not None, fresh.stderr_tail()
     out = new_dir(workdir, "fresh")
     assert render(fresh, grasps, out, ["rgb", "depth", "mask"])["ok"] is True
-    for name in ("v00_rgb.png", "v00_depth.npy", "v00_mask.png", "v00_mask_full.png", "v00_camera.json"):
+    for name in ("v00_rgb.png", "v00_depth.png", "v00_mask.png", "v00_mask_full.png", "v00_camera.json"):
         assert (out / name).read_bytes() == (view[1] / name).read_bytes(), name
     assert fresh.shutdown(60) == 0
 
@@ -234,7 +257,7 @@ def mustard(workdir: Path) -> tuple[Path, Path, int]:
 
 def object_points(out: Path) -> np.ndarray:
     """The object pixels of view 0 back-projected into the object frame (3 × n)."""
-    depth, mask, camera = load_view(out)
+    depth, mask, camera = load_view(out, "npy")
     v, u = np.nonzero(mask)
     rays = np.linalg.inv(np.array(camera["K"])) @ np.stack([u, v, np.ones_like(u)]).astype(float)
     points_c = rays * depth[v, u]
@@ -253,6 +276,7 @@ def test_a_compound_object_renders_from_the_grasp_engines_model_mesh(
         "render": {**RENDER, "width": 32, "height": 32, "samples": 4},
         "views": [{"view_index": 0, "seed": SEED}],
         "outputs": ["depth", "mask"],
+        "depth_format": "npy",
     }
     staged = new_dir(workdir, "mustard_staged")
     reply = engine.task("staged", params, staged, [grasps_json, model_ply])
@@ -265,8 +289,8 @@ def test_a_compound_object_renders_from_the_grasp_engines_model_mesh(
 
     rebuilt = new_dir(workdir, "mustard_rebuilt")
     assert engine.task("rebuilt", params, rebuilt, [grasps_json])["ok"] is True
-    depth_staged, mask_staged, _ = load_view(staged)
-    depth_rebuilt, mask_rebuilt, _ = load_view(rebuilt)
+    depth_staged, mask_staged, _ = load_view(staged, "npy")
+    depth_rebuilt, mask_rebuilt, _ = load_view(rebuilt, "npy")
     assert np.array_equal(mask_staged, mask_rebuilt)
     assert np.allclose(depth_staged, depth_rebuilt, atol=1e-5)
 
@@ -307,10 +331,10 @@ def test_a_user_hdri_lights_the_rgb_image_and_not_the_geometry(
         "user_hdri", {**base(grasps), **extra, "views": TWO_VIEWS}, out, [grasps[0], (sha, red)]
     )
     assert reply["ok"] is True, reply
-    assert np.array_equal(np.load(out / "v00_depth.npy"), np.load(out / "v01_depth.npy"))
+    assert np.array_equal(depth_file.read(out / "v00_depth.png"), depth_file.read(out / "v01_depth.png"))
     studio = cv2.imread(str(out / "v00_rgb.png")).astype(float)
     lab = cv2.imread(str(out / "v01_rgb.png")).astype(float)
-    background = np.load(out / "v01_depth.npy") == 0
+    background = depth_file.read(out / "v01_depth.png") == 0
     assert background.any()
     b, g, r = (lab[..., c][background].mean() for c in range(3))
     assert r > 100 and r > 4 * g and r > 4 * b, (b, g, r)
@@ -408,7 +432,7 @@ def test_a_user_hdri_declaring_gigapixels_is_refused_before_blender_reads_it(
     params = {**base(grasps), **user_hdri_params("lab", exr, sha, "assets/lab.exr"), "views": TWO_VIEWS[1:]}
     reply = engine.task("exr", params, out, [grasps[0], (sha, exr)])
     assert reply["ok"] is True, reply
-    background = np.load(out / "v01_depth.npy") == 0
+    background = depth_file.read(out / "v01_depth.png") == 0
     b, g, r = (
         cv2.imread(str(out / "v01_rgb.png")).astype(float)[..., c][background].mean() for c in range(3)
     )

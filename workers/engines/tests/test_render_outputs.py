@@ -37,6 +37,9 @@ RENDER = {
     "occlusion": [0.0, 1.0],
 }
 ALL = ["rgb", "depth", "mask", "segmentation"]
+# These tests hold depth to geometry at float precision, so they ask for float32 `.npy` depth;
+# test_render.py holds the default 16-bit PNG to the float depth (within 0.05 mm).
+DEPTH_FORMAT = {"depth_format": "npy"}
 GEOMETRY_FILES = ("depth.npy", "mask.png", "mask_full.png", "segmentation.png")
 SEEDS = (11, 12, 13)
 
@@ -78,6 +81,7 @@ def render(
         "render": {**RENDER, **settings},
         "views": views,
         "outputs": outputs,
+        **DEPTH_FORMAT,
     }
     inputs = [grasp["dir"] / "grasps.json", grasp["dir"] / "object.ply"]
     reply = engine.task(out.name, params, out, inputs)
@@ -388,6 +392,7 @@ def test_environment_rotation_and_strength_change_only_the_light(
         "environments": [{"name": "forest", "rotation_deg": 120.0, "strength": 2.5}],
         "views": views,
         "outputs": ["rgb", "depth"],
+        **DEPTH_FORMAT,
     }
     inputs = [grasp["dir"] / "grasps.json", grasp["dir"] / "object.ply"]
     assert engine.task("turned", params, out, inputs)["ok"] is True
@@ -418,7 +423,7 @@ def test_a_noise_task_reads_the_rendered_segmentation_and_camera_record(
     scene = {str(2 + n): "metal", str(3 + n): "plastic", str(4 + n): "wood"}  # flange, arm link, table
     assert record["materials"] == {"1": "metal", **{str(2 + k): "rubber" for k in range(n)}, **scene}
 
-    params = {"noise": {"mode": "wfov_unbinned"}, "views": [{"view_index": 0, "seed": 9}]}
+    params = {"noise": {"mode": "wfov_unbinned"}, "views": [{"view_index": 0, "seed": 9}], **DEPTH_FORMAT}
     names = ("v00_depth.npy", "v00_segmentation.png", "v00_camera.json")
 
     def noisy(files: dict[str, Path], name: str) -> np.ndarray:

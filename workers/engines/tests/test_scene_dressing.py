@@ -18,6 +18,7 @@ import pytest
 from conftest import EngineProcess, new_dir, started_engine
 from geometry import distance_to_mesh, signed_distance_to_primitive
 
+from vint_engines import depth_file
 from vint_engines.grasp.engine import GraspEngine
 from vint_engines.objects import build_model, load_catalog
 from vint_engines.objects.meshio import read_ply_m
@@ -91,7 +92,7 @@ def load(out: Path, view: int) -> dict[str, Any]:
     prefix = out / f"v{view:02d}"
     return {
         "rgb": cv2.imread(f"{prefix}_rgb.png", cv2.IMREAD_COLOR),
-        "depth": np.load(f"{prefix}_depth.npy"),
+        "depth": depth_file.read(Path(f"{prefix}_depth.png")),
         "segmentation": cv2.imread(f"{prefix}_segmentation.png", cv2.IMREAD_UNCHANGED),
         "camera": json.loads(Path(f"{prefix}_camera.json").read_text()),
     }

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 from conftest import EngineProcess, new_dir
 
+from vint_engines import depth_file
 from vint_engines.grasp.engine import GraspEngine
 from vint_engines.objects import ObjectSpec, build_model
 from vint_engines.objects.textured import load_look
@@ -270,7 +271,7 @@ def test_each_face_shows_its_texture_colour_where_it_projects(
         camera = json.loads(Path(f"{prefix}_camera.json").read_text())
         rgb = cv2.imread(f"{prefix}_rgb.png", cv2.IMREAD_COLOR)
         mask = cv2.imread(f"{prefix}_mask.png", cv2.IMREAD_UNCHANGED) > 0
-        depth = np.load(f"{prefix}_depth.npy")
+        depth = depth_file.read(Path(f"{prefix}_depth.png"))
         hsv = cv2.cvtColor(rgb, cv2.COLOR_BGR2HSV).astype(np.int64)
         for name, colour in FACES.items():
             pixels, z = face_samples(name, camera, pose)

@@ -22,9 +22,9 @@ from vint_engines import contract
 from vint_engines.errors import BadInput
 
 FORMATS = ("png", "npy")
-# zlib level 3: at 640×480 a clean depth encodes in ~15 ms to ~40 KB and a noisy one in ~28 ms to
-# ~168 KB; level 6 saves 6 % of the two together for twice the time (~95 ms, half the noise
-# model's own), level 9 another 3 % for 320 ms (docs/benchmarks.md, "Depth as PNG").
+# zlib level 3: at 640×480 a clean depth encodes in ~16 ms to ~47 KB and a noisy one in ~27 ms to
+# ~221 KB; level 6 saves 5 % of the two together for twice the time, level 9 another 2 % for five
+# times (benches/depth_png.py; docs/benchmarks.md, "Depth as PNG").
 PNG_COMPRESSION = 3
 
 

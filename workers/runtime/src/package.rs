@@ -12,6 +12,7 @@ use std::collections::BTreeMap;
 
 use serde_json::{Value, json};
 use vint_artifacts::ArtifactStore;
+use vint_core::contract::depth::DepthFormat;
 use vint_core::contract::grasp::{GRASPS_FILE, TOUCH_FILE};
 use vint_core::contract::package::{GRASP_RECORD_FILE, META_FILE, Modality, PackageResult, Params, model_path};
 use vint_core::contract::render::{self, ViewFile};
@@ -111,11 +112,12 @@ pub(crate) fn referenced_files(
     inputs: &Inputs<'_>,
     id: &SampleId,
     modalities: &[Modality],
+    depth_format: DepthFormat,
 ) -> Result<Vec<PackagedFile>, PackageError> {
     let sample = id.to_string();
     let mut files = Vec::new();
     for modality in modalities {
-        for file in modality.sample_files() {
+        for file in modality.sample_files(depth_format) {
             let (task_key, name) = file.from.origin(id);
             let src = inputs.find(&sample, task_key, name)?;
             files.push(PackagedFile {
@@ -147,7 +149,7 @@ pub async fn package(params: &Value, inputs: &[PackageInput], store: &ArtifactSt
     for s in &params.samples {
         let id: SampleId =
             s.sample_id.parse().map_err(|e: vint_core::sample::BadSampleId| PackageError::Params(e.to_string()))?;
-        files.extend(referenced_files(&by_origin, &id, &params.modalities)?);
+        files.extend(referenced_files(&by_origin, &id, &params.modalities, params.depth_format)?);
         let render = render::task_key(&id.object, &id.hand, id.grasp_index);
         let camera_ref = by_origin.find(&s.sample_id, render, ViewFile::Camera.name(id.view_index))?;
         let camera = read_json(store, camera_ref, &s.sample_id).await?;
@@ -318,7 +320,7 @@ fn sample_meta(id: &SampleId, grasps: &Value, camera: &Value, record_sha256: &st
             "units": "metres, kilograms, seconds, radians",
             "pose": "p = position, q = quaternion [w, x, y, z], world frame",
             "camera": "OpenCV: x right, y down, z forward; R_w2c/t_w2c map world to camera",
-            "depth": "float32 metres along the optical axis, 0 = no return",
+            "depth": "along the optical axis, 0 = no return: depth.png and depth_noisy.png in uint16 steps of 0.1 mm (BOP's depth_scale 0.1), depth.npy and depth_noisy.npy in float32 metres",
             "masks": "mask.png: the object's visible pixels; mask_full.png: the object alone, as if the hand were not there",
             "segmentation": "segmentation.png: 0 background, 1 object, 2.. hand links, then the arm's flange and link and the table when shown; camera.segmentation maps id to name",
             "occlusion": "1 - visible_px / full_px: the share of the object the hand hides (1 when out of view)",
@@ -370,9 +372,9 @@ mod tests {
         let digest = |b: &[u8]| hex::encode(sha2::Sha256::digest(b));
         let pinned = (IDENTITY, digest(&record), digest(&meta));
         let expected = (
-            "vint-package-format-1",
+            "vint-package-format-2",
             "9aa3352c29e474d87ab06a223e658422c057d1a9afff93343af9a3c5a632e0c8".to_string(),
-            "b528b1c588c493442623f74c859b75d7d253339acea9b1046ffb33d516b99bff".to_string(),
+            "d294d71eaa04f764b98bcc28a1aab4b2db2619debfad92b2350e69e882cefd3c".to_string(),
         );
         assert_eq!(pinned, expected, "the package output changed: see this test's doc comment");
     }

@@ -155,7 +155,9 @@ async fn answer(
     let mut grasps = BTreeSet::new();
     for s in &p.samples {
         let id: SampleId = s.sample_id.parse().map_err(|e: vint_core::sample::BadSampleId| permanent(e.to_string()))?;
-        for f in referenced_files(&by_origin, &id, &p.modalities).map_err(|e| permanent(e.to_string()))? {
+        for f in
+            referenced_files(&by_origin, &id, &p.modalities, p.depth_format).map_err(|e| permanent(e.to_string()))?
+        {
             files.push(pb::ArtifactRef {
                 name: f.name,
                 sha256: f.sha256,

@@ -21,11 +21,12 @@ pub const PNG_UNIT_M: f64 = 1e-4;
 /// as 0 (no reading), as a real sensor's far field does (the Azure Kinect reaches at most 5.46 m).
 pub const PNG_MAX_M: f64 = 6.5535; // u16::MAX × PNG_UNIT_M, written out: the product rounds to 6.5535000000000005
 
-/// A depth file's format.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, JsonSchema)]
+/// A depth file's format. PNG is the default: a fraction of `.npy`'s bytes, within 0.05 mm.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum DepthFormat {
     /// 16-bit grayscale PNG, 0.1 mm per step, 0 = no reading (beyond 6.5535 m too).
+    #[default]
     Png,
     /// float32 metres as a NumPy `.npy`, 0 = no reading.
     Npy,

@@ -333,12 +333,12 @@ pub struct ActiveTaxels {
 }
 
 /// The grasp stage's JSON and model files, from the artifacts of a real `vintctl run
-/// examples/tiny.toml` job (2026-11-25, commit `687edb3`; `scripts/measure_db_bytes.py` prints
-/// them): `grasps.json` and `touch.json` per trial the chunk ran (medians over its 6 chunks of 2
-/// trials; rejected trials write less), `object.ply` per object (content-addressed: one object
-/// for every chunk and hand; median of tiny's 3 objects, 5–18 KB).
-pub const GRASPS_JSON_BYTES_PER_TRIAL: f64 = 8_505.0;
-pub const TOUCH_JSON_BYTES_PER_TRIAL: f64 = 7_279.0;
+/// examples/tiny.toml` job (2026-11-29, on commit `4c46d1c`; `scripts/measure_db_bytes.py`
+/// prints them): `grasps.json` and `touch.json` per trial the chunk ran (medians over its 6 chunks
+/// of 2 trials; rejected trials write less), `object.ply` per object (content-addressed: one
+/// object for every chunk and hand; median of tiny's 3 objects, 5–18 KB).
+pub const GRASPS_JSON_BYTES_PER_TRIAL: f64 = 7_709.0;
+pub const TOUCH_JSON_BYTES_PER_TRIAL: f64 = 13_626.0;
 pub const OBJECT_PLY_BYTES: f64 = 11_306.0;
 
 /// A grasp task writes its three documents whatever it accepted.

@@ -133,7 +133,7 @@ pub fn cost(stage: Stage, work: &Workload, task: &Value) -> Result<Cost, BadPara
     Ok(match stage {
         Stage::Grasp => grasp::cost(work, &params(stage, task)?),
         Stage::Render => render::cost(work, &params(stage, task)?),
-        Stage::Noise => noise::cost(work),
+        Stage::Noise => noise::cost(work, &params(stage, task)?),
         Stage::Package => package::cost(work),
     })
 }
@@ -303,13 +303,17 @@ mod tests {
     fn render_tasks_read_poses_and_the_mesh_but_not_touch_and_noise_tasks_read_depth_segmentation_camera() {
         assert!(reads(Stage::Render, grasp::GRASPS_FILE) && reads(Stage::Render, grasp::MODEL_FILE));
         assert!(!reads(Stage::Render, grasp::TOUCH_FILE), "touch.json is the bulk of a chunk's output");
-        for file in [render::ViewFile::Depth, render::ViewFile::Segmentation, render::ViewFile::Camera] {
+        let depth = depth::DepthFormat::ALL.map(render::ViewFile::Depth);
+        for file in depth.into_iter().chain([render::ViewFile::Segmentation, render::ViewFile::Camera]) {
             assert!(reads(Stage::Noise, &file.name(7)) && reads(Stage::Noise, &file.name(42)), "{}", file.name(7));
         }
         for file in [render::ViewFile::Rgb, render::ViewFile::Mask, render::ViewFile::MaskFull] {
             assert!(!reads(Stage::Noise, &file.name(7)), "{}", file.name(7));
         }
-        assert!(!reads(Stage::Noise, &noise::noisy_depth_file(7)) && !reads(Stage::Noise, grasp::TOUCH_FILE));
+        for format in depth::DepthFormat::ALL {
+            assert!(!reads(Stage::Noise, &noise::noisy_depth_file(7, format)));
+        }
+        assert!(!reads(Stage::Noise, grasp::TOUCH_FILE));
         assert!(!reads(Stage::Grasp, grasp::GRASPS_FILE) && !reads(Stage::Package, grasp::GRASPS_FILE));
     }
 

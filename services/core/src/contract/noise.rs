@@ -6,6 +6,7 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 
+use super::depth::DepthFormat;
 use super::render::{VIEW_INDEX, ViewFile};
 use super::{Bound, SEED_MAX};
 
@@ -114,6 +115,9 @@ pub struct Params {
     pub noise: NoiseModel,
     #[schemars(length(min = 1, max = super::render::MAX_VIEWS))]
     pub views: Vec<View>,
+    /// How the noisy depth images are stored (the render task's clean ones are read in either).
+    #[serde(default)]
+    pub depth_format: DepthFormat,
 }
 
 /// The depth-sensor model (`vint_engines/noise/model.py` and `docs/depth_noise.md` document each
@@ -192,9 +196,9 @@ pub struct View {
     pub seed: u64,
 }
 
-/// The noisy depth of view `view` (`v03_depth_noisy.npy`; float32 metres, 0 = invalid).
-pub fn noisy_depth_file(view: u32) -> String {
-    format!("v{view:02}_depth_noisy.npy")
+/// The noisy depth of view `view` stored as `format` (`v03_depth_noisy.png`; 0 = invalid).
+pub fn noisy_depth_file(view: u32, format: DepthFormat) -> String {
+    format!("v{view:02}_depth_noisy.{}", format.extension())
 }
 
 /// The key of the noise task of grasp `grasp_index` of (object, hand).
@@ -205,8 +209,10 @@ pub fn task_key(object: &str, hand: &str, grasp_index: u32) -> String {
 /// A noise task reads its render task's depth images, their segmentation (which surface, so which
 /// material, each pixel sees) and camera records (intrinsics, segment materials).
 pub fn reads(file: &str) -> bool {
-    [ViewFile::Depth, ViewFile::Segmentation, ViewFile::Camera]
+    DepthFormat::ALL
+        .map(ViewFile::Depth)
         .iter()
+        .chain(&[ViewFile::Segmentation, ViewFile::Camera])
         .any(|f| file.starts_with('v') && file.len() == f.name(0).len() && file.ends_with(&f.name(0)[3..]))
 }
 
@@ -227,26 +233,36 @@ pub fn files_written(task: &Params) -> u64 {
 /// (benches/noise_cost.py): 8.5 ms per 128×128 view, 146 ms per 512×512, 602 ms per 1024×1024.
 const S_PER_PIXEL: f64 = 0.56e-6;
 
-/// Every view made noisy; a float32 depth image per view stored.
-pub fn cost(work: &super::Workload) -> super::Cost {
+/// Every view made noisy; a depth image per view stored.
+pub fn cost(work: &super::Workload, task: &Params) -> super::Cost {
     let pixels = work.pixels * work.samples as f64;
-    super::Cost { cpu_s: S_PER_PIXEL * pixels, bytes: super::render::DEPTH_BYTES_PER_PIXEL * pixels }
+    let bytes = super::render::noisy_depth_bytes_per_pixel(task.depth_format, work.pixels) * pixels;
+    super::Cost { cpu_s: S_PER_PIXEL * pixels, bytes }
 }
 
-/// The timing-only answer: each view's noisy depth, the size of the depth it is made from.
+/// The timing-only answer: each view's noisy depth, the size of the depth it is made from (as
+/// `.npy`), or as PNG the size the measured model gives an image of its pixels (found from the
+/// clean PNG's size by the same model).
 pub fn fake(
     task: &Params,
     inputs: &[super::FakeInput<'_>],
 ) -> Result<(NoiseResult, Vec<super::FakeFile>), super::FakeError> {
+    let noisy_size = |clean: u64| match task.depth_format {
+        DepthFormat::Npy => clean,
+        DepthFormat::Png => {
+            let pixels = super::render::PNG_DEPTH.pixels_of(clean as f64);
+            (super::render::PNG_NOISY_DEPTH.bytes_per_pixel(pixels) * pixels).round() as u64
+        }
+    };
     let mut files = Vec::with_capacity(task.views.len());
     for view in &task.views {
-        let depth = ViewFile::Depth.name(view.view_index);
-        let size = inputs
-            .iter()
-            .find(|i| i.name == depth)
-            .map(|i| i.size)
-            .ok_or_else(|| super::FakeError::MissingInput { stage: crate::stage::Stage::Noise, name: depth.clone() })?;
-        files.push(super::FakeFile { name: noisy_depth_file(view.view_index), kind: super::FileKind::Npy, size });
+        let depth = ViewFile::Depth(task.depth_format).name(view.view_index);
+        let size =
+            inputs.iter().find(|i| i.name == depth).map(|i| noisy_size(i.size)).ok_or_else(|| {
+                super::FakeError::MissingInput { stage: crate::stage::Stage::Noise, name: depth.clone() }
+            })?;
+        let name = noisy_depth_file(view.view_index, task.depth_format);
+        files.push(super::FakeFile { name, kind: ViewFile::Depth(task.depth_format).kind(), size });
     }
     Ok((NoiseResult { views: task.views.len() as u32 }, files))
 }

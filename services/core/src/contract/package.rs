@@ -9,12 +9,13 @@
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
+use super::depth::DepthFormat;
 use super::render::{RenderOutput, ViewFile};
 
 /// The package stage's engine identity (`crate::reuse`): the format of the files the package
 /// stage (in `vint-runtime`) writes. Its number goes up whenever those files change for the same
 /// inputs; the runtime's `the_package_format_is_pinned` test holds the two together.
-pub const ENGINE_IDENTITY: &str = "vint-package-format-1";
+pub const ENGINE_IDENTITY: &str = "vint-package-format-2";
 
 /// A sample's metadata file.
 pub const META_FILE: &str = "meta.json";
@@ -73,11 +74,16 @@ impl Modality {
         }
     }
 
-    /// The files this modality adds to a sample, and where each comes from.
-    pub fn sample_files(self) -> &'static [SampleFile] {
+    /// The files this modality adds to a sample, depth stored as `depth`, and where each comes from.
+    pub fn sample_files(self, depth: DepthFormat) -> &'static [SampleFile] {
+        use DepthFormat::{Npy, Png};
         const RGB: &[SampleFile] = &[SampleFile { name: "rgb.png", from: Source::Render(ViewFile::Rgb) }];
-        const DEPTH: &[SampleFile] = &[SampleFile { name: "depth.npy", from: Source::Render(ViewFile::Depth) }];
-        const NOISY: &[SampleFile] = &[SampleFile { name: "depth_noisy.npy", from: Source::Noise }];
+        const DEPTH_PNG: &[SampleFile] =
+            &[SampleFile { name: "depth.png", from: Source::Render(ViewFile::Depth(Png)) }];
+        const DEPTH_NPY: &[SampleFile] =
+            &[SampleFile { name: "depth.npy", from: Source::Render(ViewFile::Depth(Npy)) }];
+        const NOISY_PNG: &[SampleFile] = &[SampleFile { name: "depth_noisy.png", from: Source::Noise(Png) }];
+        const NOISY_NPY: &[SampleFile] = &[SampleFile { name: "depth_noisy.npy", from: Source::Noise(Npy) }];
         const MASK: &[SampleFile] = &[
             SampleFile { name: "mask.png", from: Source::Render(ViewFile::Mask) },
             SampleFile { name: "mask_full.png", from: Source::Render(ViewFile::MaskFull) },
@@ -86,8 +92,14 @@ impl Modality {
             &[SampleFile { name: "segmentation.png", from: Source::Render(ViewFile::Segmentation) }];
         match self {
             Modality::Rgb => RGB,
-            Modality::Depth => DEPTH,
-            Modality::DepthNoisy => NOISY,
+            Modality::Depth => match depth {
+                Png => DEPTH_PNG,
+                Npy => DEPTH_NPY,
+            },
+            Modality::DepthNoisy => match depth {
+                Png => NOISY_PNG,
+                Npy => NOISY_NPY,
+            },
             Modality::Mask => MASK,
             Modality::Segmentation => SEGMENTATION,
             Modality::Pose => &[],
@@ -106,8 +118,8 @@ pub struct SampleFile {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Source {
     Render(ViewFile),
-    /// The noise task's `v{NN}_depth_noisy.npy`.
-    Noise,
+    /// The noise task's `v{NN}_depth_noisy.{png,npy}`.
+    Noise(DepthFormat),
 }
 
 impl Source {
@@ -118,9 +130,9 @@ impl Source {
             Source::Render(file) => {
                 (super::render::task_key(&id.object, &id.hand, id.grasp_index), file.name(id.view_index))
             }
-            Source::Noise => (
+            Source::Noise(format) => (
                 super::noise::task_key(&id.object, &id.hand, id.grasp_index),
-                super::noise::noisy_depth_file(id.view_index),
+                super::noise::noisy_depth_file(id.view_index, format),
             ),
         }
     }
@@ -133,6 +145,9 @@ impl Source {
 pub struct Params {
     pub samples: Vec<SampleRef>,
     pub modalities: Vec<Modality>,
+    /// How the samples' depth images are stored: as their render and noise tasks wrote them.
+    #[serde(default)]
+    pub depth_format: DepthFormat,
 }
 
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
@@ -152,14 +167,16 @@ pub struct PackageResult {
 }
 
 /// A sample's `meta.json` and a grasp's record: medians of tiny.toml's (docs/benchmarks.md,
-/// "Output size per sample"): the view alone (4.1–4.7 KB); the record once per grasp (26–50 KB).
-pub const META_JSON_BYTES: f64 = 4_417.0;
-pub const GRASP_RECORD_BYTES: f64 = 37_053.0;
+/// "Output size per sample", 2026-11-29): the view alone (5.3–5.8 KB); the record once per grasp
+/// (75–91 KB of indented JSON: the touch reading with each taxel's placement offset and the
+/// contact samples, the trial's contacts and link poses).
+pub const META_JSON_BYTES: f64 = 5_419.0;
+pub const GRASP_RECORD_BYTES: f64 = 86_217.0;
 
 /// A package task writes, per sample, its `meta.json` and the files of its modalities, and one
 /// record per grasp of its samples.
 pub fn files_written(task: &Params) -> u64 {
-    let per_sample = 1 + task.modalities.iter().map(|m| m.sample_files().len()).sum::<usize>();
+    let per_sample = 1 + task.modalities.iter().map(|m| m.sample_files(task.depth_format).len()).sum::<usize>();
     let grasps: std::collections::BTreeSet<u32> = task.samples.iter().map(|s| s.grasp_index).collect();
     (task.samples.len() * per_sample + grasps.len()) as u64
 }

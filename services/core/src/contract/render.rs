@@ -4,6 +4,7 @@
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
+use super::depth::DepthFormat;
 use super::grasp::{GRASPS_FILE, MODEL_FILE};
 use super::{Bound, SEED_MAX};
 use crate::asset::Asset;
@@ -122,6 +123,9 @@ pub struct Params {
     /// What to render; depth, masks and segmentation are never path traced.
     #[serde(default = "RenderOutput::all")]
     pub outputs: Vec<RenderOutput>,
+    /// How the depth images are stored (`contract::depth`): 16-bit PNG of 0.1 mm steps by default.
+    #[serde(default)]
+    pub depth_format: DepthFormat,
     /// The job's objects, which no distractor may be: an unannotated instance of an object the
     /// dataset annotates would teach a detector that it is background. Only with distractors.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -455,7 +459,7 @@ pub struct Camera {
 pub enum RenderOutput {
     /// Path traced 8-bit sRGB image.
     Rgb,
-    /// Depth along the optical axis (float32 metres).
+    /// Depth along the optical axis (metres; stored as `Params::depth_format` says).
     Depth,
     /// The object's visible and full masks.
     Mask,
@@ -471,27 +475,31 @@ impl RenderOutput {
         RenderOutput::ALL.to_vec()
     }
 
-    /// The files this output adds to each view.
-    pub fn view_files(self) -> &'static [ViewFile] {
+    /// The files this output adds to each view, depth stored as `depth`.
+    pub fn view_files(self, depth: DepthFormat) -> &'static [ViewFile] {
         match self {
             RenderOutput::Rgb => &[ViewFile::Rgb],
-            RenderOutput::Depth => &[ViewFile::Depth],
+            RenderOutput::Depth => match depth {
+                DepthFormat::Png => &[ViewFile::Depth(DepthFormat::Png)],
+                DepthFormat::Npy => &[ViewFile::Depth(DepthFormat::Npy)],
+            },
             RenderOutput::Mask => &[ViewFile::Mask, ViewFile::MaskFull],
             RenderOutput::Segmentation => &[ViewFile::Segmentation],
         }
     }
 }
 
-/// The files a render task asked for `outputs` writes per view: theirs and the camera record.
-pub fn view_files(outputs: &[RenderOutput]) -> Vec<ViewFile> {
-    std::iter::once(ViewFile::Camera).chain(outputs.iter().flat_map(|o| o.view_files().iter().copied())).collect()
+/// The files a render task asked for `outputs` writes per view: theirs (depth stored as `depth`)
+/// and the camera record.
+pub fn view_files(outputs: &[RenderOutput], depth: DepthFormat) -> Vec<ViewFile> {
+    std::iter::once(ViewFile::Camera).chain(outputs.iter().flat_map(|o| o.view_files(depth).iter().copied())).collect()
 }
 
 /// A file a render task writes for each view `v`: `v{NN}_{suffix}`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ViewFile {
     Rgb,
-    Depth,
+    Depth(DepthFormat),
     Mask,
     MaskFull,
     Segmentation,
@@ -503,7 +511,8 @@ impl ViewFile {
     fn suffix(self) -> &'static str {
         match self {
             ViewFile::Rgb => "rgb.png",
-            ViewFile::Depth => "depth.npy",
+            ViewFile::Depth(DepthFormat::Png) => "depth.png",
+            ViewFile::Depth(DepthFormat::Npy) => "depth.npy",
             ViewFile::Mask => "mask.png",
             ViewFile::MaskFull => "mask_full.png",
             ViewFile::Segmentation => "segmentation.png",
@@ -511,7 +520,7 @@ impl ViewFile {
         }
     }
 
-    /// The file's name for view `view` (`v03_depth.npy`).
+    /// The file's name for view `view` (`v03_depth.png`).
     pub fn name(self, view: u32) -> String {
         format!("v{view:02}_{}", self.suffix())
     }
@@ -544,24 +553,79 @@ pub struct RenderResult {
 }
 
 /// Bytes per pixel of each image file. docs/benchmarks.md, "Output size per sample": medians of
-/// tiny.toml's 72 samples (128×128, 16 spp). An RGB PNG shrinks as samples per pixel rise (less
-/// noise to compress); depth is float32 `.npy`.
-pub const RGB_BYTES_PER_PIXEL: f64 = 1.8; // rgb.png, median 29 916 B
-pub const DEPTH_BYTES_PER_PIXEL: f64 = 4.0; // depth.npy and depth_noisy.npy, 65 664 B each
-pub const MASKS_BYTES_PER_PIXEL: f64 = 0.05; // mask.png + mask_full.png, 383 + 398 B
-pub const SEGMENTATION_BYTES_PER_PIXEL: f64 = 0.045; // segmentation.png, 707 B
+/// tiny.toml's 30 samples (128×128, 16 spp; 2026-11-29). An RGB PNG shrinks as samples per pixel
+/// rise (less noise to compress).
+pub const RGB_BYTES_PER_PIXEL: f64 = 2.1; // rgb.png, median 34 372 B
+pub const MASKS_BYTES_PER_PIXEL: f64 = 0.049; // mask.png + mask_full.png, 396 + 402 B
+pub const SEGMENTATION_BYTES_PER_PIXEL: f64 = 0.052; // segmentation.png, 859 B
+/// A view's `camera.json`: the median of the same 30 (`scripts/measure_db_bytes.py` prints them).
+pub const CAMERA_JSON_BYTES: f64 = 2_204.0;
+/// A float32 `.npy` depth image (clean or noisy): 4 bytes a pixel and its header, 65 664 B at
+/// 128×128.
+pub const NPY_DEPTH_BYTES_PER_PIXEL: f64 = 4.0;
 /// A `.npy` file's header before its float32 data.
 pub const NPY_HEADER_BYTES: u64 = 128;
-/// A view's `camera.json`: the median of 60 from a real `vintctl run examples/tiny.toml` job
-/// (2026-11-25, commit `687edb3`; `scripts/measure_db_bytes.py` prints them).
-pub const CAMERA_JSON_BYTES: f64 = 1_612.0;
+
+/// A 16-bit PNG depth image's size. Its bytes per pixel fall as the image grows (a surface spans
+/// more pixels between its edges), so they follow a power law through two measurements of the
+/// engines' files (docs/benchmarks.md, "Depth as PNG"; medians of 30 views each): tiny.toml at
+/// 128×128, and the same grasps at the recipe's 640×480 camera. Never above 2 (the raw 16 bits).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PngDepthSize {
+    /// Bytes per pixel at 128×128.
+    pub at_128x128: f64,
+    /// Bytes per pixel at 640×480.
+    pub at_640x480: f64,
+}
+
+/// A clean depth image: smooth surfaces and a background of zeros compress well (median 6,024 B at
+/// 128×128, 46,510 B at 640×480).
+pub const PNG_DEPTH: PngDepthSize = PngDepthSize { at_128x128: 0.368, at_640x480: 0.151 };
+/// A noisy depth image: the sensor's noise is what zlib cannot compress (median 18,867 B at
+/// 128×128, 221,064 B at 640×480).
+pub const PNG_NOISY_DEPTH: PngDepthSize = PngDepthSize { at_128x128: 1.152, at_640x480: 0.720 };
+
+impl PngDepthSize {
+    const SMALL_PX: f64 = 128.0 * 128.0;
+    const LARGE_PX: f64 = 640.0 * 480.0;
+
+    fn exponent(self) -> f64 {
+        (self.at_640x480 / self.at_128x128).ln() / (Self::LARGE_PX / Self::SMALL_PX).ln()
+    }
+
+    pub fn bytes_per_pixel(self, pixels: f64) -> f64 {
+        (self.at_128x128 * (pixels.max(1.0) / Self::SMALL_PX).powf(self.exponent())).min(2.0)
+    }
+
+    /// The pixels of an image of `bytes`: `bytes_per_pixel` inverted (below its cap of 2).
+    pub fn pixels_of(self, bytes: f64) -> f64 {
+        let unit = self.at_128x128 * Self::SMALL_PX;
+        Self::SMALL_PX * (bytes.max(1.0) / unit).powf(1.0 / (1.0 + self.exponent()))
+    }
+}
+
+/// Bytes per pixel of a clean depth image of `pixels` stored as `depth`.
+pub fn depth_bytes_per_pixel(depth: DepthFormat, pixels: f64) -> f64 {
+    match depth {
+        DepthFormat::Png => PNG_DEPTH.bytes_per_pixel(pixels),
+        DepthFormat::Npy => NPY_DEPTH_BYTES_PER_PIXEL,
+    }
+}
+
+/// Bytes per pixel of a noisy depth image of `pixels` stored as `depth`.
+pub fn noisy_depth_bytes_per_pixel(depth: DepthFormat, pixels: f64) -> f64 {
+    match depth {
+        DepthFormat::Png => PNG_NOISY_DEPTH.bytes_per_pixel(pixels),
+        DepthFormat::Npy => NPY_DEPTH_BYTES_PER_PIXEL,
+    }
+}
 
 impl RenderOutput {
-    /// Bytes per pixel of the files this output adds to a view.
-    pub fn bytes_per_pixel(self) -> f64 {
+    /// Bytes per pixel of the files this output adds to a view of `pixels`, depth stored as `depth`.
+    pub fn bytes_per_pixel(self, depth: DepthFormat, pixels: f64) -> f64 {
         match self {
             RenderOutput::Rgb => RGB_BYTES_PER_PIXEL,
-            RenderOutput::Depth => DEPTH_BYTES_PER_PIXEL,
+            RenderOutput::Depth => depth_bytes_per_pixel(depth, pixels),
             RenderOutput::Mask => MASKS_BYTES_PER_PIXEL,
             RenderOutput::Segmentation => SEGMENTATION_BYTES_PER_PIXEL,
         }
@@ -574,7 +638,8 @@ impl ViewFile {
         let px = pixels as f64;
         let bytes = match self {
             ViewFile::Rgb => RGB_BYTES_PER_PIXEL * px,
-            ViewFile::Depth => return 4 * pixels + NPY_HEADER_BYTES,
+            ViewFile::Depth(DepthFormat::Npy) => return 4 * pixels + NPY_HEADER_BYTES,
+            ViewFile::Depth(DepthFormat::Png) => PNG_DEPTH.bytes_per_pixel(px) * px,
             ViewFile::Mask | ViewFile::MaskFull => MASKS_BYTES_PER_PIXEL / 2.0 * px,
             ViewFile::Segmentation => SEGMENTATION_BYTES_PER_PIXEL * px,
             ViewFile::Camera => CAMERA_JSON_BYTES,
@@ -584,7 +649,7 @@ impl ViewFile {
 
     pub fn kind(self) -> super::FileKind {
         match self {
-            ViewFile::Depth => super::FileKind::Npy,
+            ViewFile::Depth(DepthFormat::Npy) => super::FileKind::Npy,
             ViewFile::Camera => super::FileKind::Json,
             _ => super::FileKind::Png,
         }
@@ -593,7 +658,7 @@ impl ViewFile {
 
 /// A render task writes its outputs' files and a camera record for every view.
 pub fn files_written(task: &Params) -> u64 {
-    (task.views.len() * view_files(&task.outputs).len()) as u64
+    (task.views.len() * view_files(&task.outputs, task.depth_format).len()) as u64
 }
 
 /// Path tracing per pixel and sample, with the default scene (the table fills most of the image
@@ -634,7 +699,7 @@ pub fn s_per_view(task: &Params) -> f64 {
 /// model reads included) and a camera record per view stored.
 pub fn cost(work: &super::Workload, task: &Params) -> super::Cost {
     let views = work.samples as f64;
-    let bytes_per_pixel: f64 = task.outputs.iter().map(|o| o.bytes_per_pixel()).sum();
+    let bytes_per_pixel: f64 = task.outputs.iter().map(|o| o.bytes_per_pixel(task.depth_format, work.pixels)).sum();
     super::Cost { cpu_s: s_per_view(task) * views, bytes: views * (bytes_per_pixel * work.pixels + CAMERA_JSON_BYTES) }
 }
 
@@ -645,7 +710,7 @@ pub fn fake(task: &Params) -> (RenderResult, Vec<super::FakeFile>) {
         .views
         .iter()
         .flat_map(|view| {
-            view_files(&task.outputs).into_iter().map(move |file| super::FakeFile {
+            view_files(&task.outputs, task.depth_format).into_iter().map(move |file| super::FakeFile {
                 name: file.name(view.view_index),
                 kind: file.kind(),
                 size: file.bytes(pixels),
@@ -664,21 +729,41 @@ mod tests {
     #[test]
     fn view_files_reproduce_the_measured_tiny_sizes() {
         let px = 128 * 128;
-        assert_eq!(ViewFile::Depth.bytes(px), 65_664, "a 128×128 float32 .npy");
+        assert_eq!(ViewFile::Depth(DepthFormat::Npy).bytes(px), 65_664, "a 128×128 float32 .npy");
+        let png = ViewFile::Depth(DepthFormat::Png).bytes(px) as f64;
+        assert!((png - 6_024.0).abs() / 6_024.0 < 0.01, "{png}");
+        let vga = 640 * 480;
+        let png = ViewFile::Depth(DepthFormat::Png).bytes(vga) as f64;
+        assert!((png - 46_510.0).abs() / 46_510.0 < 0.01, "{png}");
+        let noisy = PNG_NOISY_DEPTH.bytes_per_pixel(vga as f64) * vga as f64;
+        assert!((noisy - 221_064.0).abs() / 221_064.0 < 0.01, "{noisy}");
+        for pixels in [16.0 * 16.0, 1e4, 1e6, 8192.0 * 8192.0] {
+            for size in [PNG_DEPTH, PNG_NOISY_DEPTH] {
+                let bytes = size.bytes_per_pixel(pixels);
+                assert!(bytes > 0.0 && bytes <= 2.0, "{pixels}: {bytes}");
+                if bytes < 2.0 {
+                    let back = size.pixels_of(bytes * pixels);
+                    assert!((back / pixels - 1.0).abs() < 1e-9, "{pixels} → {back}");
+                }
+            }
+        }
         let rgb = ViewFile::Rgb.bytes(px) as f64;
-        assert!((rgb - 29_916.0).abs() / 29_916.0 < 0.02, "{rgb}");
+        assert!((rgb - 34_372.0).abs() / 34_372.0 < 0.02, "{rgb}");
         assert_eq!(ViewFile::Camera.bytes(px), ViewFile::Camera.bytes(4 * px));
         assert!(ViewFile::Mask.bytes(16) >= 1, "no empty file, however small the image");
     }
 
     #[test]
     fn a_view_writes_its_camera_record_and_the_files_of_each_output() {
-        assert_eq!(view_files(&[]), [ViewFile::Camera]);
+        let png = DepthFormat::Png;
+        assert_eq!(view_files(&[], png), [ViewFile::Camera]);
         assert_eq!(
-            view_files(&[RenderOutput::Rgb, RenderOutput::Mask]),
+            view_files(&[RenderOutput::Rgb, RenderOutput::Mask], png),
             [ViewFile::Camera, ViewFile::Rgb, ViewFile::Mask, ViewFile::MaskFull]
         );
-        assert_eq!(view_files(&RenderOutput::all()).len(), 6, "what the tiny run's render tasks write per view");
+        assert_eq!(view_files(&RenderOutput::all(), png).len(), 6, "what the tiny run's render tasks write per view");
+        assert_eq!(ViewFile::Depth(png).name(3), "v03_depth.png");
+        assert_eq!(view_files(&[RenderOutput::Depth], DepthFormat::Npy)[1].name(3), "v03_depth.npy");
     }
 
     #[test]

@@ -1,6 +1,6 @@
 """The noise engine: for each view, read `vNN_depth.png` or `.npy` (`vint_engines.depth_file`),
 `vNN_segmentation.png` and `vNN_camera.json` (intrinsics; the material of each segment), write
-`vNN_depth_noisy.npy`."""
+`vNN_depth_noisy.png` (or `.npy`, as the task says)."""
 
 from __future__ import annotations
 
@@ -32,7 +32,7 @@ class NoiseEngine:
         pass
 
     def run(self, task: TaskRequest) -> TaskResult:
-        model, views = parse_params(task.params)
+        model, views, depth_format = parse_params(task.params)
         result = TaskResult()
         for index, seed in views:
             prefix = f"v{index:02d}"
@@ -45,22 +45,21 @@ class NoiseEngine:
             noisy = model.apply(
                 depth, intrinsics(camera, depth.shape, prefix), surfaces, np.random.default_rng(seed)
             )
-            out = task.out_dir / f"{prefix}_depth_noisy.npy"
-            np.save(out, noisy)
-            result.add(out, "application/x-npy")
+            out = depth_file.write(task.out_dir / f"{prefix}_depth_noisy", noisy, depth_format)
+            result.add(out, depth_file.media_type(out))
         result.result = {"views": len(views)}
         result.metrics["views"] = len(views)
         return result
 
 
-def parse_params(params: Mapping[str, Any]) -> tuple[NoiseModel, list[tuple[int, int]]]:
-    """A noise task's parameters, checked against the stage contract: the model and the views'
-    (index, seed) pairs."""
+def parse_params(params: Mapping[str, Any]) -> tuple[NoiseModel, list[tuple[int, int]], str]:
+    """A noise task's parameters, checked against the stage contract: the model, the views'
+    (index, seed) pairs and the format the noisy depth is stored in."""
     checked = contract.validated("noise", params)
     views = [(view["view_index"], view["seed"]) for view in checked["views"]]
     if len({index for index, _ in views}) != len(views):
         raise BadInput("params.views: view_index values must be unique")
-    return NoiseModel.parse(checked["noise"]), views
+    return NoiseModel.parse(checked["noise"]), views, checked["depth_format"]
 
 
 def depth_input(task: TaskRequest, prefix: str) -> Path:

@@ -33,7 +33,7 @@ import cv2
 import numpy as np
 import pyoidn
 
-from vint_engines import __version__, contract
+from vint_engines import __version__, contract, depth_file
 from vint_engines.assets import StagedAsset, asset_file, staged_assets
 from vint_engines.objects import MODEL_FILE, ObjectSpec, build_model, load_catalog
 from vint_engines.objects.spec import MeshFile
@@ -212,6 +212,7 @@ class RenderTask:
     grasp_index: int
     settings: RenderSettings
     outputs: frozenset[str]
+    depth_format: str  # "png" or "npy" (`vint_engines.depth_file`)
     views: list[RenderView]
     dataset_objects: frozenset[str]  # no distractor is one of these (the job's objects)
 
@@ -223,6 +224,7 @@ class RenderTask:
             grasp_index=checked["grasp_index"],
             settings=settings,
             outputs=frozenset(checked["outputs"]),
+            depth_format=checked["depth_format"],
             views=RenderView.parse_all(checked, settings.environment),
             dataset_objects=frozenset(checked.get("dataset_objects", [])),
         )
@@ -374,6 +376,7 @@ class RenderEngine:
                 intrinsics,
                 settings.distortion,
                 outputs,
+                render.depth_format,
                 object_pose,
                 geometry,
                 sensors.get(view.index),
@@ -504,6 +507,7 @@ class RenderEngine:
         intrinsics: Intrinsics,
         distortion: Distortion,
         outputs: frozenset[str],
+        depth_format: str,
         object_pose: tuple[np.ndarray, np.ndarray],
         geometry: Geometry,
         sensor: dict[str, Any] | None,
@@ -514,9 +518,8 @@ class RenderEngine:
         prefix = f"v{view.index:02d}"
         visible = geometry.index == OBJECT_PASS_INDEX
         if "depth" in outputs:
-            path = out_dir / f"{prefix}_depth.npy"
-            np.save(path, geometry.depth)
-            result.add(path, "application/x-npy")
+            path = depth_file.write(out_dir / f"{prefix}_depth", geometry.depth, depth_format)
+            result.add(path, depth_file.media_type(path))
         if "mask" in outputs:
             result.add(write_png(out_dir / f"{prefix}_mask.png", as_mask(visible)), "image/png")
             full = write_png(out_dir / f"{prefix}_mask_full.png", as_mask(geometry.object_full))

@@ -5,16 +5,16 @@ use anyhow::{Context, bail};
 
 use crate::diff::pixels::decode_png;
 
-/// `depth_png × DEPTH_SCALE_MM = millimetres`: 0.1 mm steps reach 6553.5 mm, past every camera
-/// distance a spec allows, at a resolution well below any depth sensor's noise.
+/// `depth_png × DEPTH_SCALE_MM = millimetres`: BOP's encoding is native PNG depth's
+/// (`vint_core::contract::depth`, 0.1 mm steps to 6553.5 mm), at a resolution well below any depth
+/// sensor's noise.
 pub const DEPTH_SCALE_MM: f64 = 0.1;
 
 /// A depth value in BOP's units (0.1 mm), or 0 — BOP's "no data" — where the native depth has no
-/// return (0, negative, NaN or infinite) or lies beyond what uint16 holds (6553.5 mm): a clipped
-/// value would be a wrong depth, a missing one is only a hole.
+/// return (0, negative, NaN or infinite) or lies beyond what uint16 holds (6553.5 mm, reachable
+/// only by `.npy` depth): a clipped value would be a wrong depth, a missing one is only a hole.
 pub fn depth_units(metres: f64) -> u16 {
-    let units = (metres * 1000.0 / DEPTH_SCALE_MM).round();
-    if units.is_finite() && units > 0.0 && units <= f64::from(u16::MAX) { units as u16 } else { 0 }
+    vint_core::contract::depth::png_units(metres)
 }
 
 /// A binary image, row-major.
@@ -126,6 +126,7 @@ mod tests {
 
     #[test]
     fn depth_is_tenths_of_a_millimetre_rounded_with_zero_for_no_data() {
+        assert_eq!(DEPTH_SCALE_MM, vint_core::contract::depth::PNG_UNIT_M * 1000.0);
         assert_eq!(depth_units(0.5), 5000);
         assert_eq!(depth_units(0.123_456), 1235); // 1234.56 → 1235
         assert_eq!(depth_units(0.123_44), 1234);
