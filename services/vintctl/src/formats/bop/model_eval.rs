@@ -100,7 +100,7 @@ pub fn resample(model: &Mesh, seed_bytes: &[u8]) -> EvalModel {
     EvalModel { mesh: Mesh { comments, vertices: kept.points, triangles }, spacing_mm: spacing }
 }
 
-/// The kept points and a hash grid of cell r over them.
+/// The kept points and a hash grid of cell 2r over them.
 struct Kept {
     spacing: f64,
     points: Vec<Vec3>,
@@ -113,7 +113,7 @@ impl Kept {
     }
 
     fn cell(&self, p: Vec3) -> [i64; 3] {
-        p.map(|x| (x / self.spacing).floor() as i64)
+        p.map(|x| (x / (2.0 * self.spacing)).floor() as i64)
     }
 
     /// A cell's key: its coordinates' low 21 bits each. Cells 2²¹ apart share a key, which costs
@@ -123,35 +123,70 @@ impl Kept {
         ((c[0] & LOW) | (c[1] & LOW) << 21 | (c[2] & LOW) << 42) as u64
     }
 
-    /// The kept points in the 27 cells around `p`'s: every one closer than r is among them.
-    fn around(&self, p: Vec3) -> impl Iterator<Item = usize> + '_ {
+    /// The kept points of the cells that can hold one closer than r to `p`, cell by cell. Cells are
+    /// 2r wide, so along each axis that is `p`'s cell and the neighbour on the side of the cell's
+    /// half `p` lies in (both neighbours within a hair of the middle, against rounding): 8 cells,
+    /// rarely more, where cells of r would need 27. (Loops, not iterator adapters: this is the
+    /// export's hot path, and the dev build `scripts/setup.sh` makes leaves vint's code unoptimized.)
+    fn around(&self, p: Vec3) -> impl Iterator<Item = &[usize]> {
+        const MIDDLE_HAIR: f64 = 1e-6;
         let c = self.cell(p);
-        (-1..=1).flat_map(move |dx| {
-            (-1..=1).flat_map(move |dy| {
-                (-1..=1).flat_map(move |dz| {
-                    self.cells.get(&Kept::key([c[0] + dx, c[1] + dy, c[2] + dz])).into_iter().flatten().copied()
-                })
-            })
-        })
+        let mut steps = [[0i64; 3]; 3];
+        let mut counts = [0usize; 3];
+        for axis in 0..3 {
+            let within = p[axis] / (2.0 * self.spacing) - c[axis] as f64;
+            let mut n = 0;
+            for step in [-1, 0, 1] {
+                let needed = match step {
+                    -1 => within < 0.5 + MIDDLE_HAIR,
+                    1 => within > 0.5 - MIDDLE_HAIR,
+                    _ => true,
+                };
+                if needed {
+                    steps[axis][n] = step;
+                    n += 1;
+                }
+            }
+            counts[axis] = n;
+        }
+        let (mut cells, mut found): ([&[usize]; 27], usize) = ([&[]; 27], 0);
+        for &dx in &steps[0][..counts[0]] {
+            for &dy in &steps[1][..counts[1]] {
+                for &dz in &steps[2][..counts[2]] {
+                    if let Some(points) = self.cells.get(&Kept::key([c[0] + dx, c[1] + dy, c[2] + dz])) {
+                        cells[found] = points;
+                        found += 1;
+                    }
+                }
+            }
+        }
+        cells.into_iter().take(found)
     }
 
     /// Keeps `p` when no kept point is closer than r.
     fn offer(&mut self, p: Vec3) {
-        if self.around(p).all(|k| distance(&self.points[k], &p) >= self.spacing) {
-            let cell = self.cell(p);
-            self.cells.entry(Kept::key(cell)).or_default().push(self.points.len());
-            self.points.push(p);
+        for cell in self.around(p) {
+            for &k in cell {
+                if distance(&self.points[k], &p) < self.spacing {
+                    return;
+                }
+            }
         }
+        let cell = self.cell(p);
+        self.cells.entry(Kept::key(cell)).or_default().push(self.points.len());
+        self.points.push(p);
     }
 
     /// The kept point nearest a candidate (the lowest index of equals). Every candidate was offered
     /// and is therefore within r of a kept point, which lies in a neighbouring cell.
     fn nearest(&self, p: Vec3) -> usize {
         let mut best = (f64::INFINITY, usize::MAX);
-        for k in self.around(p) {
-            let d = distance(&self.points[k], &p);
-            if d < best.0 || (d == best.0 && k < best.1) {
-                best = (d, k);
+        for cell in self.around(p) {
+            for &k in cell {
+                let d = distance(&self.points[k], &p);
+                if d < best.0 || (d == best.0 && k < best.1) {
+                    best = (d, k);
+                }
             }
         }
         best.1
