@@ -336,6 +336,12 @@ impl Engine {
         }
     }
 
+    /// Kills the engine now, mid-task or not, and waits until it has exited: dropping it only sends
+    /// the signal, and a large engine takes a moment to die, past a worker that exits at once.
+    pub async fn kill(mut self) {
+        let _ = self.child.kill().await;
+    }
+
     /// Process id, for tests that need to kill an engine from outside.
     pub fn pid(&self) -> Option<u32> {
         self.child.id()

@@ -248,8 +248,11 @@ impl Worker {
             };
             let Some(outcome) = outcome else {
                 // The engine may be mid-task: its protocol state is unknown, and a new process
-                // takes it up wherever the task is leased next.
-                self.engines.clear();
+                // takes it up wherever the task is leased next. Killed and waited for, so that no
+                // engine outlives the worker.
+                for (_, engine) in self.engines.drain() {
+                    engine.kill().await;
+                }
                 let _ = tokio::fs::remove_dir_all(&dir).await;
                 self.release(std::slice::from_ref(&task)).await;
                 return Served::Stopped;
