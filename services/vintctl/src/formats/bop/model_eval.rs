@@ -131,28 +131,14 @@ impl Kept {
     fn around(&self, p: Vec3) -> impl Iterator<Item = &[usize]> {
         const MIDDLE_HAIR: f64 = 1e-6;
         let c = self.cell(p);
-        let mut steps = [[0i64; 3]; 3];
-        let mut counts = [0usize; 3];
-        for axis in 0..3 {
-            let within = p[axis] / (2.0 * self.spacing) - c[axis] as f64;
-            let mut n = 0;
-            for step in [-1, 0, 1] {
-                let needed = match step {
-                    -1 => within < 0.5 + MIDDLE_HAIR,
-                    1 => within > 0.5 - MIDDLE_HAIR,
-                    _ => true,
-                };
-                if needed {
-                    steps[axis][n] = step;
-                    n += 1;
-                }
-            }
-            counts[axis] = n;
-        }
+        // Per axis, the neighbour below and the one above, each when `p` lies in that half.
+        let within = |axis: usize| p[axis] / (2.0 * self.spacing) - c[axis] as f64;
+        let low = [0, 1, 2].map(|axis| if within(axis) < 0.5 + MIDDLE_HAIR { -1 } else { 0 });
+        let high = [0, 1, 2].map(|axis| if within(axis) > 0.5 - MIDDLE_HAIR { 1 } else { 0 });
         let (mut cells, mut found): ([&[usize]; 27], usize) = ([&[]; 27], 0);
-        for &dx in &steps[0][..counts[0]] {
-            for &dy in &steps[1][..counts[1]] {
-                for &dz in &steps[2][..counts[2]] {
+        for dx in low[0]..=high[0] {
+            for dy in low[1]..=high[1] {
+                for dz in low[2]..=high[2] {
                     if let Some(points) = self.cells.get(&Kept::key([c[0] + dx, c[1] + dy, c[2] + dz])) {
                         cells[found] = points;
                         found += 1;
